@@ -1,0 +1,5 @@
+//! Emulators of the rig's real hardware. They speak the devices' own protocols
+//! on pseudo-terminals, so easycalib's real drivers are tested byte for byte.
+
+pub mod axis;
+pub mod rig;

@@ -1,0 +1,6 @@
+//! Simulation side of easycalib: the contact physics of the EasyCalib method
+//! (Hertz–Tatara normal contact, Jäger torsion with the rod correction), the
+//! synthetic recording generator, and emulators of the rig's hardware.
+
+pub mod clock;
+pub mod emulator;

@@ -1,0 +1,1 @@
+//! easycalib: the rig controller.
