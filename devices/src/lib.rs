@@ -6,4 +6,6 @@
 
 pub mod motion;
 
-pub use motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount};
+pub use motion::{
+    AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount,
+};

@@ -2,4 +2,5 @@
 //! on pseudo-terminals, so easycalib's real drivers are tested byte for byte.
 
 pub mod axis;
+pub mod pty;
 pub mod rig;
