@@ -5,6 +5,7 @@
 //! pseudo-terminal to an emulator, or an in-memory pipe in a unit test.
 
 pub mod motion;
+pub mod sensor;
 
 pub use motion::{
     AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount,
