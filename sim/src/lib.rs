@@ -5,3 +5,5 @@
 pub mod clock;
 pub mod emulator;
 pub mod physics;
+pub mod recording;
+pub mod rng;

@@ -73,7 +73,8 @@ impl PtyMaster {
                 flags | libc::O_NONBLOCK,
             ))?;
             Ok(Self {
-                fd: AsyncFd::new(master)?,
+                // SAFETY: we own `master` and nothing else registers or closes this fd.
+                fd: AsyncFd::register(master)?,
                 slave_path,
                 _slave_keepalive: slave,
             })
