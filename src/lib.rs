@@ -1,1 +1,3 @@
-//! easycalib: the rig controller.
+//! easycalib: the rig controller — fitting, diagnosis, the calibration run, TUI and reports.
+
+pub mod fit;
