@@ -526,6 +526,8 @@ pub struct Tac3dReassembler {
     timeout: Duration,
     max_packets: u16,
     max_pending: usize,
+    /// Partials pushed out to make room, not yet reported by `expire`.
+    evicted: usize,
 }
 
 impl Tac3dReassembler {
@@ -538,6 +540,7 @@ impl Tac3dReassembler {
             max_packets: 4096,
             // Frames in flight at once; bounds memory against a flood of serials.
             max_pending: 32,
+            evicted: 0,
         }
     }
 
@@ -561,6 +564,7 @@ impl Tac3dReassembler {
             // Make room by dropping the stalest partial; expire() would drop it soon anyway.
             if let Some(oldest) = self.partial.iter().min_by_key(|(_, p)| p.touched).map(|(k, _)| *k) {
                 self.partial.remove(&oldest);
+                self.evicted += 1;
             }
         }
         let p = self.partial.entry(h.serial).or_insert_with(|| Partial {
@@ -594,12 +598,13 @@ impl Tac3dReassembler {
     }
 
     /// Drop partial frames whose latest packet is older than the timeout;
-    /// returns how many were dropped.
+    /// returns how many incomplete frames were dropped since the last call
+    /// (including those pushed out because too many were in flight).
     pub fn expire(&mut self, now: Instant) -> usize {
         let before = self.partial.len();
         let timeout = self.timeout;
         self.partial.retain(|_, p| now.saturating_duration_since(p.touched) <= timeout);
-        before - self.partial.len()
+        before - self.partial.len() + std::mem::take(&mut self.evicted)
     }
 }
 
