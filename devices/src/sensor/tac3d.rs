@@ -235,11 +235,15 @@ pub enum Tac3dEncodeError {
 }
 
 /// Write a scalar the way a YAML emitter would: plain when that reads back as
-/// the same string, single-quoted otherwise.
+/// the same string (so `3D_Positions` and `AD2-0065L` stay plain, as the
+/// vendor writes them), single-quoted otherwise.
 fn yaml_str(out: &mut String, s: &str) {
     let plain = !s.is_empty()
         && s.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
-        && s.as_bytes()[0].is_ascii_alphabetic()
+        && s.as_bytes()[0].is_ascii_alphanumeric()
+        // A letter no YAML number can contain rules out every int/float
+        // reading (hex and octal digits, exponents, `.inf` are excluded).
+        && s.bytes().any(|b| b.is_ascii_alphabetic() && !b"abcdefABCDEFxXoObB".contains(&b))
         && !matches!(
             s.to_ascii_lowercase().as_str(),
             "true" | "false" | "null" | "yes" | "no" | "on" | "off" | "y" | "n"
