@@ -5,8 +5,8 @@
 use std::time::{Duration, Instant};
 
 use devices::sensor::tac3d::{
-    HEADER_LEN, Tac3dCommand, Tac3dError, Tac3dFrame, Tac3dReassembler, Tac3dValue,
-    decode_frame, encode_frame, parse_packet_header,
+    HEADER_LEN, Tac3dCommand, Tac3dError, Tac3dFrame, Tac3dReassembler, Tac3dValue, decode_frame, encode_frame,
+    parse_packet_header,
 };
 use devices::sensor::{BadReason, SensorFrame};
 
@@ -224,7 +224,8 @@ fn malformed_frames_are_rejected_with_their_reason() {
     let bad = head.replacen("width: 3\n    height: 2", "width: 2\n    height: 3", 1);
     assert_eq!(frame_error(&bad, &blob).reason(), BadReason::Length);
     // Positions and displacements of different marker counts.
-    let bad = head.replacen("height: 2\n    offset: 48\n    length: 48", "height: 1\n    offset: 48\n    length: 24", 1);
+    let bad =
+        head.replacen("height: 2\n    offset: 48\n    length: 48", "height: 1\n    offset: 48\n    length: 24", 1);
     assert_eq!(frame_error(&bad, &blob).reason(), BadReason::Length);
     // NaN in a displacement.
     let mut nan = blob.clone();
@@ -246,7 +247,8 @@ fn malformed_frames_are_rejected_with_their_reason() {
     // Still initialising (the client drops such frames).
     let mut b = blob.clone();
     b.extend(50i32.to_le_bytes());
-    let init = format!("{head}  - name: InitializeProgress\n    type: i32\n    offset: {}\n    length: 4\n", blob.len());
+    let init =
+        format!("{head}  - name: InitializeProgress\n    type: i32\n    offset: {}\n    length: 4\n", blob.len());
     assert_eq!(frame_error(&init, &b), Tac3dError::Initializing { progress: 50.0 });
     // The same item with 100 is accepted.
     let mut b100 = blob.clone();
@@ -313,5 +315,8 @@ fn unknown_item_types_are_skipped_as_the_client_skips_them() {
     let f = decode_frame(head.as_bytes(), &blob).unwrap();
     assert!(f.item("Weird").is_none());
     assert_eq!(f.item("Img"), Some(&Tac3dValue::Img(vec![1, 2, 3])));
-    assert_eq!(f.items.iter().map(|i| i.name.as_str()).collect::<Vec<_>>(), ["3D_Positions", "3D_Displacements", "Img"]);
+    assert_eq!(
+        f.items.iter().map(|i| i.name.as_str()).collect::<Vec<_>>(),
+        ["3D_Positions", "3D_Displacements", "Img"]
+    );
 }

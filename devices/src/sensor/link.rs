@@ -360,9 +360,18 @@ pub fn decode_datagram(d: &[u8]) -> Result<LinkMessage, LinkError> {
     parse_payload(0, h.kind, payload)
 }
 
+/// Longest run of garbage reported as one [`LinkError::Garbage`]: a sender on
+/// the wrong baud rate shows up in the stats without waiting for a sync.
+pub const GARBAGE_REPORT: u64 = 1024;
+
 /// Streaming decoder: feed bytes as they arrive with [`push`](Self::push),
 /// take messages and errors with [`next_message`](Self::next_message) until it
 /// says `None`. Resynchronises on the sync pattern after any error.
+///
+/// What it reports does not depend on how the bytes were chunked: a run of
+/// garbage is one error (split every [`GARBAGE_REPORT`] bytes), reported when
+/// the next message starts, and the bytes of a message already reported as
+/// bad are not counted again as garbage.
 #[derive(Debug, Default)]
 pub struct LinkDecoder {
     buf: Vec<u8>,
@@ -373,6 +382,11 @@ pub struct LinkDecoder {
     /// Stream offset before which skipped bytes are not reported as garbage:
     /// the rest of a message whose payload checksum failed.
     quiet_until: u64,
+    /// After a bad header the message's end is unknown: skipped bytes stay
+    /// quiet until the next sound header.
+    quiet_run: bool,
+    /// Garbage skipped and not reported yet: (stream offset, bytes).
+    run: Option<(u64, u64)>,
 }
 
 impl LinkDecoder {
@@ -395,36 +409,58 @@ impl LinkDecoder {
         self.buf.len() - self.start
     }
 
-    fn skip(&mut self, n: usize) -> Option<LinkError> {
+    /// Step over `n` bytes, adding the loud ones to the garbage run.
+    fn skip(&mut self, n: usize) {
         let at = self.base + self.start as u64;
         self.start += n;
         let end = self.base + self.start as u64;
-        let loud = end.saturating_sub(self.quiet_until.max(at));
-        (loud > 0).then_some(LinkError::Garbage { at: self.quiet_until.max(at), skipped: loud as usize })
+        let from = self.quiet_until.max(at);
+        if self.quiet_run || end <= from {
+            return;
+        }
+        match &mut self.run {
+            Some((_, len)) => *len += end - from,
+            None => self.run = Some((from, end - from)),
+        }
+    }
+
+    fn take_run(&mut self) -> Option<LinkError> {
+        self.run.take().map(|(at, len)| LinkError::Garbage { at, skipped: len as usize })
     }
 
     pub fn next_message(&mut self) -> Option<Result<LinkMessage, LinkError>> {
         loop {
             let avail = &self.buf[self.start..];
-            let sync_at = avail.windows(2).position(|w| w == SYNC);
-            match sync_at {
+            match avail.windows(2).position(|w| w == SYNC) {
                 Some(0) => {}
-                Some(k) => match self.skip(k) {
-                    Some(e) => return Some(Err(e)),
-                    None => continue,
-                },
+                Some(k) => {
+                    self.skip(k);
+                    continue;
+                }
                 None => {
                     // Keep a trailing first sync byte: its partner may come next.
                     let keep = usize::from(avail.last() == Some(&SYNC[0]));
-                    let n = avail.len() - keep;
+                    let mut n = avail.len() - keep;
                     if n == 0 {
                         return None;
                     }
-                    match self.skip(n) {
-                        Some(e) => return Some(Err(e)),
-                        None => return None,
+                    // Cut the run at exactly GARBAGE_REPORT bytes, however the
+                    // bytes were chunked.
+                    if let Some((_, len)) = self.run {
+                        n = n.min((GARBAGE_REPORT - len.min(GARBAGE_REPORT)).max(1) as usize);
+                    } else if !self.quiet_run {
+                        n = n.min(GARBAGE_REPORT as usize);
                     }
+                    self.skip(n);
+                    if matches!(self.run, Some((_, len)) if len >= GARBAGE_REPORT) {
+                        return self.take_run().map(Err);
+                    }
+                    continue;
                 }
+            }
+            // A message starts here: report the garbage before it first.
+            if let Some(e) = self.take_run() {
+                return Some(Err(e));
             }
             let avail = &self.buf[self.start..];
             if avail.len() < HEADER_LEN {
@@ -437,14 +473,17 @@ impl LinkDecoder {
                     // Not a real header (sync bytes inside data, or corruption):
                     // step past this sync and look again.
                     self.start += 1;
-                    if at < self.quiet_until {
+                    if at < self.quiet_until || self.quiet_run {
                         continue;
                     }
+                    self.quiet_run = true;
                     return Some(Err(e));
                 }
             };
+            self.quiet_run = false;
             if h.len > MAX_PAYLOAD {
                 self.start += SYNC.len();
+                self.quiet_run = true;
                 return Some(Err(LinkError::TooLong { at, len: h.len }));
             }
             let total = HEADER_LEN + h.len + CRC_LEN;
