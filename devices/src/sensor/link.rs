@@ -807,6 +807,12 @@ impl LinkDevice {
         self.write(&bytes, "send frame").await
     }
 
+    /// Write bytes as they are (a bridge relaying ready-made messages, or a
+    /// test injecting noise); over UDP they form one datagram.
+    pub async fn send_raw(&mut self, bytes: &[u8]) -> Result<(), SensorError> {
+        self.write(bytes, "send raw bytes").await
+    }
+
     /// Acknowledge a command the device carried out.
     pub async fn ack(&mut self, cmd: Command) -> Result<(), SensorError> {
         let out = encode(&LinkMessage::Ack(cmd)).map_err(|e| SensorError::Io {
