@@ -107,7 +107,7 @@ fn header_fields_sit_at_the_documented_offsets() {
 
 #[test]
 fn a_stream_decodes_the_same_in_any_chunking() {
-    let msgs = vec![
+    let msgs = [
         LinkMessage::Frame(frame(1, 400)),
         LinkMessage::Ack(Command::Start),
         LinkMessage::Frame(frame(2, 0)),

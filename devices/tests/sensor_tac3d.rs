@@ -121,7 +121,7 @@ fn datagram_too_small_for_the_header_is_an_encode_error() {
 fn round_trip_reproduces_the_frame_bit_exactly() {
     let sf = SensorFrame {
         index: 5_000_000_123,
-        t_s: 1234.000_000_1,
+        t_s: 1_234.000_000_1,
         positions: (0..400).map(|i| [i as f64 / 3.0, -(i as f64).sqrt(), 1e-9 * i as f64]).collect(),
         displacements: (0..400).map(|i| [f64::MIN_POSITIVE, -1.49 + i as f64 * 1e-7, 0.0]).collect(),
     };
