@@ -423,3 +423,27 @@ async fn the_device_going_away_closes_the_link() {
     let e = rx.next_frame(WAIT).await.unwrap_err();
     assert!(matches!(e, SensorError::Closed { .. }), "{e}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn link_receiver_opens_a_serial_device_by_path() {
+    use tokio_serial::SerialPort;
+    // A pty stands in for the USB serial port: the device holds the master,
+    // the host opens the slave by its path as it would /dev/ttyACM0. The
+    // pair's own slave handle holds an exclusive lock (as our open does), so
+    // it is closed first; nothing is read from the master until we reopen.
+    let (device, slave) = tokio_serial::SerialStream::pair().expect("pty pair");
+    let path = slave.name().expect("pty slave path");
+    drop(slave);
+    let mut rx = LinkReceiver::open_serial(&path, 921_600, LinkConfig::default()).unwrap();
+    let mut dev = LinkDevice::new(device);
+    let sent = Emulated::new(9).frame();
+    let (r, ()) = tokio::join!(rx.start(), async {
+        assert_eq!(dev.next_command().await.unwrap(), Command::Start);
+        dev.ack(Command::Start).await.unwrap();
+        dev.send_frame(&sent).await.unwrap();
+    });
+    r.unwrap();
+    let f = rx.next_frame(WAIT).await.unwrap();
+    assert_eq!((f.index, f.marker_count()), (9, 400));
+    assert_eq!(f.displacements[0], [0.0, 0.0, f64::from(-0.2f32)]);
+}
