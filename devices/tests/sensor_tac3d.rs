@@ -83,22 +83,25 @@ fn encoding_is_byte_exact_to_the_documented_layout() {
     assert_eq!(packets.iter().map(Vec::len).collect::<Vec<_>>(), vec![8 + yaml.len(), 400, 400, 8 + 176]);
 
     // Blob: 3D_Positions row-major (x, y, z of marker 0, then marker 1, ...),
-    // then 3D_Displacements; float64 little-endian.
+    // then 3D_Displacements; float64 little-endian. Tac3D's positions are the
+    // current ones: reference + displacement.
     let blob: Vec<u8> = packets[1..].iter().flat_map(|p| p[HEADER_LEN..].to_vec()).collect();
     assert_eq!(blob.len(), 960);
-    // Marker 1 position = (0.5, -1.0, 1.5): bytes 24..48.
+    // Marker 1: reference (0.5, -1.0, 1.5) + displacement (0, 0.25, -0.125)
+    // = (0.5, -0.75, 1.375) at bytes 24..48.
     assert_eq!(&blob[24..32], &[0, 0, 0, 0, 0, 0, 0xE0, 0x3F]);
-    assert_eq!(&blob[32..40], &[0, 0, 0, 0, 0, 0, 0xF0, 0xBF]);
-    assert_eq!(&blob[40..48], &[0, 0, 0, 0, 0, 0, 0xF8, 0x3F]);
+    assert_eq!(&blob[32..40], &[0, 0, 0, 0, 0, 0, 0xE8, 0xBF]);
+    assert_eq!(&blob[40..48], &[0, 0, 0, 0, 0, 0, 0xF6, 0x3F]);
     // Marker 19 displacement = (0, 4.75, -2.375) at 480 + 19 * 24.
     assert_eq!(&blob[480 + 456..480 + 480], f64s(&[0.0, 4.75, -2.375]).as_slice());
-    let expect_blob: Vec<u8> = small_frame(1919, 20)
-        .positions
-        .iter()
-        .chain(small_frame(1919, 20).displacements.iter())
-        .flat_map(|r| f64s(r))
-        .collect();
+    let sf = small_frame(1919, 20);
+    let current: Vec<[f64; 3]> =
+        sf.positions.iter().zip(&sf.displacements).map(|(r, d)| [r[0] + d[0], r[1] + d[1], r[2] + d[2]]).collect();
+    let expect_blob: Vec<u8> = current.iter().chain(sf.displacements.iter()).flat_map(|r| f64s(r)).collect();
     assert_eq!(blob, expect_blob);
+    // Read back: the reference positions again (exact for these values).
+    let f = reassemble(&packets).unwrap().expect("complete");
+    assert_eq!(f.to_sensor_frame().unwrap(), sf);
 }
 
 #[test]
@@ -117,8 +120,21 @@ fn datagram_too_small_for_the_header_is_an_encode_error() {
     assert!(encode_frame(&frame, 64).is_err());
 }
 
+/// Reference positions travel as reference + displacement, so they come back
+/// within a rounding of the sum; displacements, index and time come back exact.
+fn assert_same_frame(got: &SensorFrame, want: &SensorFrame) {
+    assert_eq!((got.index, got.t_s), (want.index, want.t_s));
+    assert_eq!(got.displacements, want.displacements);
+    assert_eq!(got.positions.len(), want.positions.len());
+    for (g, w) in got.positions.iter().zip(&want.positions) {
+        for k in 0..3 {
+            assert!((g[k] - w[k]).abs() <= 1e-12 * (1.0 + w[k].abs()), "{g:?} vs {w:?}");
+        }
+    }
+}
+
 #[test]
-fn round_trip_reproduces_the_frame_bit_exactly() {
+fn round_trip_reproduces_the_frame() {
     let sf = SensorFrame {
         index: 5_000_000_123,
         t_s: 1_234.000_000_1,
@@ -135,7 +151,7 @@ fn round_trip_reproduces_the_frame_bit_exactly() {
     let f = reassemble(&shuffled).unwrap().expect("complete frame");
     assert_eq!(f.sn, "HDL1-GWH0021");
     assert_eq!(f.msg.as_deref(), Some(""));
-    assert_eq!(f.to_sensor_frame().unwrap(), sf);
+    assert_same_frame(&f.to_sensor_frame().unwrap(), &sf);
 }
 
 /// A frame written the way other YAML emitters write it (sequence items at
@@ -190,7 +206,8 @@ fn a_frame_as_the_vendor_sends_it_decodes() {
     assert_eq!(f.item("InitializeProgress"), Some(&Tac3dValue::I32(100)));
     assert_eq!(f.item("3D_Forces"), Some(&Tac3dValue::Mat { rows: 2, cols: 3, data: frc }));
     let sf = f.to_sensor_frame().unwrap();
-    assert_eq!(sf.positions, vec![[0.5, 1.5, 2.5], [3.5, 4.5, 5.5]]);
+    // Reference = current - displacement.
+    assert_eq!(sf.positions, vec![[0.5, 1.5, 2.5], [3.5 - 0.01, 4.5 + 0.02, 5.5 + 1.49]]);
     assert_eq!(sf.displacements, vec![[0.0, 0.0, 0.0], [0.01, -0.02, -1.49]]);
     assert_eq!(sf.t_s, 71.616892);
 }

@@ -9,6 +9,10 @@
 //! binary blob in order, and each `data` item points into it by `offset` and
 //! `length`. Matrices are float64, row-major, `height` rows by `width` columns.
 //!
+//! `3D_Positions` are the markers' *current* positions (reference +
+//! displacement; checked on the recordings that ship with PyTac3D), so the
+//! codec converts to and from [`SensorFrame`]'s reference positions.
+//!
 //! The codec here is pure (bytes in, frames out, time passed in explicitly);
 //! [`Tac3dReceiver`] is the I/O edge on a tokio UDP socket.
 
@@ -102,22 +106,29 @@ pub struct Tac3dFrame {
 }
 
 impl Tac3dFrame {
-    /// A frame carrying a [`SensorFrame`]'s positions and displacements as
-    /// `n x 3` matrices.
+    /// A frame carrying a [`SensorFrame`] as `n x 3` matrices, as the main
+    /// program sends it: `3D_Positions` are the *current* marker positions,
+    /// reference + displacement (the example recordings shipped with PyTac3D
+    /// show `3D_Positions - 3D_Displacements` constant over a press: exactly
+    /// for HDL1 sensors, within 0.08 mm for an AD2). Markers beyond the
+    /// shorter of the two lists are left out.
     pub fn from_sensor_frame(frame: &SensorFrame, sn: &str) -> Self {
-        let mat = |rows: &[[f64; 3]]| Tac3dValue::Mat {
-            rows: rows.len(),
-            cols: 3,
-            data: rows.iter().flatten().copied().collect(),
-        };
+        let n = frame.positions.len().min(frame.displacements.len());
+        let current: Vec<f64> = frame
+            .positions
+            .iter()
+            .zip(&frame.displacements)
+            .flat_map(|(r, d)| [r[0] + d[0], r[1] + d[1], r[2] + d[2]])
+            .collect();
+        let disp: Vec<f64> = frame.displacements[..n].iter().flatten().copied().collect();
         Self {
             index: frame.index,
             sn: sn.to_string(),
             timestamp: frame.t_s,
             msg: Some(String::new()),
             items: vec![
-                Tac3dItem { name: POSITIONS.into(), value: mat(&frame.positions) },
-                Tac3dItem { name: DISPLACEMENTS.into(), value: mat(&frame.displacements) },
+                Tac3dItem { name: POSITIONS.into(), value: Tac3dValue::Mat { rows: n, cols: 3, data: current } },
+                Tac3dItem { name: DISPLACEMENTS.into(), value: Tac3dValue::Mat { rows: n, cols: 3, data: disp } },
             ],
         }
     }
@@ -149,19 +160,30 @@ impl Tac3dFrame {
         Ok(data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     }
 
-    /// The rig's view of this frame: positions and displacements (`n x 3`,
-    /// same `n`, finite) and a finite timestamp.
+    /// The rig's view of this frame: reference positions
+    /// (`3D_Positions - 3D_Displacements`, since Tac3D sends current
+    /// positions) and displacements (`n x 3`, same `n`, finite), and a finite
+    /// timestamp.
     pub fn to_sensor_frame(&self) -> Result<SensorFrame, Tac3dError> {
         if !self.timestamp.is_finite() {
             return Err(Tac3dError::NotFinite { item: "timestamp".into(), at: 0 });
         }
-        let positions = self.rows3(POSITIONS)?;
+        let current = self.rows3(POSITIONS)?;
         let displacements = self.rows3(DISPLACEMENTS)?;
-        if positions.len() != displacements.len() {
+        if current.len() != displacements.len() {
             return Err(Tac3dError::Shape {
                 item: DISPLACEMENTS.into(),
-                what: format!("{} rows but {POSITIONS} has {}", displacements.len(), positions.len()),
+                what: format!("{} rows but {POSITIONS} has {}", displacements.len(), current.len()),
             });
+        }
+        let mut positions = Vec::with_capacity(current.len());
+        for (m, (c, d)) in current.iter().zip(&displacements).enumerate() {
+            let r = [c[0] - d[0], c[1] - d[1], c[2] - d[2]];
+            // Finite inputs can still overflow when subtracted.
+            if !r.iter().all(|x| x.is_finite()) {
+                return Err(Tac3dError::NotFinite { item: POSITIONS.into(), at: 3 * m });
+            }
+            positions.push(r);
         }
         Ok(SensorFrame { index: self.index, t_s: self.timestamp, positions, displacements })
     }
