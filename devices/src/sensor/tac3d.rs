@@ -619,7 +619,8 @@ impl Tac3dReassembler {
         };
         let mut parts = p.parts.into_iter().flatten();
         let head = parts.next().unwrap_or_default();
-        let blob: Vec<u8> = parts.flatten().collect();
+        let rest: Vec<Vec<u8>> = parts.collect();
+        let blob = rest.concat();
         decode_frame(&head, &blob).map(Some)
     }
 
