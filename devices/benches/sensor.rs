@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use devices::sensor::SensorFrame;
-use devices::sensor::link::{LinkDecoder, LinkMessage, decode_datagram, encode};
+use devices::sensor::link::{LinkDecoder, LinkMessage, crc32, decode_datagram, encode};
 use devices::sensor::tac3d::{
     DEFAULT_MAX_DATAGRAM, Tac3dFrame, Tac3dReassembler, decode_frame, encode_frame, encode_parts,
 };
@@ -60,6 +60,8 @@ fn link(c: &mut Criterion) {
     let mut g = c.benchmark_group("link_20x20");
     g.throughput(Throughput::Elements(1));
     g.bench_function("decode_datagram", |b| b.iter(|| decode_datagram(black_box(&bytes)).unwrap()));
+    // The checksum's share of a decode.
+    g.bench_function("crc32_whole_message", |b| b.iter(|| crc32(black_box(&bytes))));
     g.bench_function("stream_decode_1k_chunks", |b| {
         let mut d = LinkDecoder::new();
         b.iter(|| {

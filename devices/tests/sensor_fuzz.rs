@@ -193,6 +193,20 @@ proptest! {
         }
     }
 
+    /// Any printable serial number and status text survive the YAML header
+    /// (plain when safe, single-quoted otherwise).
+    #[test]
+    fn tac3d_header_strings_round_trip(sn in "[ -~]{0,24}", msg in "[ -~]{0,40}") {
+        let mut f = Tac3dFrame::from_sensor_frame(&SensorFrame {
+            index: 3, t_s: 0.25, positions: vec![[0.0; 3]], displacements: vec![[0.0; 3]],
+        }, &sn);
+        f.msg = Some(msg.clone());
+        let (head, blob) = encode_parts(&f).unwrap();
+        let g = decode_frame(head.as_bytes(), &blob).unwrap();
+        prop_assert_eq!(g.sn, sn);
+        prop_assert_eq!(g.msg, Some(msg));
+    }
+
     /// The tracker's dropped count equals the frames missing between accepted
     /// ones; late frames are never accepted.
     #[test]

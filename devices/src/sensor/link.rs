@@ -795,8 +795,8 @@ impl std::fmt::Debug for DeviceIo {
 /// microcontroller or an emulator runs. It sends frames and acknowledgements
 /// and reads the host's commands; malformed input is counted, never fatal.
 ///
-/// Every method is cancel-safe, so a device loop can `select!` between
-/// [`LinkDevice::next_command`] and a frame timer.
+/// [`LinkDevice::next_command`] is cancel-safe (bytes read stay in the
+/// decoder), so a device loop can `select!` between it and a frame timer.
 #[derive(Debug)]
 pub struct LinkDevice {
     io: DeviceIo,
