@@ -205,6 +205,7 @@ fn a_frame_as_the_vendor_sends_it_decodes() {
     assert_eq!(f.item("3D_ResultantMoment"), Some(&Tac3dValue::Mat { rows: 1, cols: 3, data: rm }));
     assert_eq!(f.item("InitializeProgress"), Some(&Tac3dValue::I32(100)));
     assert_eq!(f.item("3D_Forces"), Some(&Tac3dValue::Mat { rows: 2, cols: 3, data: frc }));
+    assert_eq!(f.item("3D_ResultantForce"), Some(&Tac3dValue::from_rows(&[[0.1, 0.2, -0.3]])));
     let sf = f.to_sensor_frame().unwrap();
     // Reference = current - displacement.
     assert_eq!(sf.positions, vec![[0.5, 1.5, 2.5], [3.5 - 0.01, 4.5 + 0.02, 5.5 + 1.49]]);

@@ -66,6 +66,12 @@ pub enum Tac3dValue {
 }
 
 impl Tac3dValue {
+    /// An `n x 3` matrix from rows (e.g. `3D_Forces`, `3D_Normals`, or a
+    /// `1 x 3` `3D_ResultantForce`), for senders adding items to a frame.
+    pub fn from_rows(rows: &[[f64; 3]]) -> Self {
+        Tac3dValue::Mat { rows: rows.len(), cols: 3, data: rows.iter().flatten().copied().collect() }
+    }
+
     fn type_name(&self) -> &'static str {
         match self {
             Tac3dValue::Mat { .. } => "mat",
