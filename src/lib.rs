@@ -1,5 +1,6 @@
 //! easycalib: the rig controller — fitting, diagnosis, the calibration run, TUI and reports.
 
+pub mod cli;
 pub mod fit;
 pub mod report;
 pub mod run;
