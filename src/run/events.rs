@@ -115,7 +115,7 @@ impl FitUpdate {
         let windowed: Vec<(f64, f64)> = normal
             .iter()
             .copied()
-            .filter(|&(g1, _)| g1 >= RUNNING_WINDOW_MM[0] && g1 <= RUNNING_WINDOW_MM[1])
+            .filter(|&(g1, _)| (RUNNING_WINDOW_MM[0]..=RUNNING_WINDOW_MM[1]).contains(&g1))
             .collect();
         let pts = if windowed.len() >= 4 { windowed } else { normal };
         let mut fit = FitUpdate::default();
