@@ -418,7 +418,7 @@ mod tests {
             vec![
                 "[4/9] normal sweep (normal) started",
                 "[4/9] normal sweep  10% elapsed 11.0s eta 50.0s samples 0",
-                "[4/9] normal sweep  20% elapsed 13.0s eta 47.0s samples 0",
+                "[4/9] normal sweep  25% elapsed 13.0s eta 47.0s samples 0",
                 "[4/9] normal sweep paused",
                 "[4/9] normal sweep resumed",
                 "[4/9] normal sweep warn: sensor slow",
