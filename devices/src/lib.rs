@@ -9,6 +9,4 @@ pub mod motion;
 pub mod sensor;
 pub mod serial;
 
-pub use motion::{
-    AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount,
-};
+pub use motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount};
