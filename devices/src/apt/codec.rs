@@ -825,7 +825,7 @@ impl Rd<'_> {
     }
 }
 
-fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> AptMessage {
+fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> Result<AptMessage, CodecError> {
     use AptMessage as M;
     use id::*;
     let mut r = Rd {
@@ -838,7 +838,7 @@ fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> AptMessage {
     } else {
         Direction::Forward
     };
-    match id {
+    Ok(match id {
         HW_DISCONNECT => M::HwDisconnect,
         HW_REQ_INFO => M::HwReqInfo,
         HW_START_UPDATEMSGS => M::HwStartUpdateMsgs,
@@ -1041,9 +1041,11 @@ fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> AptMessage {
         MOT_GET_STATUSUPDATE => M::MotGetStatusUpdate(r.status()),
         MOT_REQ_DCSTATUSUPDATE => M::MotReqDcStatusUpdate { chan },
         MOT_GET_DCSTATUSUPDATE => M::MotGetDcStatusUpdate(r.status()),
-        // form_of() accepted exactly the ids above; this arm is never taken.
-        _ => M::HwResponse { p1, p2 },
-    }
+        MOT_ACK_DCSTATUSUPDATE => M::MotAckDcStatusUpdate,
+        // form_of() and this match must list the same ids; if they ever
+        // drift apart the frame is reported, not silently mistranslated.
+        _ => return Err(CodecError::UnknownMessageId { id }),
+    })
 }
 
 /// Addresses a decoder accepts: frames for anyone else are errors.
@@ -1136,7 +1138,7 @@ pub fn decode_frame(bytes: &[u8], addr: &Addressing) -> Result<(Frame, usize), C
         });
     }
     let data = data_len.map(|_| &bytes[HEADER_LEN..total]);
-    let message = parse_body(id, header[2], header[3], data);
+    let message = parse_body(id, header[2], header[3], data)?;
     Ok((
         Frame {
             message,
@@ -1158,6 +1160,8 @@ pub struct AptDecoder {
     addr: Addressing,
     /// Total bytes discarded while resynchronising.
     dropped: u64,
+    /// Up to 16 bytes starting at the last rejected frame start, for error reports.
+    last_bad: Vec<u8>,
 }
 
 impl AptDecoder {
@@ -1167,6 +1171,7 @@ impl AptDecoder {
             start: 0,
             addr,
             dropped: 0,
+            last_bad: Vec::new(),
         }
     }
 
@@ -1197,6 +1202,9 @@ impl AptDecoder {
             }
             Err(CodecError::TruncatedFrame { .. }) => None,
             Err(e) => {
+                let end = (self.start + 16).min(self.buf.len());
+                self.last_bad.clear();
+                self.last_bad.extend_from_slice(&self.buf[self.start..end]);
                 self.start += 1;
                 self.dropped += 1;
                 Some(Err(e))
@@ -1227,6 +1235,12 @@ impl AptDecoder {
 
     pub fn dropped_bytes(&self) -> u64 {
         self.dropped
+    }
+
+    /// The bytes (up to 16) at which the last error was found, first byte
+    /// being the one that was dropped.
+    pub fn last_bad_bytes(&self) -> &[u8] {
+        &self.last_bad
     }
 }
 

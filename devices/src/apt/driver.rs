@@ -21,6 +21,7 @@ use super::codec::{
     VelParams, encode, status,
 };
 use super::scaling::{ControllerFamily, Scale};
+use crate::serial::open_serial;
 use crate::motion::{
     AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount,
 };
@@ -82,6 +83,13 @@ fn is_hangup(e: &io::Error) -> bool {
             | io::ErrorKind::ConnectionAborted
             | io::ErrorKind::NotConnected
     ) || matches!(e.raw_os_error(), Some(5 /* EIO */ | 6 /* ENXIO */ | 19 /* ENODEV */))
+}
+
+/// `now + d`, saturating at a year ahead instead of overflowing on huge timeouts.
+fn after(d: Duration) -> Instant {
+    let now = Instant::now();
+    now.checked_add(d)
+        .unwrap_or_else(|| now + Duration::from_secs(365 * 24 * 3600))
 }
 
 /// Driver settings for one APT unit.
@@ -250,7 +258,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
                     // Line noise is skipped (the decoder resynchronises), but
                     // remembered so a timeout can say what was seen instead.
                     Err(e) => {
-                        let bytes = self.dec.pending().iter().take(16).copied().collect();
+                        let bytes = self.dec.last_bad_bytes().to_vec();
                         self.last_codec_error = Some((e, bytes));
                     }
                 }
@@ -260,7 +268,10 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
             if now >= deadline {
                 return Ok(None);
             }
-            let wake = deadline.min(self.last_ack + self.cfg.keepalive);
+            let wake = match self.last_ack.checked_add(self.cfg.keepalive) {
+                Some(k) => deadline.min(k),
+                None => deadline,
+            };
             let wake = wake.max(now + Duration::from_millis(1));
             match tokio::time::timeout_at(wake, self.io.read(&mut self.rbuf)).await {
                 Ok(Ok(0)) => {
@@ -293,10 +304,23 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
                 code: *code,
                 text: text.clone(),
             }),
-            AptMessage::MotMoveCompleted(s) | AptMessage::MotMoveStopped(s) => {
+            AptMessage::MotMoveCompleted(s) => {
                 self.last_status = Some(*s);
                 if let Some(p) = &mut self.pending
                     && p.kind != PendingKind::Home
+                {
+                    p.done = Some(*s);
+                }
+                Ok(())
+            }
+            // A MOVE_STOPPED ends only a stop we asked for: a late one from
+            // an earlier stop (units answer a stop even when idle) must not
+            // end the next move. A move the unit stops by itself (limit,
+            // front panel) is still seen ending by the status poll.
+            AptMessage::MotMoveStopped(s) => {
+                self.last_status = Some(*s);
+                if let Some(p) = &mut self.pending
+                    && p.kind == PendingKind::Stop
                 {
                     p.done = Some(*s);
                 }
@@ -358,7 +382,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
     ) -> Result<R, AptError> {
         self.last_codec_error = None;
         self.send(msg).await?;
-        let deadline = Instant::now() + self.cfg.reply_timeout;
+        let deadline = after(self.cfg.reply_timeout);
         loop {
             let Some(frame) = self.read_frame(deadline).await? else {
                 return Err(match self.last_codec_error.take() {
@@ -560,8 +584,8 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
         if self.pending.is_none() {
             return self.query_status().await;
         }
-        let deadline = Instant::now() + timeout;
-        let mut next_poll = Instant::now() + self.cfg.poll_period;
+        let deadline = after(timeout);
+        let mut next_poll = after(self.cfg.poll_period);
         loop {
             if let Some(done) = self.pending.and_then(|p| p.done) {
                 self.pending = None;
@@ -576,7 +600,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
             }
             if now >= next_poll {
                 self.query_status().await?;
-                next_poll = Instant::now() + self.cfg.poll_period;
+                next_poll = after(self.cfg.poll_period);
                 continue;
             }
             if let Some(f) = self.read_frame(next_poll.min(deadline)).await? {
@@ -662,7 +686,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
 
     /// Drain whatever the unit sent so far (pushed updates, events) for up to `dur`.
     pub async fn pump(&mut self, dur: Duration) -> Result<(), AptError> {
-        let deadline = Instant::now() + dur;
+        let deadline = after(dur);
         while let Some(f) = self.read_frame(deadline).await? {
             self.absorb(&f.message)?;
         }
@@ -813,4 +837,35 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> RotationMount for AptRotation<T> 
         let s = self.link.query_status().await?;
         Ok(self.link.axis_status(&s))
     }
+}
+
+/// Ask whatever answers on `port_path` whether it is an APT unit: open the
+/// port with the APT line settings, send HW_REQ_INFO and wait up to `timeout`
+/// for HW_GET_INFO. Nothing else is sent, so nothing moves and no setting
+/// changes. HW_NO_FLASH_PROGRAMMING is deliberately not sent: its first byte
+/// is 0x18 (Ctrl-X), which a GRBL board on the same probe would take as a
+/// soft reset.
+pub async fn probe(
+    port_path: impl AsRef<std::path::Path>,
+    timeout: Duration,
+) -> Result<DeviceInfo, AptError> {
+    let port = open_serial(port_path).await?;
+    probe_on(port, timeout).await
+}
+
+/// [`probe`] over an already open transport.
+pub async fn probe_on<T: AsyncRead + AsyncWrite + Unpin + Send>(
+    io: T,
+    timeout: Duration,
+) -> Result<DeviceInfo, AptError> {
+    let cfg = AptConfig {
+        expect_models: Vec::new(),
+        velocity: None,
+        reply_timeout: timeout,
+        // No keep-alive during a probe: only HW_REQ_INFO goes out.
+        keepalive: Duration::MAX,
+        ..AptConfig::kdc101_z825b()
+    };
+    let mut link = AptLink::new(io, cfg);
+    link.identify().await
 }

@@ -6,5 +6,5 @@ pub mod driver;
 pub mod scaling;
 
 pub use codec::{AptDecoder, AptMessage, CodecError, Frame, decode_frame, encode};
-pub use driver::{AptConfig, AptError, AptRotation, AptStage};
+pub use driver::{AptConfig, AptError, AptLink, AptRotation, AptStage, probe, probe_on};
 pub use scaling::{ControllerFamily, Scale};

@@ -57,6 +57,8 @@ pub struct Axis {
     lag_hi: f64,
     moves_completed: u64,
     homes_completed: u64,
+    /// Counter reading is 0 this far forward of the home switch (0 = at it).
+    home_offset: f64,
 }
 
 impl Axis {
@@ -75,6 +77,7 @@ impl Axis {
             lag_hi: 0.0,
             moves_completed: 0,
             homes_completed: 0,
+            home_offset: 0.0,
         }
     }
 
@@ -201,7 +204,7 @@ impl Axis {
     fn finish_home(&mut self) {
         self.mode = Mode::Idle;
         self.homed = true;
-        self.counter_offset = self.motor;
+        self.counter_offset = self.motor + self.home_offset;
         self.homes_completed += 1;
     }
 
@@ -240,6 +243,34 @@ impl Axis {
             self.finish_move();
         } else {
             self.mode = Mode::Stopping;
+        }
+    }
+
+    /// Change the velocity limit and acceleration (a controller's SET_VELPARAMS).
+    /// Non-positive or non-finite values are ignored: the axis keeps moving sanely.
+    pub fn set_motion_params(&mut self, max_velocity: f64, acceleration: f64) {
+        if max_velocity.is_finite() && max_velocity > 0.0 {
+            self.cfg.max_velocity = max_velocity;
+        }
+        if acceleration.is_finite() && acceleration > 0.0 {
+            self.cfg.acceleration = acceleration;
+        }
+    }
+
+    /// Where the counter's zero lies after homing, measured forward from the
+    /// home switch. A rotation mount homes on a switch but turns both ways
+    /// from its zero; a counter reading of `-offset` at the switch models that.
+    pub fn set_home_offset(&mut self, offset: f64) {
+        if offset.is_finite() {
+            self.home_offset = offset;
+        }
+    }
+
+    /// Load the position counter with `value` at the current position
+    /// (a controller's SET_POSCOUNTER); the mechanics do not move.
+    pub fn set_position_counter(&mut self, value: f64) {
+        if value.is_finite() {
+            self.counter_offset = self.motor - value;
         }
     }
 
