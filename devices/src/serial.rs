@@ -29,7 +29,9 @@ fn to_io(e: tokio_serial::Error) -> io::Error {
 /// which serialport reports as an unknown error with the errno text.
 fn is_enotty(e: &tokio_serial::Error) -> bool {
     e.kind() == tokio_serial::ErrorKind::Unknown
-        && (e.description.contains("Inappropriate ioctl") || e.description.contains("ENOTTY"))
+        && ["Inappropriate ioctl", "ENOTTY", "Not a typewriter"]
+            .iter()
+            .any(|t| e.description.contains(t))
 }
 
 fn tolerate_enotty(r: tokio_serial::Result<()>) -> io::Result<()> {
@@ -45,6 +47,15 @@ fn tolerate_enotty(r: tokio_serial::Result<()>) -> io::Result<()> {
 /// The FTDI "reset device" step has no tty equivalent and is skipped, as
 /// every tty-based client does.
 pub async fn open_serial(path: impl AsRef<Path>) -> io::Result<SerialStream> {
+    open_serial_settle(path, Duration::from_millis(50)).await
+}
+
+/// [`open_serial`] with a chosen pause around the purge. An emulator's
+/// pseudo-terminal has no FTDI chip to settle, so tests pass zero.
+pub async fn open_serial_settle(
+    path: impl AsRef<Path>,
+    settle: Duration,
+) -> io::Result<SerialStream> {
     let path = path.as_ref().to_string_lossy().into_owned();
     let mut port = tokio_serial::new(&path, APT_BAUD)
         .data_bits(DataBits::Eight)
@@ -54,9 +65,13 @@ pub async fn open_serial(path: impl AsRef<Path>) -> io::Result<SerialStream> {
         .timeout(Duration::from_millis(100))
         .open_native_async()
         .map_err(to_io)?;
-    tokio::time::sleep(Duration::from_millis(50)).await;
+    if !settle.is_zero() {
+        tokio::time::sleep(settle).await;
+    }
     port.clear(ClearBuffer::All).map_err(to_io)?;
-    tokio::time::sleep(Duration::from_millis(50)).await;
+    if !settle.is_zero() {
+        tokio::time::sleep(settle).await;
+    }
     tolerate_enotty(port.write_request_to_send(true))?;
     Ok(port)
 }
