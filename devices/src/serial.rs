@@ -8,8 +8,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use tokio_serial::{
-    ClearBuffer, DataBits, FlowControl, Parity, SerialPort, SerialPortBuilderExt, SerialStream,
-    StopBits,
+    ClearBuffer, DataBits, FlowControl, Parity, SerialPort, SerialPortBuilderExt, SerialStream, StopBits,
 };
 
 /// APT baud rate.
@@ -29,9 +28,7 @@ fn to_io(e: tokio_serial::Error) -> io::Error {
 /// which serialport reports as an unknown error with the errno text.
 fn is_enotty(e: &tokio_serial::Error) -> bool {
     e.kind() == tokio_serial::ErrorKind::Unknown
-        && ["Inappropriate ioctl", "ENOTTY", "Not a typewriter"]
-            .iter()
-            .any(|t| e.description.contains(t))
+        && ["Inappropriate ioctl", "ENOTTY", "Not a typewriter"].iter().any(|t| e.description.contains(t))
 }
 
 fn tolerate_enotty(r: tokio_serial::Result<()>) -> io::Result<()> {
@@ -52,10 +49,7 @@ pub async fn open_serial(path: impl AsRef<Path>) -> io::Result<SerialStream> {
 
 /// [`open_serial`] with a chosen pause around the purge. An emulator's
 /// pseudo-terminal has no FTDI chip to settle, so tests pass zero.
-pub async fn open_serial_settle(
-    path: impl AsRef<Path>,
-    settle: Duration,
-) -> io::Result<SerialStream> {
+pub async fn open_serial_settle(path: impl AsRef<Path>, settle: Duration) -> io::Result<SerialStream> {
     let path = path.as_ref().to_string_lossy().into_owned();
     let mut port = tokio_serial::new(&path, APT_BAUD)
         .data_bits(DataBits::Eight)
@@ -82,10 +76,8 @@ mod tests {
 
     #[test]
     fn enotty_is_tolerated_and_other_errors_are_not() {
-        let enotty = tokio_serial::Error::new(
-            tokio_serial::ErrorKind::Unknown,
-            "ENOTTY: Inappropriate ioctl for device",
-        );
+        let enotty =
+            tokio_serial::Error::new(tokio_serial::ErrorKind::Unknown, "ENOTTY: Inappropriate ioctl for device");
         assert!(tolerate_enotty(Err(enotty)).is_ok());
         let other = tokio_serial::Error::new(
             tokio_serial::ErrorKind::Io(io::ErrorKind::PermissionDenied),

@@ -12,8 +12,8 @@ use devices::serial::open_serial_settle;
 use devices::{DeviceFault, FaultKind, Identify, LinearStage, RotationMount};
 use sim::clock::VirtualClock;
 use sim::emulator::apt::{
-    AptEmulatorConfig, EmulatorHandle, InjectedError, k10cr1_axis, spawn_apt, spawn_apt_rotation,
-    spawn_apt_stage, z8_axis,
+    AptEmulatorConfig, EmulatorHandle, InjectedError, k10cr1_axis, spawn_apt, spawn_apt_rotation, spawn_apt_stage,
+    z8_axis,
 };
 use sim::emulator::rig::Rig;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -140,10 +140,7 @@ async fn moves_past_travel_are_refused_before_anything_is_sent() {
 
     let sent = h.received();
     let new: Vec<u16> = sent[sent_before.len()..].to_vec();
-    assert!(
-        !new.contains(&0x0453) && !new.contains(&0x0448),
-        "a move command reached the unit: {new:04X?}"
-    );
+    assert!(!new.contains(&0x0453) && !new.contains(&0x0448), "a move command reached the unit: {new:04X?}");
     let after = rig.pose();
     assert_eq!(after.stage_mm, pose.stage_mm);
 }
@@ -312,10 +309,7 @@ async fn raw_client_session_gets_byte_exact_replies() {
     // the emulator adds (none here: 1.234 mm is inside the travel).
     p.write_all(&hex("90 04 01 00 50 01")).await.unwrap();
     let raw = read_until(&mut p, &mut dec, 0x0491, &mut seen).await;
-    assert_eq!(
-        &raw[raw.len() - 20..],
-        &hex("91 04 0E 00 81 50 01 00 91 A6 00 00 00 00 00 00 00 05 00 80")[..]
-    );
+    assert_eq!(&raw[raw.len() - 20..], &hex("91 04 0E 00 81 50 01 00 91 A6 00 00 00 00 00 00 00 05 00 80")[..]);
 
     // Pushed updates at the configured period once started, in the DC layout.
     p.write_all(&hex("11 00 00 00 50 01")).await.unwrap();

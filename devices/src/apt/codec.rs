@@ -106,8 +106,7 @@ pub mod status {
     pub const ENABLED: u32 = 0x8000_0000;
     /// Any of these means the axis is in motion. Direction bits disagree
     /// between sources (A.4), so motion is judged from all of them together.
-    pub const ANY_MOTION: u32 =
-        MOVING_CW | MOVING_CCW | JOGGING_CW | JOGGING_CCW | HOMING | ACTIVE;
+    pub const ANY_MOTION: u32 = MOVING_CW | MOVING_CCW | JOGGING_CW | JOGGING_CCW | HOMING | ACTIVE;
     pub const ANY_LIMIT: u32 = CW_HW_LIMIT | CCW_HW_LIMIT | CW_SW_LIMIT | CCW_SW_LIMIT;
 }
 
@@ -149,21 +148,11 @@ impl StatusPayload {
     /// DC servo layout: velocity (i16, units [U]) and reserved word.
     pub fn dc(chan: u16, position: i32, velocity: i16, status: u32) -> Self {
         let v = velocity.to_le_bytes();
-        Self {
-            chan,
-            position,
-            aux: [v[0], v[1], 0, 0],
-            status,
-        }
+        Self { chan, position, aux: [v[0], v[1], 0, 0], status }
     }
     /// Stepper layout: encoder count i32.
     pub fn stepper(chan: u16, position: i32, encoder: i32, status: u32) -> Self {
-        Self {
-            chan,
-            position,
-            aux: encoder.to_le_bytes(),
-            status,
-        }
+        Self { chan, position, aux: encoder.to_le_bytes(), status }
     }
     pub fn dc_velocity(&self) -> i16 {
         i16::from_le_bytes([self.aux[0], self.aux[1]])
@@ -414,22 +403,11 @@ pub enum CodecError {
     #[error("unknown APT message id 0x{id:04X}")]
     UnknownMessageId { id: u16 },
     #[error("bad APT header {header:02X?}: {reason}")]
-    BadHeader {
-        header: [u8; HEADER_LEN],
-        reason: &'static str,
-    },
+    BadHeader { header: [u8; HEADER_LEN], reason: &'static str },
     #[error("APT frame 0x{id:04X} addressed to 0x{dest:02X}, expected one of {expected:02X?}")]
-    BadDestination {
-        id: u16,
-        dest: u8,
-        expected: Vec<u8>,
-    },
+    BadDestination { id: u16, dest: u8, expected: Vec<u8> },
     #[error("APT message 0x{id:04X}: expected {expected}, got {got}")]
-    LengthMismatch {
-        id: u16,
-        expected: &'static str,
-        got: &'static str,
-    },
+    LengthMismatch { id: u16, expected: &'static str, got: &'static str },
 }
 
 impl CodecError {
@@ -609,9 +587,7 @@ impl AptMessage {
             M::ModSetChanEnableState { chan, enabled } | M::ModGetChanEnableState { chan, enabled } => {
                 Body::Short(*chan, if *enabled { 1 } else { 2 })
             }
-            M::MotSetEncCounter { chan, count } | M::MotGetEncCounter { chan, count } => {
-                chan_i32(*chan, *count)
-            }
+            M::MotSetEncCounter { chan, count } | M::MotGetEncCounter { chan, count } => chan_i32(*chan, *count),
             M::MotSetPosCounter { chan, position }
             | M::MotGetPosCounter { chan, position }
             | M::MotSetMoveAbsParams { chan, position }
@@ -666,12 +642,10 @@ impl AptMessage {
                 put_i32(&mut d, p.offset);
                 Body::Long(d)
             }
-            M::MotMoveRelative { chan, distance: v } | M::MotMoveAbsolute { chan, position: v } => {
-                match v {
-                    None => Body::Short(*chan, 0),
-                    Some(v) => chan_i32(u16::from(*chan), *v),
-                }
-            }
+            M::MotMoveRelative { chan, distance: v } | M::MotMoveAbsolute { chan, position: v } => match v {
+                None => Body::Short(*chan, 0),
+                Some(v) => chan_i32(u16::from(*chan), *v),
+            },
             M::MotMoveVelocity { chan, direction } | M::MotMoveJog { chan, direction } => {
                 Body::Short(*chan, dir_byte(*direction))
             }
@@ -682,10 +656,7 @@ impl AptMessage {
                     StopMode::Profiled => 2,
                 },
             ),
-            M::MotMoveCompleted(s)
-            | M::MotMoveStopped(s)
-            | M::MotGetStatusUpdate(s)
-            | M::MotGetDcStatusUpdate(s) => {
+            M::MotMoveCompleted(s) | M::MotMoveStopped(s) | M::MotGetStatusUpdate(s) | M::MotGetDcStatusUpdate(s) => {
                 let mut d = Vec::with_capacity(14);
                 put_status(&mut d, s);
                 Body::Long(d)
@@ -728,31 +699,52 @@ fn form_of(id: u16) -> Option<Form> {
     use Form::*;
     use id::*;
     Some(match id {
-        HW_DISCONNECT | HW_REQ_INFO | HW_START_UPDATEMSGS | HW_STOP_UPDATEMSGS
-        | HW_YES_FLASH_PROGRAMMING | HW_NO_FLASH_PROGRAMMING | HW_RESPONSE => Short,
+        HW_DISCONNECT
+        | HW_REQ_INFO
+        | HW_START_UPDATEMSGS
+        | HW_STOP_UPDATEMSGS
+        | HW_YES_FLASH_PROGRAMMING
+        | HW_NO_FLASH_PROGRAMMING
+        | HW_RESPONSE => Short,
         HW_GET_INFO => Long(84),
         HW_RICHRESPONSE => Long(68),
-        MOD_IDENTIFY | MOD_SET_CHANENABLESTATE | MOD_REQ_CHANENABLESTATE
-        | MOD_GET_CHANENABLESTATE => Short,
-        MOT_SET_ENCCOUNTER | MOT_GET_ENCCOUNTER | MOT_SET_POSCOUNTER | MOT_GET_POSCOUNTER
-        | MOT_GET_STATUSBITS | MOT_SET_GENMOVEPARAMS | MOT_GET_GENMOVEPARAMS
-        | MOT_SET_MOVERELPARAMS | MOT_GET_MOVERELPARAMS | MOT_SET_MOVEABSPARAMS
+        MOD_IDENTIFY | MOD_SET_CHANENABLESTATE | MOD_REQ_CHANENABLESTATE | MOD_GET_CHANENABLESTATE => Short,
+        MOT_SET_ENCCOUNTER
+        | MOT_GET_ENCCOUNTER
+        | MOT_SET_POSCOUNTER
+        | MOT_GET_POSCOUNTER
+        | MOT_GET_STATUSBITS
+        | MOT_SET_GENMOVEPARAMS
+        | MOT_GET_GENMOVEPARAMS
+        | MOT_SET_MOVERELPARAMS
+        | MOT_GET_MOVERELPARAMS
+        | MOT_SET_MOVEABSPARAMS
         | MOT_GET_MOVEABSPARAMS => Long(6),
-        MOT_REQ_ENCCOUNTER | MOT_REQ_POSCOUNTER | MOT_REQ_VELPARAMS | MOT_REQ_JOGPARAMS
-        | MOT_REQ_LIMSWITCHPARAMS | MOT_REQ_STATUSBITS | MOT_REQ_GENMOVEPARAMS
-        | MOT_REQ_HOMEPARAMS | MOT_MOVE_HOME | MOT_MOVE_HOMED | MOT_REQ_MOVERELPARAMS
-        | MOT_REQ_MOVEABSPARAMS | MOT_MOVE_VELOCITY | MOT_MOVE_JOG | MOT_MOVE_STOP
-        | MOT_SUSPEND_ENDOFMOVEMSGS | MOT_RESUME_ENDOFMOVEMSGS | MOT_REQ_STATUSUPDATE
-        | MOT_REQ_DCSTATUSUPDATE | MOT_ACK_DCSTATUSUPDATE => Short,
-        MOT_SET_VELPARAMS | MOT_GET_VELPARAMS | MOT_SET_HOMEPARAMS | MOT_GET_HOMEPARAMS => {
-            Long(14)
-        }
+        MOT_REQ_ENCCOUNTER
+        | MOT_REQ_POSCOUNTER
+        | MOT_REQ_VELPARAMS
+        | MOT_REQ_JOGPARAMS
+        | MOT_REQ_LIMSWITCHPARAMS
+        | MOT_REQ_STATUSBITS
+        | MOT_REQ_GENMOVEPARAMS
+        | MOT_REQ_HOMEPARAMS
+        | MOT_MOVE_HOME
+        | MOT_MOVE_HOMED
+        | MOT_REQ_MOVERELPARAMS
+        | MOT_REQ_MOVEABSPARAMS
+        | MOT_MOVE_VELOCITY
+        | MOT_MOVE_JOG
+        | MOT_MOVE_STOP
+        | MOT_SUSPEND_ENDOFMOVEMSGS
+        | MOT_RESUME_ENDOFMOVEMSGS
+        | MOT_REQ_STATUSUPDATE
+        | MOT_REQ_DCSTATUSUPDATE
+        | MOT_ACK_DCSTATUSUPDATE => Short,
+        MOT_SET_VELPARAMS | MOT_GET_VELPARAMS | MOT_SET_HOMEPARAMS | MOT_GET_HOMEPARAMS => Long(14),
         MOT_SET_JOGPARAMS | MOT_GET_JOGPARAMS => Long(22),
         MOT_SET_LIMSWITCHPARAMS | MOT_GET_LIMSWITCHPARAMS => Long(16),
         MOT_MOVE_RELATIVE | MOT_MOVE_ABSOLUTE => Either(6),
-        MOT_MOVE_COMPLETED | MOT_MOVE_STOPPED | MOT_GET_STATUSUPDATE | MOT_GET_DCSTATUSUPDATE => {
-            Long(14)
-        }
+        MOT_MOVE_COMPLETED | MOT_MOVE_STOPPED | MOT_GET_STATUSUPDATE | MOT_GET_DCSTATUSUPDATE => Long(14),
         _ => return None,
     })
 }
@@ -816,28 +808,16 @@ impl Rd<'_> {
         String::from_utf8_lossy(&raw[..cut]).into_owned()
     }
     fn status(&mut self) -> StatusPayload {
-        StatusPayload {
-            chan: self.u16(),
-            position: self.i32(),
-            aux: self.take(),
-            status: self.u32(),
-        }
+        StatusPayload { chan: self.u16(), position: self.i32(), aux: self.take(), status: self.u32() }
     }
 }
 
 fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> Result<AptMessage, CodecError> {
     use AptMessage as M;
     use id::*;
-    let mut r = Rd {
-        d: data.unwrap_or(&[]),
-        at: 0,
-    };
+    let mut r = Rd { d: data.unwrap_or(&[]), at: 0 };
     let chan = chan8(p1);
-    let dir = if p2 == 2 {
-        Direction::Reverse
-    } else {
-        Direction::Forward
-    };
+    let dir = if p2 == 2 { Direction::Reverse } else { Direction::Forward };
     Ok(match id {
         HW_DISCONNECT => M::HwDisconnect,
         HW_REQ_INFO => M::HwReqInfo,
@@ -869,51 +849,20 @@ fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> Result<AptMessage
                 n_channels: r.u16(),
             }))
         }
-        HW_RICHRESPONSE => M::HwRichResponse {
-            msg_id: r.u16(),
-            code: r.u16(),
-            text: r.string(64),
-        },
+        HW_RICHRESPONSE => M::HwRichResponse { msg_id: r.u16(), code: r.u16(), text: r.string(64) },
         MOD_IDENTIFY => M::ModIdentify { chan },
-        MOD_SET_CHANENABLESTATE => M::ModSetChanEnableState {
-            chan,
-            enabled: p2 == 1,
-        },
+        MOD_SET_CHANENABLESTATE => M::ModSetChanEnableState { chan, enabled: p2 == 1 },
         MOD_REQ_CHANENABLESTATE => M::ModReqChanEnableState { chan },
-        MOD_GET_CHANENABLESTATE => M::ModGetChanEnableState {
-            chan,
-            enabled: p2 == 1,
-        },
-        MOT_SET_ENCCOUNTER => M::MotSetEncCounter {
-            chan: r.u16(),
-            count: r.i32(),
-        },
+        MOD_GET_CHANENABLESTATE => M::ModGetChanEnableState { chan, enabled: p2 == 1 },
+        MOT_SET_ENCCOUNTER => M::MotSetEncCounter { chan: r.u16(), count: r.i32() },
         MOT_REQ_ENCCOUNTER => M::MotReqEncCounter { chan },
-        MOT_GET_ENCCOUNTER => M::MotGetEncCounter {
-            chan: r.u16(),
-            count: r.i32(),
-        },
-        MOT_SET_POSCOUNTER => M::MotSetPosCounter {
-            chan: r.u16(),
-            position: r.i32(),
-        },
+        MOT_GET_ENCCOUNTER => M::MotGetEncCounter { chan: r.u16(), count: r.i32() },
+        MOT_SET_POSCOUNTER => M::MotSetPosCounter { chan: r.u16(), position: r.i32() },
         MOT_REQ_POSCOUNTER => M::MotReqPosCounter { chan },
-        MOT_GET_POSCOUNTER => M::MotGetPosCounter {
-            chan: r.u16(),
-            position: r.i32(),
-        },
+        MOT_GET_POSCOUNTER => M::MotGetPosCounter { chan: r.u16(), position: r.i32() },
         MOT_SET_VELPARAMS | MOT_GET_VELPARAMS => {
-            let p = VelParams {
-                chan: r.u16(),
-                min_velocity: r.i32(),
-                acceleration: r.i32(),
-                max_velocity: r.i32(),
-            };
-            if id == MOT_SET_VELPARAMS {
-                M::MotSetVelParams(p)
-            } else {
-                M::MotGetVelParams(p)
-            }
+            let p = VelParams { chan: r.u16(), min_velocity: r.i32(), acceleration: r.i32(), max_velocity: r.i32() };
+            if id == MOT_SET_VELPARAMS { M::MotSetVelParams(p) } else { M::MotGetVelParams(p) }
         }
         MOT_REQ_VELPARAMS => M::MotReqVelParams { chan },
         MOT_SET_JOGPARAMS | MOT_GET_JOGPARAMS => {
@@ -926,11 +875,7 @@ fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> Result<AptMessage
                 max_velocity: r.i32(),
                 stop_mode: r.u16(),
             };
-            if id == MOT_SET_JOGPARAMS {
-                M::MotSetJogParams(p)
-            } else {
-                M::MotGetJogParams(p)
-            }
+            if id == MOT_SET_JOGPARAMS { M::MotSetJogParams(p) } else { M::MotGetJogParams(p) }
         }
         MOT_REQ_JOGPARAMS => M::MotReqJogParams { chan },
         MOT_SET_LIMSWITCHPARAMS | MOT_GET_LIMSWITCHPARAMS => {
@@ -942,27 +887,14 @@ fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> Result<AptMessage
                 ccw_soft: r.u32(),
                 soft_mode: r.u16(),
             };
-            if id == MOT_SET_LIMSWITCHPARAMS {
-                M::MotSetLimSwitchParams(p)
-            } else {
-                M::MotGetLimSwitchParams(p)
-            }
+            if id == MOT_SET_LIMSWITCHPARAMS { M::MotSetLimSwitchParams(p) } else { M::MotGetLimSwitchParams(p) }
         }
         MOT_REQ_LIMSWITCHPARAMS => M::MotReqLimSwitchParams { chan },
         MOT_REQ_STATUSBITS => M::MotReqStatusBits { chan },
-        MOT_GET_STATUSBITS => M::MotGetStatusBits {
-            chan: r.u16(),
-            status: r.u32(),
-        },
-        MOT_SET_GENMOVEPARAMS => M::MotSetGenMoveParams {
-            chan: r.u16(),
-            backlash: r.i32(),
-        },
+        MOT_GET_STATUSBITS => M::MotGetStatusBits { chan: r.u16(), status: r.u32() },
+        MOT_SET_GENMOVEPARAMS => M::MotSetGenMoveParams { chan: r.u16(), backlash: r.i32() },
         MOT_REQ_GENMOVEPARAMS => M::MotReqGenMoveParams { chan },
-        MOT_GET_GENMOVEPARAMS => M::MotGetGenMoveParams {
-            chan: r.u16(),
-            backlash: r.i32(),
-        },
+        MOT_GET_GENMOVEPARAMS => M::MotGetGenMoveParams { chan: r.u16(), backlash: r.i32() },
         MOT_SET_HOMEPARAMS | MOT_GET_HOMEPARAMS => {
             let p = HomeParams {
                 chan: r.u16(),
@@ -971,24 +903,14 @@ fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> Result<AptMessage
                 velocity: r.i32(),
                 offset: r.i32(),
             };
-            if id == MOT_SET_HOMEPARAMS {
-                M::MotSetHomeParams(p)
-            } else {
-                M::MotGetHomeParams(p)
-            }
+            if id == MOT_SET_HOMEPARAMS { M::MotSetHomeParams(p) } else { M::MotGetHomeParams(p) }
         }
         MOT_REQ_HOMEPARAMS => M::MotReqHomeParams { chan },
         MOT_MOVE_HOME => M::MotMoveHome { chan },
         MOT_MOVE_HOMED => M::MotMoveHomed { chan },
-        MOT_SET_MOVERELPARAMS => M::MotSetMoveRelParams {
-            chan: r.u16(),
-            distance: r.i32(),
-        },
+        MOT_SET_MOVERELPARAMS => M::MotSetMoveRelParams { chan: r.u16(), distance: r.i32() },
         MOT_REQ_MOVERELPARAMS => M::MotReqMoveRelParams { chan },
-        MOT_GET_MOVERELPARAMS => M::MotGetMoveRelParams {
-            chan: r.u16(),
-            distance: r.i32(),
-        },
+        MOT_GET_MOVERELPARAMS => M::MotGetMoveRelParams { chan: r.u16(), distance: r.i32() },
         MOT_MOVE_RELATIVE | MOT_MOVE_ABSOLUTE => {
             let (chan, value) = match data {
                 None => (chan, None),
@@ -997,43 +919,18 @@ fn parse_body(id: u16, p1: u8, p2: u8, data: Option<&[u8]>) -> Result<AptMessage
                 Some(_) => (r.u16() as u8, Some(r.i32())),
             };
             if id == MOT_MOVE_RELATIVE {
-                M::MotMoveRelative {
-                    chan,
-                    distance: value,
-                }
+                M::MotMoveRelative { chan, distance: value }
             } else {
-                M::MotMoveAbsolute {
-                    chan,
-                    position: value,
-                }
+                M::MotMoveAbsolute { chan, position: value }
             }
         }
-        MOT_SET_MOVEABSPARAMS => M::MotSetMoveAbsParams {
-            chan: r.u16(),
-            position: r.i32(),
-        },
+        MOT_SET_MOVEABSPARAMS => M::MotSetMoveAbsParams { chan: r.u16(), position: r.i32() },
         MOT_REQ_MOVEABSPARAMS => M::MotReqMoveAbsParams { chan },
-        MOT_GET_MOVEABSPARAMS => M::MotGetMoveAbsParams {
-            chan: r.u16(),
-            position: r.i32(),
-        },
-        MOT_MOVE_VELOCITY => M::MotMoveVelocity {
-            chan,
-            direction: dir,
-        },
-        MOT_MOVE_JOG => M::MotMoveJog {
-            chan,
-            direction: dir,
-        },
+        MOT_GET_MOVEABSPARAMS => M::MotGetMoveAbsParams { chan: r.u16(), position: r.i32() },
+        MOT_MOVE_VELOCITY => M::MotMoveVelocity { chan, direction: dir },
+        MOT_MOVE_JOG => M::MotMoveJog { chan, direction: dir },
         MOT_MOVE_COMPLETED => M::MotMoveCompleted(r.status()),
-        MOT_MOVE_STOP => M::MotMoveStop {
-            chan,
-            mode: if p2 == 1 {
-                StopMode::Immediate
-            } else {
-                StopMode::Profiled
-            },
-        },
+        MOT_MOVE_STOP => M::MotMoveStop { chan, mode: if p2 == 1 { StopMode::Immediate } else { StopMode::Profiled } },
         MOT_MOVE_STOPPED => M::MotMoveStopped(r.status()),
         MOT_SUSPEND_ENDOFMOVEMSGS => M::MotSuspendEndOfMoveMsgs,
         MOT_RESUME_ENDOFMOVEMSGS => M::MotResumeEndOfMoveMsgs,
@@ -1057,15 +954,11 @@ pub struct Addressing {
 impl Addressing {
     /// What a host accepts: replies to 0x01 (and 0x00, which some devices use).
     pub fn host() -> Self {
-        Self {
-            accept_dest: vec![0x00, HOST],
-        }
+        Self { accept_dest: vec![0x00, HOST] }
     }
     /// What a single-channel USB unit accepts.
     pub fn unit() -> Self {
-        Self {
-            accept_dest: vec![USB_UNIT],
-        }
+        Self { accept_dest: vec![USB_UNIT] }
     }
 }
 
@@ -1077,10 +970,7 @@ fn known_source(s: u8) -> bool {
 /// of bytes it used; `TruncatedFrame` when more bytes are needed.
 pub fn decode_frame(bytes: &[u8], addr: &Addressing) -> Result<(Frame, usize), CodecError> {
     if bytes.len() < HEADER_LEN {
-        return Err(CodecError::TruncatedFrame {
-            needed: HEADER_LEN,
-            available: bytes.len(),
-        });
+        return Err(CodecError::TruncatedFrame { needed: HEADER_LEN, available: bytes.len() });
     }
     let mut header = [0u8; HEADER_LEN];
     header.copy_from_slice(&bytes[..HEADER_LEN]);
@@ -1091,30 +981,20 @@ pub fn decode_frame(bytes: &[u8], addr: &Addressing) -> Result<(Frame, usize), C
     let data_len = if long {
         let n = u16::from_le_bytes([header[2], header[3]]) as usize;
         if n > MAX_DATA_LEN {
-            return Err(CodecError::BadHeader {
-                header,
-                reason: "data length over 255 bytes",
-            });
+            return Err(CodecError::BadHeader { header, reason: "data length over 255 bytes" });
         }
         Some(n)
     } else {
         None
     };
     if !known_source(source) {
-        return Err(CodecError::BadHeader {
-            header,
-            reason: "unknown source address",
-        });
+        return Err(CodecError::BadHeader { header, reason: "unknown source address" });
     }
     let Some(form) = form_of(id) else {
         return Err(CodecError::UnknownMessageId { id });
     };
     if !addr.accept_dest.contains(&dest) {
-        return Err(CodecError::BadDestination {
-            id,
-            dest,
-            expected: addr.accept_dest.clone(),
-        });
+        return Err(CodecError::BadDestination { id, dest, expected: addr.accept_dest.clone() });
     }
     let ok = match (form, data_len) {
         (Form::Short, None) => true,
@@ -1124,29 +1004,15 @@ pub fn decode_frame(bytes: &[u8], addr: &Addressing) -> Result<(Frame, usize), C
         _ => false,
     };
     if !ok {
-        return Err(CodecError::LengthMismatch {
-            id,
-            expected: form_name(form),
-            got: got_name(data_len),
-        });
+        return Err(CodecError::LengthMismatch { id, expected: form_name(form), got: got_name(data_len) });
     }
     let total = HEADER_LEN + data_len.unwrap_or(0);
     if bytes.len() < total {
-        return Err(CodecError::TruncatedFrame {
-            needed: total,
-            available: bytes.len(),
-        });
+        return Err(CodecError::TruncatedFrame { needed: total, available: bytes.len() });
     }
     let data = data_len.map(|_| &bytes[HEADER_LEN..total]);
     let message = parse_body(id, header[2], header[3], data)?;
-    Ok((
-        Frame {
-            message,
-            dest,
-            source,
-        },
-        total,
-    ))
+    Ok((Frame { message, dest, source }, total))
 }
 
 /// Streaming decoder: feed bytes as they arrive, take frames out. On a bad
@@ -1166,13 +1032,7 @@ pub struct AptDecoder {
 
 impl AptDecoder {
     pub fn new(addr: Addressing) -> Self {
-        Self {
-            buf: Vec::with_capacity(512),
-            start: 0,
-            addr,
-            dropped: 0,
-            last_bad: Vec::new(),
-        }
+        Self { buf: Vec::with_capacity(512), start: 0, addr, dropped: 0, last_bad: Vec::new() }
     }
 
     pub fn for_host() -> Self {
@@ -1226,10 +1086,7 @@ impl AptDecoder {
         match decode_frame(p, &self.addr) {
             Err(e) => Err(e),
             // Not reachable after next_frame() returned None; report as truncated anyway.
-            Ok(_) => Err(CodecError::TruncatedFrame {
-                needed: p.len() + 1,
-                available: p.len(),
-            }),
+            Ok(_) => Err(CodecError::TruncatedFrame { needed: p.len() + 1, available: p.len() }),
         }
     }
 
@@ -1246,14 +1103,7 @@ impl AptDecoder {
 
 impl fmt::Display for Frame {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "0x{:04X} {:02X}->{:02X} {:?}",
-            self.message.id(),
-            self.source,
-            self.dest,
-            self.message
-        )
+        write!(f, "0x{:04X} {:02X}->{:02X} {:?}", self.message.id(), self.source, self.dest, self.message)
     }
 }
 
@@ -1263,9 +1113,7 @@ mod tests {
     use proptest::prelude::*;
 
     fn hex(s: &str) -> Vec<u8> {
-        s.split_whitespace()
-            .map(|b| u8::from_str_radix(b, 16).unwrap())
-            .collect()
+        s.split_whitespace().map(|b| u8::from_str_radix(b, 16).unwrap()).collect()
     }
 
     fn info() -> HwInfo {
@@ -1286,12 +1134,7 @@ mod tests {
     /// One sample of every message variant.
     fn samples() -> Vec<AptMessage> {
         use AptMessage as M;
-        let vel = VelParams {
-            chan: 1,
-            min_velocity: 0,
-            acceleration: 1055,
-            max_velocity: 1_777_857,
-        };
+        let vel = VelParams { chan: 1, min_velocity: 0, acceleration: 1055, max_velocity: 1_777_857 };
         let jog = JogParams {
             chan: 1,
             mode: 2,
@@ -1301,21 +1144,8 @@ mod tests {
             max_velocity: 1_000_000,
             stop_mode: 2,
         };
-        let home = HomeParams {
-            chan: 1,
-            direction: 2,
-            limit_switch: 1,
-            velocity: 772_981,
-            offset: 34_555,
-        };
-        let lim = LimSwitchParams {
-            chan: 1,
-            cw_hard: 2,
-            ccw_hard: 2,
-            cw_soft: 863_874,
-            ccw_soft: 0,
-            soft_mode: 1,
-        };
+        let home = HomeParams { chan: 1, direction: 2, limit_switch: 1, velocity: 772_981, offset: 34_555 };
+        let lim = LimSwitchParams { chan: 1, cw_hard: 2, ccw_hard: 2, cw_soft: 863_874, ccw_soft: 0, soft_mode: 1 };
         let st = StatusPayload::dc(1, 42641, -27, 0x8000_0500);
         let sst = StatusPayload::stepper(1, -136_533, 7, 0x8000_0410);
         vec![
@@ -1327,37 +1157,18 @@ mod tests {
             M::HwYesFlashProgramming,
             M::HwNoFlashProgramming,
             M::HwResponse { p1: 3, p2: 7 },
-            M::HwRichResponse {
-                msg_id: 0x0453,
-                code: 40,
-                text: "position outside travel".into(),
-            },
+            M::HwRichResponse { msg_id: 0x0453, code: 40, text: "position outside travel".into() },
             M::ModIdentify { chan: 1 },
-            M::ModSetChanEnableState {
-                chan: 1,
-                enabled: true,
-            },
-            M::ModSetChanEnableState {
-                chan: 1,
-                enabled: false,
-            },
+            M::ModSetChanEnableState { chan: 1, enabled: true },
+            M::ModSetChanEnableState { chan: 1, enabled: false },
             M::ModReqChanEnableState { chan: 1 },
-            M::ModGetChanEnableState {
-                chan: 1,
-                enabled: true,
-            },
+            M::ModGetChanEnableState { chan: 1, enabled: true },
             M::MotSetEncCounter { chan: 1, count: -5 },
             M::MotReqEncCounter { chan: 1 },
             M::MotGetEncCounter { chan: 1, count: 99 },
-            M::MotSetPosCounter {
-                chan: 1,
-                position: 0,
-            },
+            M::MotSetPosCounter { chan: 1, position: 0 },
             M::MotReqPosCounter { chan: 1 },
-            M::MotGetPosCounter {
-                chan: 1,
-                position: -42641,
-            },
+            M::MotGetPosCounter { chan: 1, position: -42641 },
             M::MotSetVelParams(vel),
             M::MotReqVelParams { chan: 1 },
             M::MotGetVelParams(vel),
@@ -1368,75 +1179,30 @@ mod tests {
             M::MotReqLimSwitchParams { chan: 1 },
             M::MotGetLimSwitchParams(lim),
             M::MotReqStatusBits { chan: 1 },
-            M::MotGetStatusBits {
-                chan: 1,
-                status: 0x8000_0410,
-            },
-            M::MotSetGenMoveParams {
-                chan: 1,
-                backlash: 35,
-            },
+            M::MotGetStatusBits { chan: 1, status: 0x8000_0410 },
+            M::MotSetGenMoveParams { chan: 1, backlash: 35 },
             M::MotReqGenMoveParams { chan: 1 },
-            M::MotGetGenMoveParams {
-                chan: 1,
-                backlash: 35,
-            },
+            M::MotGetGenMoveParams { chan: 1, backlash: 35 },
             M::MotSetHomeParams(home),
             M::MotReqHomeParams { chan: 1 },
             M::MotGetHomeParams(home),
             M::MotMoveHome { chan: 1 },
             M::MotMoveHomed { chan: 1 },
-            M::MotSetMoveRelParams {
-                chan: 1,
-                distance: -3455,
-            },
+            M::MotSetMoveRelParams { chan: 1, distance: -3455 },
             M::MotReqMoveRelParams { chan: 1 },
-            M::MotGetMoveRelParams {
-                chan: 1,
-                distance: -3455,
-            },
-            M::MotMoveRelative {
-                chan: 1,
-                distance: None,
-            },
-            M::MotMoveRelative {
-                chan: 1,
-                distance: Some(-3455),
-            },
-            M::MotSetMoveAbsParams {
-                chan: 1,
-                position: 42641,
-            },
+            M::MotGetMoveRelParams { chan: 1, distance: -3455 },
+            M::MotMoveRelative { chan: 1, distance: None },
+            M::MotMoveRelative { chan: 1, distance: Some(-3455) },
+            M::MotSetMoveAbsParams { chan: 1, position: 42641 },
             M::MotReqMoveAbsParams { chan: 1 },
-            M::MotGetMoveAbsParams {
-                chan: 1,
-                position: 42641,
-            },
-            M::MotMoveAbsolute {
-                chan: 1,
-                position: None,
-            },
-            M::MotMoveAbsolute {
-                chan: 1,
-                position: Some(42641),
-            },
-            M::MotMoveVelocity {
-                chan: 1,
-                direction: Direction::Reverse,
-            },
-            M::MotMoveJog {
-                chan: 1,
-                direction: Direction::Forward,
-            },
+            M::MotGetMoveAbsParams { chan: 1, position: 42641 },
+            M::MotMoveAbsolute { chan: 1, position: None },
+            M::MotMoveAbsolute { chan: 1, position: Some(42641) },
+            M::MotMoveVelocity { chan: 1, direction: Direction::Reverse },
+            M::MotMoveJog { chan: 1, direction: Direction::Forward },
             M::MotMoveCompleted(st),
-            M::MotMoveStop {
-                chan: 1,
-                mode: StopMode::Profiled,
-            },
-            M::MotMoveStop {
-                chan: 1,
-                mode: StopMode::Immediate,
-            },
+            M::MotMoveStop { chan: 1, mode: StopMode::Profiled },
+            M::MotMoveStop { chan: 1, mode: StopMode::Immediate },
             M::MotMoveStopped(st),
             M::MotSuspendEndOfMoveMsgs,
             M::MotResumeEndOfMoveMsgs,
@@ -1468,10 +1234,7 @@ mod tests {
     #[test]
     fn streaming_decoder_splits_a_concatenated_stream_fed_byte_by_byte() {
         let msgs = samples();
-        let stream: Vec<u8> = msgs
-            .iter()
-            .flat_map(|m| encode(m, HOST, USB_UNIT))
-            .collect();
+        let stream: Vec<u8> = msgs.iter().flat_map(|m| encode(m, HOST, USB_UNIT)).collect();
         let mut dec = AptDecoder::for_host();
         let mut out = Vec::new();
         for b in stream {
@@ -1491,40 +1254,23 @@ mod tests {
             (AptMessage::HwNoFlashProgramming, USB_UNIT, HOST, "18 00 00 00 50 01"),
             (AptMessage::HwReqInfo, USB_UNIT, HOST, "05 00 00 00 50 01"),
             (AptMessage::ModIdentify { chan: 1 }, USB_UNIT, HOST, "23 02 01 00 50 01"),
-            (
-                AptMessage::ModSetChanEnableState {
-                    chan: 1,
-                    enabled: true,
-                },
-                USB_UNIT,
-                HOST,
-                "10 02 01 01 50 01",
-            ),
+            (AptMessage::ModSetChanEnableState { chan: 1, enabled: true }, USB_UNIT, HOST, "10 02 01 01 50 01"),
             (AptMessage::MotMoveHome { chan: 1 }, USB_UNIT, HOST, "43 04 01 00 50 01"),
             (AptMessage::MotMoveHomed { chan: 1 }, HOST, USB_UNIT, "44 04 01 00 01 50"),
             (
-                AptMessage::MotMoveAbsolute {
-                    chan: 1,
-                    position: Some(42641),
-                },
+                AptMessage::MotMoveAbsolute { chan: 1, position: Some(42641) },
                 USB_UNIT,
                 HOST,
                 "53 04 06 00 D0 01 01 00 91 A6 00 00",
             ),
             (
-                AptMessage::MotMoveAbsolute {
-                    chan: 1,
-                    position: Some(2048),
-                },
+                AptMessage::MotMoveAbsolute { chan: 1, position: Some(2048) },
                 USB_UNIT,
                 HOST,
                 "53 04 06 00 D0 01 01 00 00 08 00 00",
             ),
             (
-                AptMessage::MotMoveRelative {
-                    chan: 1,
-                    distance: Some(-3455),
-                },
+                AptMessage::MotMoveRelative { chan: 1, distance: Some(-3455) },
                 USB_UNIT,
                 HOST,
                 "48 04 06 00 D0 01 01 00 81 F2 FF FF",
@@ -1540,12 +1286,7 @@ mod tests {
                 HOST,
                 "13 04 0E 00 D0 01 01 00 00 00 00 00 1F 04 00 00 C1 20 1B 00",
             ),
-            (
-                AptMessage::MotReqDcStatusUpdate { chan: 1 },
-                USB_UNIT,
-                HOST,
-                "90 04 01 00 50 01",
-            ),
+            (AptMessage::MotReqDcStatusUpdate { chan: 1 }, USB_UNIT, HOST, "90 04 01 00 50 01"),
             (
                 AptMessage::MotGetDcStatusUpdate(StatusPayload::dc(
                     1,
@@ -1560,15 +1301,7 @@ mod tests {
             (AptMessage::MotAckDcStatusUpdate, USB_UNIT, HOST, "92 04 00 00 50 01"),
             (AptMessage::HwStartUpdateMsgs, USB_UNIT, HOST, "11 00 00 00 50 01"),
             (AptMessage::HwStopUpdateMsgs, USB_UNIT, HOST, "12 00 00 00 50 01"),
-            (
-                AptMessage::MotMoveStop {
-                    chan: 1,
-                    mode: StopMode::Profiled,
-                },
-                USB_UNIT,
-                HOST,
-                "65 04 01 02 50 01",
-            ),
+            (AptMessage::MotMoveStop { chan: 1, mode: StopMode::Profiled }, USB_UNIT, HOST, "65 04 01 02 50 01"),
         ];
         for (msg, dest, src, want) in cases {
             assert_eq!(encode(&msg, dest, src), hex(want), "{msg:?}");
@@ -1584,10 +1317,7 @@ mod tests {
             0,
             status::HOMED | status::MOTOR_CONNECTED | status::ENABLED,
         ));
-        assert_eq!(
-            encode(&msg, HOST, USB_UNIT),
-            hex("64 04 0E 00 81 50 01 00 91 A6 00 00 00 00 00 00 00 05 00 80")
-        );
+        assert_eq!(encode(&msg, HOST, USB_UNIT), hex("64 04 0E 00 81 50 01 00 91 A6 00 00 00 00 00 00 00 05 00 80"));
     }
 
     #[test]
@@ -1625,22 +1355,13 @@ mod tests {
         let mut dec = AptDecoder::for_unit();
         dec.feed(&full[..9]);
         assert!(dec.next_frame().is_none());
-        assert!(matches!(
-            dec.finish(),
-            Err(CodecError::TruncatedFrame {
-                needed: 12,
-                available: 9
-            })
-        ));
+        assert!(matches!(dec.finish(), Err(CodecError::TruncatedFrame { needed: 12, available: 9 })));
     }
 
     #[test]
     fn unknown_id_is_a_typed_error_and_the_decoder_resynchronises() {
         let bad = hex("34 12 00 00 50 01");
-        assert_eq!(
-            decode_frame(&bad, &Addressing::unit()),
-            Err(CodecError::UnknownMessageId { id: 0x1234 })
-        );
+        assert_eq!(decode_frame(&bad, &Addressing::unit()), Err(CodecError::UnknownMessageId { id: 0x1234 }));
         let mut dec = AptDecoder::for_unit();
         dec.feed(&bad);
         dec.feed(&hex("05 00 00 00 50 01"));
@@ -1662,11 +1383,7 @@ mod tests {
         // A reply addressed to the unit when the host decodes.
         assert!(matches!(
             decode_frame(&hex("05 00 00 00 50 01"), &Addressing::host()),
-            Err(CodecError::BadDestination {
-                id: 0x0005,
-                dest: 0x50,
-                ..
-            })
+            Err(CodecError::BadDestination { id: 0x0005, dest: 0x50, .. })
         ));
         // Long frame announcing 0x0100 = 256 data bytes.
         assert!(matches!(

@@ -17,34 +17,24 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::time::Instant;
 
 use super::codec::{
-    AptDecoder, AptMessage, CodecError, Frame, HOST, HwInfo, StatusPayload, StopMode, USB_UNIT,
-    VelParams, encode, status,
+    AptDecoder, AptMessage, CodecError, Frame, HOST, HwInfo, StatusPayload, StopMode, USB_UNIT, VelParams, encode,
+    status,
 };
 use super::scaling::{ControllerFamily, Scale};
+use crate::motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount};
 use crate::serial::open_serial;
-use crate::motion::{
-    AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount,
-};
 
 /// Typed error of the APT driver family.
 #[derive(Debug, thiserror::Error)]
 pub enum AptError {
     #[error("APT device did not send {waiting_for} within {timeout:?}")]
-    Timeout {
-        waiting_for: &'static str,
-        timeout: Duration,
-    },
+    Timeout { waiting_for: &'static str, timeout: Duration },
     #[error("APT protocol error: {detail} (bytes {bytes:02X?})")]
     Protocol { detail: String, bytes: Vec<u8> },
     #[error("APT device reported error code {code} for message 0x{msg_id:04X}: {text}")]
     DeviceReported { msg_id: u16, code: u16, text: String },
     #[error("{what} {requested} outside the travel [{min}, {max}]; nothing was sent")]
-    Limit {
-        what: &'static str,
-        requested: f64,
-        min: f64,
-        max: f64,
-    },
+    Limit { what: &'static str, requested: f64, min: f64, max: f64 },
     #[error("APT link disconnected: {0}")]
     Disconnected(String),
     #[error("APT I/O error: {0}")]
@@ -66,10 +56,7 @@ impl DeviceFault for AptError {
 
 impl AptError {
     fn from_codec(e: &CodecError, bytes: &[u8]) -> Self {
-        AptError::Protocol {
-            detail: e.to_string(),
-            bytes: bytes.to_vec(),
-        }
+        AptError::Protocol { detail: e.to_string(), bytes: bytes.to_vec() }
     }
 }
 
@@ -88,8 +75,7 @@ fn is_hangup(e: &io::Error) -> bool {
 /// `now + d`, saturating at a year ahead instead of overflowing on huge timeouts.
 fn after(d: Duration) -> Instant {
     let now = Instant::now();
-    now.checked_add(d)
-        .unwrap_or_else(|| now + Duration::from_secs(365 * 24 * 3600))
+    now.checked_add(d).unwrap_or_else(|| now + Duration::from_secs(365 * 24 * 3600))
 }
 
 /// Driver settings for one APT unit.
@@ -133,10 +119,7 @@ impl AptConfig {
 
     /// KDC101 driving a Z812B (12 mm travel).
     pub fn kdc101_z812b() -> Self {
-        Self {
-            travel: (0.0, 12.0),
-            ..Self::kdc101_z825b()
-        }
+        Self { travel: (0.0, 12.0), ..Self::kdc101_z825b() }
     }
 
     /// K10CR1 rotation mount, 10 °/s and 20 °/s² (A.7); soft travel ±360°.
@@ -299,11 +282,9 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
                 code: u16::from_le_bytes([*p1, *p2]),
                 text: "HW_RESPONSE".into(),
             }),
-            AptMessage::HwRichResponse { msg_id, code, text } => Err(AptError::DeviceReported {
-                msg_id: *msg_id,
-                code: *code,
-                text: text.clone(),
-            }),
+            AptMessage::HwRichResponse { msg_id, code, text } => {
+                Err(AptError::DeviceReported { msg_id: *msg_id, code: *code, text: text.clone() })
+            }
             AptMessage::MotMoveCompleted(s) => {
                 self.last_status = Some(*s);
                 if let Some(p) = &mut self.pending
@@ -330,9 +311,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
                 if let Some(p) = &mut self.pending
                     && p.kind == PendingKind::Home
                 {
-                    let mut s = self
-                        .last_status
-                        .unwrap_or_else(|| StatusPayload::dc(1, 0, 0, 0));
+                    let mut s = self.last_status.unwrap_or_else(|| StatusPayload::dc(1, 0, 0, 0));
                     s.position = 0;
                     s.status = (s.status | status::HOMED) & !status::ANY_MOTION;
                     p.done = Some(s);
@@ -361,12 +340,8 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
         }
         let finished = match p.kind {
             PendingKind::Stop => true,
-            PendingKind::Home => {
-                s.status & status::HOMED != 0 && (p.seen_moving || p.started.elapsed() > IDLE_GRACE)
-            }
-            PendingKind::Move => {
-                p.target == Some(s.position) || p.seen_moving || p.started.elapsed() > IDLE_GRACE
-            }
+            PendingKind::Home => s.status & status::HOMED != 0 && (p.seen_moving || p.started.elapsed() > IDLE_GRACE),
+            PendingKind::Move => p.target == Some(s.position) || p.seen_moving || p.started.elapsed() > IDLE_GRACE,
         };
         if finished {
             p.done = Some(s);
@@ -387,10 +362,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
             let Some(frame) = self.read_frame(deadline).await? else {
                 return Err(match self.last_codec_error.take() {
                     Some((e, bytes)) => AptError::from_codec(&e, &bytes),
-                    None => AptError::Timeout {
-                        waiting_for,
-                        timeout: self.cfg.reply_timeout,
-                    },
+                    None => AptError::Timeout { waiting_for, timeout: self.cfg.reply_timeout },
                 });
             };
             self.absorb(&frame.message)?;
@@ -428,11 +400,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
             });
         }
         let chan = self.cfg.chan;
-        self.send(&AptMessage::ModSetChanEnableState {
-            chan,
-            enabled: true,
-        })
-        .await?;
+        self.send(&AptMessage::ModSetChanEnableState { chan, enabled: true }).await?;
         if let Some((v, a)) = self.cfg.velocity {
             self.set_velocity_params(v, a).await?;
         }
@@ -446,36 +414,24 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
         let chan = self.cfg.chan;
         let s = match self.cfg.scale.family {
             ControllerFamily::DcServo => {
-                self.request(
-                    &AptMessage::MotReqDcStatusUpdate { chan },
-                    "MOT_GET_DCSTATUSUPDATE",
-                    |m| match m {
-                        AptMessage::MotGetDcStatusUpdate(s) => Some(*s),
-                        _ => None,
-                    },
-                )
+                self.request(&AptMessage::MotReqDcStatusUpdate { chan }, "MOT_GET_DCSTATUSUPDATE", |m| match m {
+                    AptMessage::MotGetDcStatusUpdate(s) => Some(*s),
+                    _ => None,
+                })
                 .await?
             }
             ControllerFamily::Stepper => {
                 let bits = self
-                    .request(
-                        &AptMessage::MotReqStatusBits { chan },
-                        "MOT_GET_STATUSBITS",
-                        |m| match m {
-                            AptMessage::MotGetStatusBits { status, .. } => Some(*status),
-                            _ => None,
-                        },
-                    )
+                    .request(&AptMessage::MotReqStatusBits { chan }, "MOT_GET_STATUSBITS", |m| match m {
+                        AptMessage::MotGetStatusBits { status, .. } => Some(*status),
+                        _ => None,
+                    })
                     .await?;
                 let pos = self
-                    .request(
-                        &AptMessage::MotReqPosCounter { chan },
-                        "MOT_GET_POSCOUNTER",
-                        |m| match m {
-                            AptMessage::MotGetPosCounter { position, .. } => Some(*position),
-                            _ => None,
-                        },
-                    )
+                    .request(&AptMessage::MotReqPosCounter { chan }, "MOT_GET_POSCOUNTER", |m| match m {
+                        AptMessage::MotGetPosCounter { position, .. } => Some(*position),
+                        _ => None,
+                    })
                     .await?;
                 let s = StatusPayload::stepper(u16::from(chan), pos, 0, bits);
                 self.note_status(s);
@@ -489,12 +445,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
         let (min, max) = self.cfg.travel;
         let half_count = 0.5 / self.cfg.scale.counts_per_unit;
         if !target.is_finite() || target < min - half_count || target > max + half_count {
-            return Err(AptError::Limit {
-                what,
-                requested: target,
-                min,
-                max,
-            });
+            return Err(AptError::Limit { what, requested: target, min, max });
         }
         Ok(())
     }
@@ -509,13 +460,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
     }
 
     fn begin(&mut self, kind: PendingKind, target: Option<i32>) {
-        self.pending = Some(Pending {
-            kind,
-            target,
-            started: Instant::now(),
-            seen_moving: false,
-            done: None,
-        });
+        self.pending = Some(Pending { kind, target, started: Instant::now(), seen_moving: false, done: None });
     }
 
     pub async fn move_to(&mut self, target: f64) -> Result<(), AptError> {
@@ -524,11 +469,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
         let counts = self.counts("target", target)?;
         self.begin(PendingKind::Move, Some(counts));
         let chan = self.cfg.chan;
-        self.send(&AptMessage::MotMoveAbsolute {
-            chan,
-            position: Some(counts),
-        })
-        .await
+        self.send(&AptMessage::MotMoveAbsolute { chan, position: Some(counts) }).await
     }
 
     /// Relative move: the current position is read first so the resulting
@@ -540,11 +481,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
         let d = self.counts("distance", delta)?;
         self.begin(PendingKind::Move, Some(now.position.saturating_add(d)));
         let chan = self.cfg.chan;
-        self.send(&AptMessage::MotMoveRelative {
-            chan,
-            distance: Some(d),
-        })
-        .await
+        self.send(&AptMessage::MotMoveRelative { chan, distance: Some(d) }).await
     }
 
     pub async fn home(&mut self, timeout: Duration) -> Result<(), AptError> {
@@ -562,11 +499,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
             _ => self.begin(PendingKind::Stop, None),
         }
         let chan = self.cfg.chan;
-        self.send(&AptMessage::MotMoveStop {
-            chan,
-            mode: StopMode::Profiled,
-        })
-        .await
+        self.send(&AptMessage::MotMoveStop { chan, mode: StopMode::Profiled }).await
     }
 
     /// Wait for the pending motion to end; returns the final position (user units).
@@ -575,11 +508,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
         Ok(self.cfg.scale.from_counts(s.position))
     }
 
-    async fn wait(
-        &mut self,
-        timeout: Duration,
-        waiting_for: &'static str,
-    ) -> Result<StatusPayload, AptError> {
+    async fn wait(&mut self, timeout: Duration, waiting_for: &'static str) -> Result<StatusPayload, AptError> {
         self.check_alive()?;
         if self.pending.is_none() {
             return self.query_status().await;
@@ -593,10 +522,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
             }
             let now = Instant::now();
             if now >= deadline {
-                return Err(AptError::Timeout {
-                    waiting_for,
-                    timeout,
-                });
+                return Err(AptError::Timeout { waiting_for, timeout });
             }
             if now >= next_poll {
                 self.query_status().await?;
@@ -610,23 +536,12 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
     }
 
     pub async fn set_velocity_params(&mut self, v: f64, a: f64) -> Result<(), AptError> {
-        let bad = |what| AptError::Protocol {
-            detail: format!("{what} out of the device's range"),
-            bytes: Vec::new(),
-        };
+        let bad = |what| AptError::Protocol { detail: format!("{what} out of the device's range"), bytes: Vec::new() };
         let p = VelParams {
             chan: u16::from(self.cfg.chan),
             min_velocity: 0,
-            acceleration: self
-                .cfg
-                .scale
-                .acceleration_to_device(a)
-                .map_err(|_| bad("acceleration"))?,
-            max_velocity: self
-                .cfg
-                .scale
-                .velocity_to_device(v)
-                .map_err(|_| bad("velocity"))?,
+            acceleration: self.cfg.scale.acceleration_to_device(a).map_err(|_| bad("acceleration"))?,
+            max_velocity: self.cfg.scale.velocity_to_device(v).map_err(|_| bad("velocity"))?,
         };
         self.send(&AptMessage::MotSetVelParams(p)).await
     }
@@ -635,14 +550,10 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
     pub async fn velocity_params(&mut self) -> Result<(f64, f64), AptError> {
         let chan = self.cfg.chan;
         let p = self
-            .request(
-                &AptMessage::MotReqVelParams { chan },
-                "MOT_GET_VELPARAMS",
-                |m| match m {
-                    AptMessage::MotGetVelParams(p) => Some(*p),
-                    _ => None,
-                },
-            )
+            .request(&AptMessage::MotReqVelParams { chan }, "MOT_GET_VELPARAMS", |m| match m {
+                AptMessage::MotGetVelParams(p) => Some(*p),
+                _ => None,
+            })
             .await?;
         Ok((
             self.cfg.scale.velocity_from_device(p.max_velocity),
@@ -696,11 +607,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
     /// Shutdown as thorlabs_apt_device does it: profiled stop, stop updates.
     async fn close(mut self) -> Result<T, AptError> {
         let chan = self.cfg.chan;
-        self.send(&AptMessage::MotMoveStop {
-            chan,
-            mode: StopMode::Profiled,
-        })
-        .await?;
+        self.send(&AptMessage::MotMoveStop { chan, mode: StopMode::Profiled }).await?;
         self.send(&AptMessage::HwStopUpdateMsgs).await?;
         Ok(self.io)
     }
@@ -845,10 +752,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> RotationMount for AptRotation<T> 
 /// changes. HW_NO_FLASH_PROGRAMMING is deliberately not sent: its first byte
 /// is 0x18 (Ctrl-X), which a GRBL board on the same probe would take as a
 /// soft reset.
-pub async fn probe(
-    port_path: impl AsRef<std::path::Path>,
-    timeout: Duration,
-) -> Result<DeviceInfo, AptError> {
+pub async fn probe(port_path: impl AsRef<std::path::Path>, timeout: Duration) -> Result<DeviceInfo, AptError> {
     let port = open_serial(port_path).await?;
     probe_on(port, timeout).await
 }

@@ -131,7 +131,7 @@ mod tests {
         assert_eq!(s.velocity_to_device(2.3).unwrap(), 1_777_857);
         assert_eq!(s.acceleration_to_device(4.0).unwrap(), 1_055);
         // The factors quoted from the protocol PDF.
-        assert!((s.velocity_factor - 772_981.3692).abs() < 0.01);
+        assert!((s.velocity_factor - 772_981.369_2).abs() < 0.01);
         assert!((s.acceleration_factor - 263.844_307_2).abs() < 1e-4);
         assert!((s.from_counts(42_641) - 1.234).abs() < 1.0 / Z8_COUNTS_PER_MM);
     }

@@ -22,8 +22,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use devices::apt::codec::{
-    AptDecoder, AptMessage, Direction, HOST, HomeParams, HwInfo, JogParams, LimSwitchParams,
-    StatusPayload, StopMode, USB_UNIT, VelParams, encode_into, status,
+    AptDecoder, AptMessage, Direction, HOST, HomeParams, HwInfo, JogParams, LimSwitchParams, StatusPayload, StopMode,
+    USB_UNIT, VelParams, encode_into, status,
 };
 use devices::apt::scaling::{ControllerFamily, Scale};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -170,9 +170,7 @@ impl EmulatorHandle {
     pub fn inject_error(&self, e: InjectedError) {
         let msg = match e {
             InjectedError::Response { p1, p2 } => AptMessage::HwResponse { p1, p2 },
-            InjectedError::Rich { msg_id, code, text } => {
-                AptMessage::HwRichResponse { msg_id, code, text }
-            }
+            InjectedError::Rich { msg_id, code, text } => AptMessage::HwRichResponse { msg_id, code, text },
         };
         // A send error means the emulator already stopped: nothing to do.
         let _ = self.ctl.send(Control::Send(msg));
@@ -271,13 +269,7 @@ impl Unit {
                 max_velocity: dv(ax_cfg.max_velocity),
                 stop_mode: 2,
             },
-            home: HomeParams {
-                chan,
-                direction: 2,
-                limit_switch: 1,
-                velocity: dv(ax_cfg.home_velocity),
-                offset: 0,
-            },
+            home: HomeParams { chan, direction: 2, limit_switch: 1, velocity: dv(ax_cfg.home_velocity), offset: 0 },
             lim: LimSwitchParams {
                 chan,
                 cw_hard: 2,
@@ -426,9 +418,7 @@ impl Unit {
                     self.with_axis(|ax, t| ax.command_stop(t, true));
                 }
             }
-            M::ModReqChanEnableState { chan } => {
-                out.push(M::ModGetChanEnableState { chan, enabled: self.enabled })
-            }
+            M::ModReqChanEnableState { chan } => out.push(M::ModGetChanEnableState { chan, enabled: self.enabled }),
             M::MotReqPosCounter { chan } => {
                 out.push(M::MotGetPosCounter { chan: u16::from(chan), position: self.current_counts() })
             }
@@ -462,13 +452,9 @@ impl Unit {
                 out.push(M::MotGetGenMoveParams { chan: 1, backlash: self.backlash_counts })
             }
             M::MotSetMoveRelParams { distance, .. } => self.rel_distance = distance,
-            M::MotReqMoveRelParams { .. } => {
-                out.push(M::MotGetMoveRelParams { chan: 1, distance: self.rel_distance })
-            }
+            M::MotReqMoveRelParams { .. } => out.push(M::MotGetMoveRelParams { chan: 1, distance: self.rel_distance }),
             M::MotSetMoveAbsParams { position, .. } => self.abs_position = position,
-            M::MotReqMoveAbsParams { .. } => {
-                out.push(M::MotGetMoveAbsParams { chan: 1, position: self.abs_position })
-            }
+            M::MotReqMoveAbsParams { .. } => out.push(M::MotGetMoveAbsParams { chan: 1, position: self.abs_position }),
             M::MotReqStatusBits { chan } => {
                 out.push(M::MotGetStatusBits { chan: u16::from(chan), status: self.status_payload().status })
             }
@@ -738,10 +724,7 @@ mod tests {
         assert!(matches!(out[0], AptMessage::MotMoveStopped(_)));
         out.clear();
         u.handle(AptMessage::MotMoveAbsolute { chan: 1, position: Some(2_000_000) }, &mut out);
-        assert!(matches!(
-            out[0],
-            AptMessage::HwRichResponse { msg_id: 0x0453, code: ERR_OUT_OF_TRAVEL, .. }
-        ));
+        assert!(matches!(out[0], AptMessage::HwRichResponse { msg_id: 0x0453, code: ERR_OUT_OF_TRAVEL, .. }));
         assert!(!u.is_moving());
     }
 }
