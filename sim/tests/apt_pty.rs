@@ -213,20 +213,25 @@ async fn rotation_identifies_homes_and_turns_both_ways() {
 
 #[tokio::test]
 async fn rotation_stop_during_a_move() {
-    let (_rig, _h, mut r) = rotation(400.0).await;
-    r.home(T).await.unwrap();
-    r.start_move_to_deg(350.0).await.unwrap();
+    // Unhomed, the counter reads the power-on angle (365°); turning back to 0
+    // takes 36.5 rig seconds, 0.7 s of wall time at 50x: ample room to stop.
+    let (rig, _h, mut r) = rotation(50.0).await;
+    let start = r.position_deg().await.unwrap();
+    assert!((start - 365.0).abs() < 1e-4, "{start}");
+    r.start_move_to_deg(0.0).await.unwrap();
     loop {
         let st = r.status().await.unwrap();
-        assert!(st.position < 340.0, "the move ended before the stop could be sent");
-        if st.moving && st.position > 20.0 {
+        assert!(st.position > 5.0, "the move ended before the stop could be sent");
+        if st.moving && st.position < 345.0 {
             break;
         }
     }
     r.stop().await.unwrap();
     let p = r.wait_until_stopped(T).await.unwrap();
-    assert!(p > 20.0 && p < 340.0, "{p}");
-    assert!(!r.status().await.unwrap().moving);
+    assert!(p > 5.0 && p < 345.0, "{p}");
+    let st = r.status().await.unwrap();
+    assert!(!st.moving && (st.position - p).abs() < 1e-9);
+    assert!((rig.pose().rot_deg - p).abs() < 1e-4);
 }
 
 #[tokio::test]
