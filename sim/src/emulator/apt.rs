@@ -586,10 +586,12 @@ async fn run(mut unit: Unit, mut pty: PtyMaster, mut ctl: mpsc::UnboundedReceive
         }
         unit.poll_motion(&mut out_msgs);
         if Instant::now() >= next_push {
-            next_push += unit.cfg.update_period;
-            if next_push < Instant::now() {
-                next_push = Instant::now() + unit.cfg.update_period;
-            }
+            // Measured from now, not from the previous slot: the period
+            // stretches by the processing time as a unit's does. A client
+            // that reads with a timeout equal to the period
+            // (thorlabs_apt_device: 0.1 s) otherwise never sees its read
+            // time out and starves its own writes.
+            next_push = Instant::now() + unit.cfg.update_period;
             if let Some(m) = unit.push_update() {
                 out_msgs.push(m);
             }
