@@ -9,6 +9,14 @@
 //! side (replies, 10 Hz pushed status updates) runs in wall time, because
 //! that is what a client's timeouts are measured in.
 //!
+//! Checked by hand (not in CI) against two independent clients on the slave
+//! tty: thorlabs_apt_device 0.3.8 `KDC101` (polled: home, absolute and
+//! relative moves, MOVE_COMPLETED) and `APTDevice_Motor` with
+//! `status_updates="auto"` on both units (pushed 0x0491 / 0x0481, keep-alive);
+//! pylablib 1.4.5 `KinesisMotor` on both units (identify, stage autodetected
+//! as Z825, home, moves), with its RTS toggle disabled because a pty has no
+//! modem lines (A.1).
+//!
 //! Choices that are the emulator's, not documented device behaviour (A.5, A.7):
 //! pushed updates pause after `keepalive_limit` unacknowledged ones and
 //! resume at the next MOT_ACK_DCSTATUSUPDATE; a move outside the travel is
