@@ -1,6 +1,7 @@
 //! Emulators of the rig's real hardware. They speak the devices' own protocols
 //! on pseudo-terminals, so easycalib's real drivers are tested byte for byte.
 
+pub mod apt;
 pub mod axis;
 pub mod pty;
 pub mod rig;
