@@ -2,5 +2,6 @@
 //! on pseudo-terminals, so easycalib's real drivers are tested byte for byte.
 
 pub mod axis;
+pub mod grbl;
 pub mod pty;
 pub mod rig;
