@@ -17,7 +17,7 @@ use tokio_serial::{SerialPortBuilderExt, SerialStream};
 const SPEEDUP: f64 = 50.0;
 const LONG: Duration = Duration::from_secs(10);
 
-fn rig() -> Rig {
+fn rig(speedup: f64) -> Rig {
     let stage = AxisConfig {
         max_velocity: 2.0,
         acceleration: 4.0,
@@ -38,7 +38,7 @@ fn rig() -> Rig {
         home_velocity: 5.0,
         power_on_position: 0.0,
     };
-    Rig::new(VirtualClock::new(SPEEDUP), stage, rot)
+    Rig::new(VirtualClock::new(speedup), stage, rot)
 }
 
 fn driver_cfg() -> GrblConfig {
@@ -53,7 +53,11 @@ fn driver_cfg() -> GrblConfig {
 }
 
 async fn setup() -> (Rig, GrblPort, GrblStage<SerialStream>) {
-    let rig = rig();
+    setup_at(SPEEDUP).await
+}
+
+async fn setup_at(speedup: f64) -> (Rig, GrblPort, GrblStage<SerialStream>) {
+    let rig = rig(speedup);
     let port = serve_grbl_stage(rig.clone(), GrblEmulatorConfig::default())
         .await
         .unwrap();
@@ -104,11 +108,13 @@ async fn connect_identify_home_and_move() {
 
 #[tokio::test]
 async fn stop_during_move_keeps_position() {
-    let (rig, port, mut stage) = setup().await;
+    // Slower rig here (20 mm take ~0.5 wall s) so the stop surely lands mid-move.
+    let (rig, port, mut stage) = setup_at(20.0).await;
     stage.home(LONG).await.unwrap();
     stage.start_move_to_mm(20.0).await.unwrap();
-    // Let it get going (20 mm takes ~10.5 rig s = ~0.2 wall s).
-    tokio::time::sleep(Duration::from_millis(40)).await;
+    while stage.position_mm().await.unwrap() < 0.5 {
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
     stage.stop().await.unwrap();
     let st = stage.status().await.unwrap();
     assert!(!st.moving);
