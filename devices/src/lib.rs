@@ -8,6 +8,4 @@ pub mod grbl;
 pub mod motion;
 pub mod sensor;
 
-pub use motion::{
-    AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount,
-};
+pub use motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount};

@@ -4,3 +4,7 @@
 
 pub mod clock;
 pub mod emulator;
+pub mod generator;
+pub mod physics;
+pub mod recording;
+pub mod rng;
