@@ -6,13 +6,13 @@
 
 use std::time::Duration;
 
-use devices::grbl::{AlarmCode, GrblConfig, GrblError, GrblStage};
+use devices::grbl::{AlarmCode, GrblConfig, GrblError, GrblStage, MachineState};
 use devices::{DeviceFault, FaultKind, Identify, LinearStage};
 use sim::clock::VirtualClock;
 use sim::emulator::axis::AxisConfig;
 use sim::emulator::grbl::{GrblEmulatorConfig, GrblPort, serve_grbl_stage};
 use sim::emulator::rig::Rig;
-use tokio_serial::{SerialPortBuilderExt, SerialStream};
+use tokio_serial::SerialStream;
 
 const SPEEDUP: f64 = 50.0;
 const LONG: Duration = Duration::from_secs(10);
@@ -58,13 +58,8 @@ async fn setup() -> (Rig, GrblPort, GrblStage<SerialStream>) {
 
 async fn setup_at(speedup: f64) -> (Rig, GrblPort, GrblStage<SerialStream>) {
     let rig = rig(speedup);
-    let port = serve_grbl_stage(rig.clone(), GrblEmulatorConfig::default())
-        .await
-        .unwrap();
-    let serial = tokio_serial::new(port.path.to_string_lossy(), 115_200)
-        .open_native_async()
-        .unwrap();
-    let stage = GrblStage::connect(serial, driver_cfg()).await.unwrap();
+    let port = serve_grbl_stage(rig.clone(), GrblEmulatorConfig::default()).await.unwrap();
+    let stage = GrblStage::open(port.path(), driver_cfg()).await.unwrap();
     (rig, port, stage)
 }
 
@@ -157,17 +152,11 @@ async fn emulator_alarm_is_device_reported_and_home_recovers() {
     port.inject_alarm(1);
     let e = stage.wait_until_stopped(LONG).await.unwrap_err();
     assert_eq!(e.kind(), FaultKind::DeviceReported);
-    assert!(
-        matches!(e, GrblError::Alarm { code } if code == AlarmCode::HARD_LIMIT),
-        "{e}"
-    );
+    assert!(matches!(e, GrblError::Alarm { code } if code == AlarmCode::HARD_LIMIT), "{e}");
     assert!(e.to_string().contains("Hard limit triggered"));
     assert!(!rig.with_stage(|ax, _| ax.is_moving()));
     // Refused while locked, without sending.
-    assert_eq!(
-        stage.start_move_to_mm(1.0).await.unwrap_err().kind(),
-        FaultKind::DeviceReported
-    );
+    assert_eq!(stage.start_move_to_mm(1.0).await.unwrap_err().kind(), FaultKind::DeviceReported);
     // Re-homing resets the critical alarm and unlocks.
     stage.home(LONG).await.unwrap();
     assert_eq!(stage.alarm(), None);
@@ -184,10 +173,52 @@ async fn cable_cut_mid_move_is_disconnected_within_a_second() {
     port.cut_cable();
     // A one-second wait budget (and a one-second reply timeout): the only way
     // to get anything but Timeout is to notice the hang-up.
-    let e = stage
-        .wait_until_stopped(Duration::from_secs(1))
-        .await
-        .unwrap_err();
+    let e = stage.wait_until_stopped(Duration::from_secs(1)).await.unwrap_err();
     assert_eq!(e.kind(), FaultKind::Disconnected, "{e}");
     port.task.await.unwrap().unwrap();
+}
+
+#[tokio::test]
+async fn feed_hold_pauses_and_resume_finishes_the_move() {
+    let (rig, port, mut stage) = setup_at(20.0).await;
+    stage.home(LONG).await.unwrap();
+    stage.start_move_to_mm(10.0).await.unwrap();
+    while stage.position_mm().await.unwrap() < 0.5 {
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    let held = stage.feed_hold().await.unwrap();
+    assert_eq!(held.state, MachineState::Hold(0));
+    let at = rig.pose().stage_mm;
+    assert!(at > 0.5 && at < 9.0, "{at}");
+    assert!(!rig.with_stage(|ax, _| ax.is_moving()));
+    // Held, not finished: the axis stays put while held.
+    let st = stage.status().await.unwrap();
+    assert!(!st.moving);
+    assert!((st.position - at).abs() < 1e-3);
+    stage.resume().await.unwrap();
+    let p = stage.wait_until_stopped(LONG).await.unwrap();
+    assert!((p - 10.0).abs() < 1e-3, "{p}");
+    assert!((rig.pose().stage_mm - 10.0).abs() < 1e-3);
+    port.cut_cable();
+    let stats = port.task.await.unwrap().unwrap();
+    assert_eq!(stats.alarms, 0);
+    assert_eq!(stats.resets, 1, "only the connect reset");
+}
+
+#[tokio::test]
+async fn probe_identifies_the_emulator_without_moving_it() {
+    let rig = rig(SPEEDUP);
+    let port = serve_grbl_stage(rig.clone(), GrblEmulatorConfig::default()).await.unwrap();
+    let before = rig.pose().stage_mm;
+    let info = devices::grbl::probe(port.path(), Duration::from_secs(1)).await.unwrap();
+    assert_eq!(info.model, "GRBL 1.1h");
+    assert_eq!(info.firmware, "1.1h.20190830");
+    assert!(!rig.with_stage(|ax, _| ax.is_moving()));
+    assert_eq!(rig.pose().stage_mm, before);
+    port.cut_cable();
+    let stats = port.task.await.unwrap().unwrap();
+    // `$I` only (sent again after the power-up banner): no reset, no G-code.
+    assert!((1..=2).contains(&stats.lines), "{stats:?}");
+    assert_eq!(stats.resets, 0);
+    assert_eq!(stats.errors, 0);
 }

@@ -40,27 +40,15 @@ pub fn error_meaning(code: u8) -> &'static str {
         21 => "More than one g-code command from same modal group found in block.",
         22 => "Feed rate has not yet been set or is undefined.",
         23 => "G-code command in block requires an integer value.",
-        24 => {
-            "Two G-code commands that both require the use of the XYZ axis words were detected in the block."
-        }
+        24 => "Two G-code commands that both require the use of the XYZ axis words were detected in the block.",
         25 => "A G-code word was repeated in the block.",
-        26 => {
-            "A G-code command implicitly or explicitly requires XYZ axis words in the block, but none were detected."
-        }
+        26 => "A G-code command implicitly or explicitly requires XYZ axis words in the block, but none were detected.",
         27 => "N line number value is not within the valid range of 1 - 9,999,999.",
-        28 => {
-            "A G-code command was sent, but is missing some required P or L value words in the line."
-        }
-        29 => {
-            "Grbl supports six work coordinate systems G54-G59. G59.1, G59.2, and G59.3 are not supported."
-        }
-        30 => {
-            "The G53 G-code command requires either a G0 seek or G1 feed motion mode to be active."
-        }
+        28 => "A G-code command was sent, but is missing some required P or L value words in the line.",
+        29 => "Grbl supports six work coordinate systems G54-G59. G59.1, G59.2, and G59.3 are not supported.",
+        30 => "The G53 G-code command requires either a G0 seek or G1 feed motion mode to be active.",
         31 => "There are unused axis words in the block and G80 motion mode cancel is active.",
-        32 => {
-            "A G2 or G3 arc was commanded but there are no XYZ axis words in the selected plane to trace the arc."
-        }
+        32 => "A G2 or G3 arc was commanded but there are no XYZ axis words in the selected plane to trace the arc.",
         33 => "The motion command has an invalid target.",
         34 => {
             "A G2 or G3 arc, traced with the radius definition, had a mathematical error when computing the arc geometry."
@@ -68,9 +56,7 @@ pub fn error_meaning(code: u8) -> &'static str {
         35 => {
             "A G2 or G3 arc, traced with the offset definition, is missing the IJK offset word in the selected plane to trace the arc."
         }
-        36 => {
-            "There are unused, leftover G-code words that aren't used by any command in the block."
-        }
+        36 => "There are unused, leftover G-code words that aren't used by any command in the block.",
         37 => {
             "The G43.1 dynamic tool length offset command cannot apply an offset to an axis other than its configured axis."
         }
@@ -85,23 +71,17 @@ pub fn alarm_meaning(code: u8) -> &'static str {
         1 => {
             "Hard limit triggered. Machine position is likely lost due to sudden and immediate halt. Re-homing is highly recommended."
         }
-        2 => {
-            "G-code motion target exceeds machine travel. Machine position safely retained. Alarm may be unlocked."
-        }
+        2 => "G-code motion target exceeds machine travel. Machine position safely retained. Alarm may be unlocked.",
         3 => {
             "Reset while in motion. Grbl cannot guarantee position. Lost steps are likely. Re-homing is highly recommended."
         }
-        4 => {
-            "Probe fail. The probe is not in the expected initial state before starting probe cycle."
-        }
+        4 => "Probe fail. The probe is not in the expected initial state before starting probe cycle.",
         5 => "Probe fail. Probe did not contact the workpiece within the programmed travel.",
         6 => "Homing fail. Reset during active homing cycle.",
         7 => "Homing fail. Safety door was opened during active homing cycle.",
         8 => "Homing fail. Cycle failed to clear limit switch when pulling off.",
         9 => "Homing fail. Could not find limit switch within search distance.",
-        10 => {
-            "Homing fail. On dual axis machines, could not find the second limit switch for self-squaring."
-        }
+        10 => "Homing fail. On dual axis machines, could not find the second limit switch for self-squaring.",
         _ => "Unknown alarm code.",
     }
 }
@@ -223,10 +203,7 @@ impl AxisValues {
         }
         let mut v = [0.0; 6];
         v[..values.len()].copy_from_slice(values);
-        Some(Self {
-            values: v,
-            len: values.len() as u8,
-        })
+        Some(Self { values: v, len: values.len() as u8 })
     }
     pub fn as_slice(&self) -> &[f64] {
         &self.values[..self.len as usize]
@@ -275,9 +252,7 @@ impl StatusReport {
     }
     /// Whether limit pin `axis_letter` ('X', 'Y', 'Z') reads triggered.
     pub fn pin(&self, axis_letter: char) -> bool {
-        self.pins
-            .as_deref()
-            .is_some_and(|p| p.contains(axis_letter))
+        self.pins.as_deref().is_some_and(|p| p.contains(axis_letter))
     }
 }
 
@@ -387,11 +362,7 @@ pub enum ParseError {
     #[error("unrecognised line {line:?}")]
     Unrecognised { line: String },
     #[error("bad {what} code {text:?} in {line:?}")]
-    BadCode {
-        what: &'static str,
-        text: String,
-        line: String,
-    },
+    BadCode { what: &'static str, text: String, line: String },
     #[error("status report {line:?} is not closed by '>'")]
     UnterminatedStatus { line: String },
     #[error("unknown machine state {state:?} in {line:?}")]
@@ -399,11 +370,7 @@ pub enum ParseError {
     #[error("status report {line:?} has no MPos/WPos as its second field")]
     MissingPosition { line: String },
     #[error("bad value {text:?} in field {field:?} of {line:?}")]
-    BadField {
-        field: String,
-        text: String,
-        line: String,
-    },
+    BadField { field: String, text: String, line: String },
     #[error("feedback message {line:?} is not closed by ']'")]
     UnterminatedFeedback { line: String },
     #[error("bad setting {line:?}")]
@@ -411,11 +378,7 @@ pub enum ParseError {
 }
 
 fn parse_code(text: &str, what: &'static str, line: &str) -> Result<u8, ParseError> {
-    let bad = || ParseError::BadCode {
-        what,
-        text: text.to_string(),
-        line: line.to_string(),
-    };
+    let bad = || ParseError::BadCode { what, text: text.to_string(), line: line.to_string() };
     if text.is_empty() || !text.bytes().all(|b| b.is_ascii_digit()) {
         return Err(bad());
     }
@@ -424,22 +387,14 @@ fn parse_code(text: &str, what: &'static str, line: &str) -> Result<u8, ParseErr
 
 fn parse_num(s: &str) -> Option<f64> {
     // GRBL prints plain decimals; reject "inf"/"nan" and exponents.
-    if s.is_empty()
-        || !s
-            .bytes()
-            .all(|b| b.is_ascii_digit() || b == b'.' || b == b'-' || b == b'+')
-    {
+    if s.is_empty() || !s.bytes().all(|b| b.is_ascii_digit() || b == b'.' || b == b'-' || b == b'+') {
         return None;
     }
     s.parse::<f64>().ok().filter(|v| v.is_finite())
 }
 
 fn parse_axes(field: &str, body: &str, line: &str) -> Result<AxisValues, ParseError> {
-    let bad = || ParseError::BadField {
-        field: field.to_string(),
-        text: body.to_string(),
-        line: line.to_string(),
-    };
+    let bad = || ParseError::BadField { field: field.to_string(), text: body.to_string(), line: line.to_string() };
     let mut v = [0.0; 6];
     let mut n = 0;
     for part in body.split(',') {
@@ -456,26 +411,18 @@ fn parse_status(line: &str) -> Result<StatusReport, ParseError> {
     let inner = line
         .strip_prefix('<')
         .and_then(|s| s.strip_suffix('>'))
-        .ok_or_else(|| ParseError::UnterminatedStatus {
-            line: line.to_string(),
-        })?;
+        .ok_or_else(|| ParseError::UnterminatedStatus { line: line.to_string() })?;
     let mut fields = inner.split('|');
     let state_text = fields.next().unwrap_or_default();
-    let state = MachineState::parse(state_text).ok_or_else(|| ParseError::UnknownState {
-        state: state_text.to_string(),
-        line: line.to_string(),
-    })?;
-    let pos_field = fields.next().ok_or_else(|| ParseError::MissingPosition {
-        line: line.to_string(),
-    })?;
+    let state = MachineState::parse(state_text)
+        .ok_or_else(|| ParseError::UnknownState { state: state_text.to_string(), line: line.to_string() })?;
+    let pos_field = fields.next().ok_or_else(|| ParseError::MissingPosition { line: line.to_string() })?;
     let (position_kind, pos_body) = if let Some(b) = pos_field.strip_prefix("MPos:") {
         (PositionKind::Machine, b)
     } else if let Some(b) = pos_field.strip_prefix("WPos:") {
         (PositionKind::Work, b)
     } else {
-        return Err(ParseError::MissingPosition {
-            line: line.to_string(),
-        });
+        return Err(ParseError::MissingPosition { line: line.to_string() });
     };
     let position = parse_axes(&pos_field[..4], pos_body, line)?;
     let mut report = StatusReport {
@@ -497,11 +444,7 @@ fn parse_status(line: &str) -> Result<StatusReport, ParseError> {
             text: String::new(),
             line: line.to_string(),
         })?;
-        let bad = || ParseError::BadField {
-            field: name.to_string(),
-            text: body.to_string(),
-            line: line.to_string(),
-        };
+        let bad = || ParseError::BadField { field: name.to_string(), text: body.to_string(), line: line.to_string() };
         let ints = |n: usize| -> Result<Vec<u32>, ParseError> {
             let v: Option<Vec<u32>> = body.split(',').map(|p| p.parse::<u32>().ok()).collect();
             v.filter(|v| v.len() == n).ok_or_else(bad)
@@ -510,10 +453,8 @@ fn parse_status(line: &str) -> Result<StatusReport, ParseError> {
             "WCO" => report.wco = Some(parse_axes(name, body, line)?),
             "Bf" => {
                 let v = ints(2)?;
-                report.buffer = Some((
-                    u16::try_from(v[0]).map_err(|_| bad())?,
-                    u16::try_from(v[1]).map_err(|_| bad())?,
-                ));
+                report.buffer =
+                    Some((u16::try_from(v[0]).map_err(|_| bad())?, u16::try_from(v[1]).map_err(|_| bad())?));
             }
             "Ln" => report.line_number = Some(ints(1)?[0]),
             "F" => report.feed = Some(parse_num(body).ok_or_else(bad)?),
@@ -545,29 +486,19 @@ fn parse_feedback(line: &str) -> Result<Response, ParseError> {
     let inner = line
         .strip_prefix('[')
         .and_then(|s| s.strip_suffix(']'))
-        .ok_or_else(|| ParseError::UnterminatedFeedback {
-            line: line.to_string(),
-        })?;
+        .ok_or_else(|| ParseError::UnterminatedFeedback { line: line.to_string() })?;
     let Some((tag, body)) = inner.split_once(':') else {
         // `[echo:...]` always has a colon; a bare `[...]` is not GRBL 1.1.
-        return Err(ParseError::Unrecognised {
-            line: line.to_string(),
-        });
+        return Err(ParseError::Unrecognised { line: line.to_string() });
     };
     Ok(match tag {
         "MSG" => Response::Message(body.to_string()),
         "GC" => Response::ParserState(body.split_whitespace().map(str::to_string).collect()),
         "VER" => {
             let (version, info) = body.split_once(':').unwrap_or((body, ""));
-            Response::Version {
-                version: version.to_string(),
-                info: info.to_string(),
-            }
+            Response::Version { version: version.to_string(), info: info.to_string() }
         }
-        _ => Response::Feedback {
-            tag: tag.to_string(),
-            body: body.to_string(),
-        },
+        _ => Response::Feedback { tag: tag.to_string(), body: body.to_string() },
     })
 }
 
@@ -575,10 +506,7 @@ fn parse_feedback(line: &str) -> Result<Response, ParseError> {
 pub fn parse_line(line: &str) -> Result<Response, ParseError> {
     let line = line.trim_end_matches(['\r', '\n']);
     if line.len() > MAX_RESPONSE_LINE {
-        return Err(ParseError::TooLong {
-            len: line.len(),
-            max: MAX_RESPONSE_LINE,
-        });
+        return Err(ParseError::TooLong { len: line.len(), max: MAX_RESPONSE_LINE });
     }
     if line.is_empty() {
         return Ok(Response::Empty);
@@ -601,32 +529,21 @@ pub fn parse_line(line: &str) -> Result<Response, ParseError> {
     if let Some(rest) = line.strip_prefix("Grbl ") {
         let version = rest.split_whitespace().next().unwrap_or_default();
         if version.is_empty() {
-            return Err(ParseError::Unrecognised {
-                line: line.to_string(),
-            });
+            return Err(ParseError::Unrecognised { line: line.to_string() });
         }
-        return Ok(Response::Welcome {
-            version: version.to_string(),
-        });
+        return Ok(Response::Welcome { version: version.to_string() });
     }
     if let Some(rest) = line.strip_prefix('$') {
-        let bad = || ParseError::BadSetting {
-            line: line.to_string(),
-        };
+        let bad = || ParseError::BadSetting { line: line.to_string() };
         let (n, v) = rest.split_once('=').ok_or_else(bad)?;
         let number = n.parse::<u16>().map_err(|_| bad())?;
         let value = parse_num(v).ok_or_else(bad)?;
         return Ok(Response::Setting { number, value });
     }
     if let Some(rest) = line.strip_prefix('>') {
-        let bad = || ParseError::Unrecognised {
-            line: line.to_string(),
-        };
+        let bad = || ParseError::Unrecognised { line: line.to_string() };
         if let Some(l) = rest.strip_suffix(":ok") {
-            return Ok(Response::StartupLine {
-                line: l.to_string(),
-                result: Ok(()),
-            });
+            return Ok(Response::StartupLine { line: l.to_string(), result: Ok(()) });
         }
         let (l, code) = rest.rsplit_once(":error:").ok_or_else(bad)?;
         return Ok(Response::StartupLine {
@@ -634,16 +551,12 @@ pub fn parse_line(line: &str) -> Result<Response, ParseError> {
             result: Err(ErrorCode(parse_code(code, "error", line)?)),
         });
     }
-    Err(ParseError::Unrecognised {
-        line: line.to_string(),
-    })
+    Err(ParseError::Unrecognised { line: line.to_string() })
 }
 
 /// Parse one line given as raw bytes.
 pub fn parse_line_bytes(line: &[u8]) -> Result<Response, ParseError> {
-    let s = std::str::from_utf8(line).map_err(|e| ParseError::NotUtf8 {
-        at: e.valid_up_to(),
-    })?;
+    let s = std::str::from_utf8(line).map_err(|e| ParseError::NotUtf8 { at: e.valid_up_to() })?;
     parse_line(s)
 }
 
@@ -677,10 +590,7 @@ impl LineSplitter {
                 _ if self.overflowed => {}
                 _ => {
                     if self.buf.len() >= MAX_RESPONSE_LINE {
-                        out.push(Err(ParseError::TooLong {
-                            len: self.buf.len() + 1,
-                            max: MAX_RESPONSE_LINE,
-                        }));
+                        out.push(Err(ParseError::TooLong { len: self.buf.len() + 1, max: MAX_RESPONSE_LINE }));
                         self.buf.clear();
                         self.overflowed = true;
                     } else {
@@ -747,25 +657,11 @@ pub enum Distance {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Command {
     /// `G90|G91 G1 <axis><mm> F<mm/min>`: feed move.
-    Feed {
-        distance: Distance,
-        axis: char,
-        mm: f64,
-        feed_mm_min: f64,
-    },
+    Feed { distance: Distance, axis: char, mm: f64, feed_mm_min: f64 },
     /// `G90|G91 G0 <axis><mm>`: rapid move.
-    Rapid {
-        distance: Distance,
-        axis: char,
-        mm: f64,
-    },
+    Rapid { distance: Distance, axis: char, mm: f64 },
     /// `$J=G90|G91 G21 <axis><mm> F<mm/min>`: jog.
-    Jog {
-        distance: Distance,
-        axis: char,
-        mm: f64,
-        feed_mm_min: f64,
-    },
+    Jog { distance: Distance, axis: char, mm: f64, feed_mm_min: f64 },
     /// `G4 P<s>`: dwell; its `ok` arrives once the planner has emptied.
     Dwell { seconds: f64 },
     /// `$H`
@@ -792,37 +688,21 @@ pub enum EncodeError {
     #[error("axis {0:?} is not one of X Y Z A B C")]
     BadAxis(char),
     #[error("encoded line {line:?} is {len} bytes; GRBL accepts at most {max}")]
-    TooLong {
-        line: String,
-        len: usize,
-        max: usize,
-    },
+    TooLong { line: String, len: usize, max: usize },
 }
 
 fn finite(what: &'static str, value: f64) -> Result<f64, EncodeError> {
-    if value.is_finite() {
-        Ok(value)
-    } else {
-        Err(EncodeError::NotFinite { what, value })
-    }
+    if value.is_finite() { Ok(value) } else { Err(EncodeError::NotFinite { what, value }) }
 }
 
 fn positive(what: &'static str, value: f64) -> Result<f64, EncodeError> {
     let v = finite(what, value)?;
-    if v > 0.0 {
-        Ok(v)
-    } else {
-        Err(EncodeError::NotPositive { what, value })
-    }
+    if v > 0.0 { Ok(v) } else { Err(EncodeError::NotPositive { what, value }) }
 }
 
 fn axis_ok(axis: char) -> Result<char, EncodeError> {
     let a = axis.to_ascii_uppercase();
-    if "XYZABC".contains(a) {
-        Ok(a)
-    } else {
-        Err(EncodeError::BadAxis(axis))
-    }
+    if "XYZABC".contains(a) { Ok(a) } else { Err(EncodeError::BadAxis(axis)) }
 }
 
 /// Numbers as GRBL prints them: fixed point, 4 decimals (0.1 um) is below any
@@ -843,30 +723,17 @@ impl Command {
     /// The line to send, terminated by LF.
     pub fn encode(&self) -> Result<String, EncodeError> {
         let line = match self {
-            Self::Feed {
-                distance,
-                axis,
-                mm,
-                feed_mm_min,
-            } => format!(
+            Self::Feed { distance, axis, mm, feed_mm_min } => format!(
                 "{} G1 {}{} F{}",
                 mode(*distance),
                 axis_ok(*axis)?,
                 num(finite("target", *mm)?),
                 num(positive("feed", *feed_mm_min)?)
             ),
-            Self::Rapid { distance, axis, mm } => format!(
-                "{} G0 {}{}",
-                mode(*distance),
-                axis_ok(*axis)?,
-                num(finite("target", *mm)?)
-            ),
-            Self::Jog {
-                distance,
-                axis,
-                mm,
-                feed_mm_min,
-            } => format!(
+            Self::Rapid { distance, axis, mm } => {
+                format!("{} G0 {}{}", mode(*distance), axis_ok(*axis)?, num(finite("target", *mm)?))
+            }
+            Self::Jog { distance, axis, mm, feed_mm_min } => format!(
                 "$J={} G21 {}{} F{}",
                 mode(*distance),
                 axis_ok(*axis)?,
@@ -876,10 +743,7 @@ impl Command {
             Self::Dwell { seconds } => {
                 let s = finite("dwell", *seconds)?;
                 if s < 0.0 {
-                    return Err(EncodeError::NotPositive {
-                        what: "dwell",
-                        value: s,
-                    });
+                    return Err(EncodeError::NotPositive { what: "dwell", value: s });
                 }
                 format!("G4 P{}", num(s))
             }
@@ -893,11 +757,7 @@ impl Command {
             }
         };
         if line.len() > LINE_BUFFER_SIZE - 1 {
-            return Err(EncodeError::TooLong {
-                len: line.len(),
-                line,
-                max: LINE_BUFFER_SIZE - 1,
-            });
+            return Err(EncodeError::TooLong { len: line.len(), line, max: LINE_BUFFER_SIZE - 1 });
         }
         Ok(line + "\n")
     }
@@ -910,31 +770,16 @@ mod tests {
 
     #[test]
     fn banner_ok_error_alarm() {
-        assert_eq!(
-            parse_line("Grbl 1.1h ['$' for help]\r").unwrap(),
-            Response::Welcome {
-                version: "1.1h".into()
-            }
-        );
+        assert_eq!(parse_line("Grbl 1.1h ['$' for help]\r").unwrap(), Response::Welcome { version: "1.1h".into() });
         assert_eq!(parse_line("ok").unwrap(), Response::Ok);
         assert_eq!(parse_line("").unwrap(), Response::Empty);
-        let Response::Error(e) = parse_line("error:22").unwrap() else {
-            panic!()
-        };
+        let Response::Error(e) = parse_line("error:22").unwrap() else { panic!() };
         assert_eq!(e, ErrorCode(22));
-        assert_eq!(
-            e.meaning(),
-            "Feed rate has not yet been set or is undefined."
-        );
-        let Response::Alarm(a) = parse_line("ALARM:2").unwrap() else {
-            panic!()
-        };
+        assert_eq!(e.meaning(), "Feed rate has not yet been set or is undefined.");
+        let Response::Alarm(a) = parse_line("ALARM:2").unwrap() else { panic!() };
         assert_eq!(a, AlarmCode::SOFT_LIMIT);
         assert!(a.is_critical());
-        assert!(
-            a.meaning()
-                .starts_with("G-code motion target exceeds machine travel")
-        );
+        assert!(a.meaning().starts_with("G-code motion target exceeds machine travel"));
         assert!(AlarmCode(1).meaning().starts_with("Hard limit triggered"));
         assert!(!AlarmCode(3).is_critical());
     }
@@ -942,27 +787,12 @@ mod tests {
     #[test]
     fn malformed_codes_are_typed_errors() {
         for bad in ["error:", "error:x", "error:300", "ALARM:-1", "ALARM:1a"] {
-            assert!(
-                matches!(parse_line(bad), Err(ParseError::BadCode { .. })),
-                "{bad}"
-            );
+            assert!(matches!(parse_line(bad), Err(ParseError::BadCode { .. })), "{bad}");
         }
-        assert!(matches!(
-            parse_line("okay"),
-            Err(ParseError::Unrecognised { .. })
-        ));
-        assert!(matches!(
-            parse_line("<Idle|MPos:0,0,0"),
-            Err(ParseError::UnterminatedStatus { .. })
-        ));
-        assert!(matches!(
-            parse_line("<Walk|MPos:0,0,0>"),
-            Err(ParseError::UnknownState { .. })
-        ));
-        assert!(matches!(
-            parse_line("<Idle|FS:0,0>"),
-            Err(ParseError::MissingPosition { .. })
-        ));
+        assert!(matches!(parse_line("okay"), Err(ParseError::Unrecognised { .. })));
+        assert!(matches!(parse_line("<Idle|MPos:0,0,0"), Err(ParseError::UnterminatedStatus { .. })));
+        assert!(matches!(parse_line("<Walk|MPos:0,0,0>"), Err(ParseError::UnknownState { .. })));
+        assert!(matches!(parse_line("<Idle|FS:0,0>"), Err(ParseError::MissingPosition { .. })));
         match parse_line("<Idle|MPos:0,abc,0>") {
             Err(ParseError::BadField { field, text, .. }) => {
                 assert_eq!(field, "MPos");
@@ -970,30 +800,17 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
-        assert!(matches!(
-            parse_line("<Idle|MPos:0,0,0|Bf:15>"),
-            Err(ParseError::BadField { .. })
-        ));
-        assert!(matches!(
-            parse_line("[MSG:oops"),
-            Err(ParseError::UnterminatedFeedback { .. })
-        ));
-        assert!(matches!(
-            parse_line("$x=1"),
-            Err(ParseError::BadSetting { .. })
-        ));
-        assert!(matches!(
-            parse_line_bytes(b"ok\xff"),
-            Err(ParseError::NotUtf8 { at: 2 })
-        ));
+        assert!(matches!(parse_line("<Idle|MPos:0,0,0|Bf:15>"), Err(ParseError::BadField { .. })));
+        assert!(matches!(parse_line("[MSG:oops"), Err(ParseError::UnterminatedFeedback { .. })));
+        assert!(matches!(parse_line("$x=1"), Err(ParseError::BadSetting { .. })));
+        assert!(matches!(parse_line_bytes(b"ok\xff"), Err(ParseError::NotUtf8 { at: 2 })));
     }
 
     #[test]
     fn status_report_all_fields() {
-        let line = "<Hold:0|WPos:1.000,-2.500,0.750|Bf:15,128|Ln:99|FS:30,0|Pn:XZ|WCO:0.000,1.000,2.000|Ov:100,50,120|A:SF>";
-        let Response::Status(s) = parse_line(line).unwrap() else {
-            panic!()
-        };
+        let line =
+            "<Hold:0|WPos:1.000,-2.500,0.750|Bf:15,128|Ln:99|FS:30,0|Pn:XZ|WCO:0.000,1.000,2.000|Ov:100,50,120|A:SF>";
+        let Response::Status(s) = parse_line(line).unwrap() else { panic!() };
         assert_eq!(s.state, MachineState::Hold(0));
         assert_eq!(s.position_kind, PositionKind::Work);
         assert_eq!(s.position.as_slice(), &[1.0, -2.5, 0.75]);
@@ -1007,16 +824,11 @@ mod tests {
         // WPos + WCO = MPos.
         assert_eq!(s.machine_position(2, None), Some(2.75));
         assert_eq!(s.to_string(), line);
-        let Response::Status(m) = parse_line("<Idle|MPos:0.000,0.000,1.234|FS:0,0>").unwrap()
-        else {
-            panic!()
-        };
+        let Response::Status(m) = parse_line("<Idle|MPos:0.000,0.000,1.234|FS:0,0>").unwrap() else { panic!() };
         assert_eq!(m.machine_position(2, None), Some(1.234));
         assert_eq!(m.state, MachineState::Idle);
         // WPos without any WCO known: position cannot be converted.
-        let Response::Status(w) = parse_line("<Run|WPos:0,0,1|F:30>").unwrap() else {
-            panic!()
-        };
+        let Response::Status(w) = parse_line("<Run|WPos:0,0,1|F:30>").unwrap() else { panic!() };
         assert_eq!(w.machine_position(2, None), None);
         let wco = AxisValues::new(&[0.0, 0.0, -1.0]).unwrap();
         assert_eq!(w.machine_position(2, Some(&wco)), Some(0.0));
@@ -1024,132 +836,57 @@ mod tests {
 
     #[test]
     fn feedback_settings_startup_lines() {
-        assert_eq!(
-            parse_line("[MSG:'$H'|'$X' to unlock]").unwrap(),
-            Response::Message("'$H'|'$X' to unlock".into())
-        );
+        assert_eq!(parse_line("[MSG:'$H'|'$X' to unlock]").unwrap(), Response::Message("'$H'|'$X' to unlock".into()));
         assert_eq!(
             parse_line("[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]").unwrap(),
-            Response::ParserState(
-                "G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0"
-                    .split(' ')
-                    .map(String::from)
-                    .collect()
-            )
+            Response::ParserState("G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0".split(' ').map(String::from).collect())
         );
         assert_eq!(
             parse_line("[VER:1.1h.20190830:rig-z]").unwrap(),
-            Response::Version {
-                version: "1.1h.20190830".into(),
-                info: "rig-z".into()
-            }
+            Response::Version { version: "1.1h.20190830".into(), info: "rig-z".into() }
         );
         assert_eq!(
             parse_line("[OPT:V,15,128]").unwrap(),
-            Response::Feedback {
-                tag: "OPT".into(),
-                body: "V,15,128".into()
-            }
+            Response::Feedback { tag: "OPT".into(), body: "V,15,128".into() }
         );
-        assert_eq!(
-            parse_line("$102=6400.000").unwrap(),
-            Response::Setting {
-                number: 102,
-                value: 6400.0
-            }
-        );
+        assert_eq!(parse_line("$102=6400.000").unwrap(), Response::Setting { number: 102, value: 6400.0 });
         assert_eq!(
             parse_line(">G21:error:20").unwrap(),
-            Response::StartupLine {
-                line: "G21".into(),
-                result: Err(ErrorCode(20))
-            }
+            Response::StartupLine { line: "G21".into(), result: Err(ErrorCode(20)) }
         );
-        assert_eq!(
-            parse_line(">G54:ok").unwrap(),
-            Response::StartupLine {
-                line: "G54".into(),
-                result: Ok(())
-            }
-        );
+        assert_eq!(parse_line(">G54:ok").unwrap(), Response::StartupLine { line: "G54".into(), result: Ok(()) });
     }
 
     #[test]
     fn encodes_documented_lines() {
-        let c = Command::Feed {
-            distance: Distance::Absolute,
-            axis: 'Z',
-            mm: 1.234,
-            feed_mm_min: 60.0,
-        };
+        let c = Command::Feed { distance: Distance::Absolute, axis: 'Z', mm: 1.234, feed_mm_min: 60.0 };
         assert_eq!(c.encode().unwrap(), "G90 G1 Z1.2340 F60.0000\n");
-        let c = Command::Feed {
-            distance: Distance::Incremental,
-            axis: 'z',
-            mm: 0.05,
-            feed_mm_min: 30.0,
-        };
+        let c = Command::Feed { distance: Distance::Incremental, axis: 'z', mm: 0.05, feed_mm_min: 30.0 };
         assert_eq!(c.encode().unwrap(), "G91 G1 Z0.0500 F30.0000\n");
-        let j = Command::Jog {
-            distance: Distance::Incremental,
-            axis: 'Z',
-            mm: -0.0,
-            feed_mm_min: 30.0,
-        };
+        let j = Command::Jog { distance: Distance::Incremental, axis: 'Z', mm: -0.0, feed_mm_min: 30.0 };
         assert_eq!(j.encode().unwrap(), "$J=G91 G21 Z0.0000 F30.0000\n");
         assert_eq!(Command::Home.encode().unwrap(), "$H\n");
         assert_eq!(Command::Unlock.encode().unwrap(), "$X\n");
-        assert_eq!(
-            Command::SetSetting {
-                number: 20,
-                value: 1.0
-            }
-            .encode()
-            .unwrap(),
-            "$20=1.0000\n"
-        );
+        assert_eq!(Command::SetSetting { number: 20, value: 1.0 }.encode().unwrap(), "$20=1.0000\n");
         assert_eq!(Realtime::StatusQuery.byte(), b'?');
         assert_eq!(Realtime::FeedHold.byte(), b'!');
         assert_eq!(Realtime::CycleStart.byte(), b'~');
         assert_eq!(Realtime::SoftReset.byte(), 0x18);
-        for r in [
-            Realtime::StatusQuery,
-            Realtime::FeedHold,
-            Realtime::CycleStart,
-            Realtime::SoftReset,
-            Realtime::JogCancel,
-        ] {
+        for r in
+            [Realtime::StatusQuery, Realtime::FeedHold, Realtime::CycleStart, Realtime::SoftReset, Realtime::JogCancel]
+        {
             assert_eq!(Realtime::from_byte(r.byte()), Some(r));
         }
     }
 
     #[test]
     fn encode_rejects_bad_values() {
-        let mk = |mm: f64, f: f64| Command::Feed {
-            distance: Distance::Absolute,
-            axis: 'Z',
-            mm,
-            feed_mm_min: f,
-        };
+        let mk = |mm: f64, f: f64| Command::Feed { distance: Distance::Absolute, axis: 'Z', mm, feed_mm_min: f };
+        assert!(matches!(mk(f64::NAN, 1.0).encode(), Err(EncodeError::NotFinite { .. })));
+        assert!(matches!(mk(1.0, 0.0).encode(), Err(EncodeError::NotPositive { .. })));
+        assert!(matches!(mk(1e80, 1.0).encode(), Err(EncodeError::TooLong { .. })));
         assert!(matches!(
-            mk(f64::NAN, 1.0).encode(),
-            Err(EncodeError::NotFinite { .. })
-        ));
-        assert!(matches!(
-            mk(1.0, 0.0).encode(),
-            Err(EncodeError::NotPositive { .. })
-        ));
-        assert!(matches!(
-            mk(1e80, 1.0).encode(),
-            Err(EncodeError::TooLong { .. })
-        ));
-        assert!(matches!(
-            Command::Rapid {
-                distance: Distance::Absolute,
-                axis: 'Q',
-                mm: 0.0
-            }
-            .encode(),
+            Command::Rapid { distance: Distance::Absolute, axis: 'Q', mm: 0.0 }.encode(),
             Err(EncodeError::BadAxis('Q'))
         ));
     }
@@ -1161,14 +898,7 @@ mod tests {
         s.push(b"\r\nGrbl 1.1h ['$' for help]\r\no", &mut out);
         s.push(b"k\r\n", &mut out);
         let lines: Vec<_> = out.into_iter().map(|r| r.unwrap()).collect();
-        assert_eq!(
-            lines,
-            vec![
-                b"".to_vec(),
-                b"Grbl 1.1h ['$' for help]".to_vec(),
-                b"ok".to_vec()
-            ]
-        );
+        assert_eq!(lines, vec![b"".to_vec(), b"Grbl 1.1h ['$' for help]".to_vec(), b"ok".to_vec()]);
         let mut out = Vec::new();
         s.push(&vec![b'x'; MAX_RESPONSE_LINE + 10], &mut out);
         s.push(b"\nok\n", &mut out);
@@ -1192,9 +922,8 @@ mod tests {
     }
 
     fn arb_axes() -> impl Strategy<Value = AxisValues> {
-        proptest::collection::vec(-1_000_000i64..1_000_000, 3).prop_map(|v| {
-            AxisValues::new(&v.iter().map(|&x| x as f64 / 1000.0).collect::<Vec<_>>()).unwrap()
-        })
+        proptest::collection::vec(-1_000_000i64..1_000_000, 3)
+            .prop_map(|v| AxisValues::new(&v.iter().map(|&x| x as f64 / 1000.0).collect::<Vec<_>>()).unwrap())
     }
 
     proptest! {

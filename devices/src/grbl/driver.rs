@@ -13,16 +13,18 @@
 
 use std::collections::VecDeque;
 use std::io;
+use std::path::Path;
 use std::time::Duration;
 
 use async_trait::async_trait;
 use thiserror::Error;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::time::Instant;
+use tokio_serial::{DataBits, FlowControl, Parity, SerialPortBuilderExt, SerialStream, StopBits};
 
 use super::codec::{
-    AlarmCode, AxisValues, Command, Distance, EncodeError, ErrorCode, LineSplitter, MachineState,
-    ParseError, RX_BUFFER_SIZE, Realtime, Response, StatusReport, parse_line_bytes,
+    AlarmCode, AxisValues, Command, Distance, EncodeError, ErrorCode, LineSplitter, MachineState, ParseError,
+    RX_BUFFER_SIZE, Realtime, Response, StatusReport, parse_line_bytes,
 };
 use crate::motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage};
 
@@ -40,10 +42,7 @@ pub enum GrblError {
     #[error("GRBL was reset while {during}; the command was discarded")]
     ResetDuring { during: &'static str },
     #[error("no answer from GRBL within {after:?} while {during}")]
-    Timeout {
-        during: &'static str,
-        after: Duration,
-    },
+    Timeout { during: &'static str, after: Duration },
     #[error("malformed line from GRBL: {0}")]
     Parse(#[from] ParseError),
     #[error("cannot encode command: {0}")]
@@ -57,11 +56,7 @@ pub enum GrblError {
     #[error("GRBL is in the Alarm state (locked); home ($H) or unlock ($X) first")]
     Locked,
     #[error("target {target_mm} mm is outside the travel {min_mm}..{max_mm} mm; nothing was sent")]
-    OutOfTravel {
-        target_mm: f64,
-        min_mm: f64,
-        max_mm: f64,
-    },
+    OutOfTravel { target_mm: f64, min_mm: f64, max_mm: f64 },
     #[error("axis stopped at {position_mm} mm short of the target {target_mm} mm")]
     Stalled { target_mm: f64, position_mm: f64 },
 }
@@ -69,9 +64,7 @@ pub enum GrblError {
 impl DeviceFault for GrblError {
     fn kind(&self) -> FaultKind {
         match self {
-            Self::Closed { .. } | Self::Io { .. } | Self::ResetDuring { .. } => {
-                FaultKind::Disconnected
-            }
+            Self::Closed { .. } | Self::Io { .. } | Self::ResetDuring { .. } => FaultKind::Disconnected,
             Self::Timeout { .. } => FaultKind::Timeout,
             Self::Parse(_) | Self::Encode(_) | Self::Unexpected { .. } => FaultKind::Protocol,
             Self::Rejected { .. } | Self::Alarm { .. } | Self::Locked | Self::Stalled { .. } => {
@@ -150,6 +143,30 @@ pub struct GrblStage<T> {
     target: Option<f64>,
 }
 
+/// GRBL's line settings (hardware.md B.1): 115200 baud, 8N1, no flow control.
+pub const GRBL_BAUD: u32 = 115_200;
+
+/// Open `path` with GRBL's line settings. Opening an Arduino's port toggles
+/// DTR, which reboots most boards: [`GrblStage::connect`] waits for the banner.
+pub fn open_serial(path: impl AsRef<Path>) -> Result<SerialStream, GrblError> {
+    let path = path.as_ref().to_string_lossy().into_owned();
+    tokio_serial::new(&path, GRBL_BAUD)
+        .data_bits(DataBits::Eight)
+        .parity(Parity::None)
+        .stop_bits(StopBits::One)
+        .flow_control(FlowControl::None)
+        .open_native_async()
+        .map_err(|e| GrblError::Io { during: "opening the serial port", source: io::Error::from(e) })
+}
+
+impl GrblStage<SerialStream> {
+    /// Open a real port (or an emulator's pty) and [`connect`](GrblStage::connect).
+    pub async fn open(path: impl AsRef<Path>, cfg: GrblConfig) -> Result<Self, GrblError> {
+        let io = open_serial(path)?;
+        Self::connect(io, cfg).await
+    }
+}
+
 impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
     /// Take over a freshly opened link: soft reset, wait for the banner (sent
     /// again once if the first reset was lost in the bootloader), read the
@@ -212,9 +229,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
 
     fn io_err(during: &'static str, e: io::Error) -> GrblError {
         match e.kind() {
-            io::ErrorKind::UnexpectedEof | io::ErrorKind::BrokenPipe => {
-                GrblError::Closed { during }
-            }
+            io::ErrorKind::UnexpectedEof | io::ErrorKind::BrokenPipe => GrblError::Closed { during },
             _ => GrblError::Io { during, source: e },
         }
     }
@@ -227,10 +242,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
         };
         match tokio::time::timeout_at(deadline, write).await {
             Ok(r) => r.map_err(|e| Self::io_err(during, e)),
-            Err(_) => Err(GrblError::Timeout {
-                during,
-                after: self.cfg.reply_timeout,
-            }),
+            Err(_) => Err(GrblError::Timeout { during, after: self.cfg.reply_timeout }),
         }
     }
 
@@ -239,11 +251,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
     }
 
     /// Read and handle one line. `Ok(None)` when `deadline` passed first.
-    async fn next_line(
-        &mut self,
-        deadline: Instant,
-        during: &'static str,
-    ) -> Result<Option<Response>, GrblError> {
+    async fn next_line(&mut self, deadline: Instant, during: &'static str) -> Result<Option<Response>, GrblError> {
         loop {
             if let Some(line) = self.lines.pop_front() {
                 let resp = parse_line_bytes(&line?)?;
@@ -307,10 +315,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
         let deadline = Instant::now() + self.cfg.reply_timeout;
         while self.unacknowledged_bytes() + n > RX_BUFFER_SIZE {
             if self.next_line(deadline, during).await?.is_none() {
-                return Err(GrblError::Timeout {
-                    during,
-                    after: self.cfg.reply_timeout,
-                });
+                return Err(GrblError::Timeout { during, after: self.cfg.reply_timeout });
             }
         }
         let seq = self.next_seq;
@@ -354,20 +359,12 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
                 return Err(GrblError::Alarm { code });
             }
             if self.next_line(deadline, during).await?.is_none() {
-                return Err(GrblError::Timeout {
-                    during,
-                    after: timeout,
-                });
+                return Err(GrblError::Timeout { during, after: timeout });
             }
         }
     }
 
-    async fn command(
-        &mut self,
-        cmd: Command,
-        timeout: Duration,
-        during: &'static str,
-    ) -> Result<(), GrblError> {
+    async fn command(&mut self, cmd: Command, timeout: Duration, during: &'static str) -> Result<(), GrblError> {
         let seq = self.send_line(&cmd, during).await?;
         self.wait_answer(seq, &cmd, timeout, during).await
     }
@@ -391,21 +388,17 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
                     }
                 }
                 None => {
-                    return Err(GrblError::Timeout {
-                        during: DURING,
-                        after: self.cfg.reply_timeout,
-                    });
+                    return Err(GrblError::Timeout { during: DURING, after: self.cfg.reply_timeout });
                 }
             }
         }
     }
 
     fn machine_position(&self, s: &StatusReport) -> Result<f64, GrblError> {
-        s.machine_position(self.axis, self.wco.as_ref())
-            .ok_or_else(|| GrblError::Unexpected {
-                expected: "a position for the configured axis (MPos, or WPos with a known WCO)",
-                got: s.to_string(),
-            })
+        s.machine_position(self.axis, self.wco.as_ref()).ok_or_else(|| GrblError::Unexpected {
+            expected: "a position for the configured axis (MPos, or WPos with a known WCO)",
+            got: s.to_string(),
+        })
     }
 
     /// Soft reset (0x18) and wait for the banner. Pending lines are discarded by GRBL.
@@ -421,10 +414,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
                 Err(GrblError::Parse(_)) => {}
                 Err(e) => return Err(e),
                 Ok(None) => {
-                    return Err(GrblError::Timeout {
-                        during: DURING,
-                        after: self.cfg.banner_timeout,
-                    });
+                    return Err(GrblError::Timeout { during: DURING, after: self.cfg.banner_timeout });
                 }
             }
         }
@@ -441,13 +431,45 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
         Ok(s)
     }
 
+    /// Send `!` and poll until the axis has decelerated (`Hold:0`), or was
+    /// not moving (`Idle`), or an alarm ended the motion.
+    async fn hold_and_wait(&mut self, during: &'static str) -> Result<StatusReport, GrblError> {
+        self.send_realtime(Realtime::FeedHold, during).await?;
+        let deadline = Instant::now() + self.cfg.stop_timeout;
+        loop {
+            let s = self.query_status().await?;
+            if matches!(s.state, MachineState::Idle | MachineState::Hold(0) | MachineState::Alarm) {
+                return Ok(s);
+            }
+            if Instant::now() >= deadline {
+                return Err(GrblError::Timeout { during, after: self.cfg.stop_timeout });
+            }
+            let wake = Instant::now() + self.cfg.poll_interval.min(Duration::from_millis(20));
+            while self.next_line(wake, during).await?.is_some() {}
+        }
+    }
+
+    /// Feed hold (`!`): decelerate and pause the move under way, keeping the
+    /// rest of it queued; returns the report once the axis stands
+    /// (`Hold:0`, or `Idle` if nothing was moving). [`Self::resume`]
+    /// continues; [`LinearStage::stop`] discards.
+    pub async fn feed_hold(&mut self) -> Result<StatusReport, GrblError> {
+        self.check_unlocked()?;
+        self.hold_and_wait("holding").await
+    }
+
+    /// Cycle start (`~`): continue a held move. GRBL ignores it in any other state.
+    pub async fn resume(&mut self) -> Result<(), GrblError> {
+        self.check_unlocked()?;
+        self.send_realtime(Realtime::CycleStart, "resuming").await
+    }
+
     /// `$X`: leave the alarm lock without homing (position may be wrong).
     pub async fn unlock(&mut self) -> Result<(), GrblError> {
         if self.alarm.is_some_and(AlarmCode::is_critical) {
             self.soft_reset().await?;
         }
-        self.command(Command::Unlock, self.cfg.reply_timeout, "unlocking")
-            .await?;
+        self.command(Command::Unlock, self.cfg.reply_timeout, "unlocking").await?;
         self.alarm = None;
         Ok(())
     }
@@ -455,11 +477,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
     fn check_travel(&self, target_mm: f64) -> Result<(), GrblError> {
         let (min_mm, max_mm) = self.cfg.travel_mm;
         if !target_mm.is_finite() || target_mm < min_mm || target_mm > max_mm {
-            return Err(GrblError::OutOfTravel {
-                target_mm,
-                min_mm,
-                max_mm,
-            });
+            return Err(GrblError::OutOfTravel { target_mm, min_mm, max_mm });
         }
         Ok(())
     }
@@ -472,8 +490,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
     }
 
     async fn start_move(&mut self, target_mm: f64, cmd: Command) -> Result<(), GrblError> {
-        self.command(cmd, self.cfg.reply_timeout, "queueing a move")
-            .await?;
+        self.command(cmd, self.cfg.reply_timeout, "queueing a move").await?;
         self.target = Some(target_mm);
         Ok(())
     }
@@ -574,10 +591,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
                         idle_away += 1;
                         if idle_away >= STALL_REPORTS {
                             self.target = None;
-                            return Err(GrblError::Stalled {
-                                target_mm: t,
-                                position_mm: pos,
-                            });
+                            return Err(GrblError::Stalled { target_mm: t, position_mm: pos });
                         }
                     }
                     _ => {
@@ -589,10 +603,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
             }
             let now = Instant::now();
             if now >= deadline {
-                return Err(GrblError::Timeout {
-                    during: DURING,
-                    after: timeout,
-                });
+                return Err(GrblError::Timeout { during: DURING, after: timeout });
             }
             // Keep reading between polls so an alarm or a cut link is seen at once.
             let wake = (now + self.cfg.poll_interval).min(deadline);
@@ -605,29 +616,10 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
     async fn stop(&mut self) -> Result<(), GrblError> {
         const DURING: &str = "stopping";
         if !self.alarm.is_some_and(AlarmCode::is_critical) {
-            self.send_realtime(Realtime::FeedHold, DURING).await?;
             // Let the hold decelerate the axis: a reset while moving loses position (ALARM:3).
-            let deadline = Instant::now() + self.cfg.stop_timeout;
-            loop {
-                let s = match self.query_status().await {
-                    Ok(s) => s,
-                    Err(GrblError::Alarm { .. }) => break,
-                    Err(e) => return Err(e),
-                };
-                if matches!(
-                    s.state,
-                    MachineState::Idle | MachineState::Hold(0) | MachineState::Alarm
-                ) {
-                    break;
-                }
-                if Instant::now() >= deadline {
-                    return Err(GrblError::Timeout {
-                        during: DURING,
-                        after: self.cfg.stop_timeout,
-                    });
-                }
-                let wake = Instant::now() + self.cfg.poll_interval.min(Duration::from_millis(20));
-                while self.next_line(wake, DURING).await?.is_some() {}
+            match self.hold_and_wait(DURING).await {
+                Ok(_) | Err(GrblError::Alarm { .. }) => {}
+                Err(e) => return Err(e),
             }
         }
         // The reset discards the rest of the held block and anything queued.
@@ -663,36 +655,21 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Identify for GrblStage<T> {
         loop {
             if let Some(pos) = self.answered.iter().position(|(s, _)| *s == seq) {
                 let (_, r) = self.answered.remove(pos).unwrap_or((seq, Ok(())));
-                r.map_err(|code| GrblError::Rejected {
-                    line: "$I".into(),
-                    code,
-                })?;
+                r.map_err(|code| GrblError::Rejected { line: "$I".into(), code })?;
                 break;
             }
             match self.next_line(deadline, DURING).await? {
                 Some(Response::Version { version, info }) => ver = Some((version, info)),
                 Some(_) => {}
                 None => {
-                    return Err(GrblError::Timeout {
-                        during: DURING,
-                        after: self.cfg.reply_timeout,
-                    });
+                    return Err(GrblError::Timeout { during: DURING, after: self.cfg.reply_timeout });
                 }
             }
         }
-        let (firmware, serial) = ver.ok_or(GrblError::Unexpected {
-            expected: "[VER:...] before ok",
-            got: "ok".into(),
-        })?;
-        let short = self
-            .version
-            .clone()
-            .unwrap_or_else(|| firmware.split('.').take(2).collect::<Vec<_>>().join("."));
-        Ok(DeviceInfo {
-            model: format!("GRBL {short}"),
-            serial,
-            firmware,
-        })
+        let (firmware, serial) =
+            ver.ok_or(GrblError::Unexpected { expected: "[VER:...] before ok", got: "ok".into() })?;
+        let short = self.version.clone().unwrap_or_else(|| firmware.split('.').take(2).collect::<Vec<_>>().join("."));
+        Ok(DeviceInfo { model: format!("GRBL {short}"), serial, firmware })
     }
 }
 
@@ -722,13 +699,9 @@ mod tests {
         let (host, mut dev) = tokio::io::duplex(4096);
         let script = async move {
             expect(&mut dev, &[0x18]).await;
-            dev.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n")
-                .await
-                .unwrap();
+            dev.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n").await.unwrap();
             expect(&mut dev, b"?").await;
-            dev.write_all(b"<Idle|MPos:0.000,0.000,1.000|FS:0,0|WCO:0.000,0.000,0.000>\r\n")
-                .await
-                .unwrap();
+            dev.write_all(b"<Idle|MPos:0.000,0.000,1.000|FS:0,0|WCO:0.000,0.000,0.000>\r\n").await.unwrap();
             dev
         };
         let (stage, dev) = tokio::join!(GrblStage::connect(host, cfg()), script);
@@ -753,17 +726,8 @@ mod tests {
         let (r, _dev) = tokio::join!(stage.start_move_to_mm(2.0), script);
         let e = r.unwrap_err();
         assert_eq!(e.kind(), FaultKind::DeviceReported);
-        assert!(matches!(
-            e,
-            GrblError::Rejected {
-                code: ErrorCode(22),
-                ..
-            }
-        ));
-        assert!(
-            e.to_string().contains("Feed rate has not yet been set"),
-            "{e}"
-        );
+        assert!(matches!(e, GrblError::Rejected { code: ErrorCode(22), .. }));
+        assert!(e.to_string().contains("Feed rate has not yet been set"), "{e}");
         assert_eq!(stage.unacknowledged_bytes(), 0);
     }
 
@@ -785,19 +749,13 @@ mod tests {
         let (mut stage, mut dev) = connected().await;
         let script = async move {
             expect(&mut dev, b"?").await;
-            dev.write_all(b"<Idle|MPos:0.000,0.000,1.000|FS:0,0>\r\n")
-                .await
-                .unwrap();
+            dev.write_all(b"<Idle|MPos:0.000,0.000,1.000|FS:0,0>\r\n").await.unwrap();
             expect(&mut dev, b"G91 G1 Z0.5000 F60.0000\n").await;
             dev.write_all(b"ok\r\n").await.unwrap();
             expect(&mut dev, b"?").await;
-            dev.write_all(b"<Run|MPos:0.000,0.000,1.200|FS:60,0>\r\n")
-                .await
-                .unwrap();
+            dev.write_all(b"<Run|MPos:0.000,0.000,1.200|FS:60,0>\r\n").await.unwrap();
             expect(&mut dev, b"?").await;
-            dev.write_all(b"<Idle|MPos:0.000,0.000,1.500|FS:0,0>\r\n")
-                .await
-                .unwrap();
+            dev.write_all(b"<Idle|MPos:0.000,0.000,1.500|FS:0,0>\r\n").await.unwrap();
             dev
         };
         let run = async {
@@ -813,9 +771,7 @@ mod tests {
         let (mut stage, mut dev) = connected().await;
         let script = async move {
             expect(&mut dev, b"?").await;
-            dev.write_all(b"<Idle|MPos:0.000,0.000,24.900|FS:0,0>\r\n")
-                .await
-                .unwrap();
+            dev.write_all(b"<Idle|MPos:0.000,0.000,24.900|FS:0,0>\r\n").await.unwrap();
             dev
         };
         let (r, mut dev) = tokio::join!(stage.start_move_by_mm(0.2), script);
@@ -833,11 +789,9 @@ mod tests {
             expect(&mut dev, b"G90 G1 Z3.0000 F60.0000\n").await;
             dev.write_all(b"ok\r\n").await.unwrap();
             expect(&mut dev, b"?").await;
-            dev.write_all(
-                b"<Run|MPos:0.000,0.000,1.200|FS:60,0>\r\nALARM:1\r\n[MSG:Reset to continue]\r\n",
-            )
-            .await
-            .unwrap();
+            dev.write_all(b"<Run|MPos:0.000,0.000,1.200|FS:60,0>\r\nALARM:1\r\n[MSG:Reset to continue]\r\n")
+                .await
+                .unwrap();
             dev
         };
         let run = async {
@@ -850,10 +804,7 @@ mod tests {
         assert_eq!(e.kind(), FaultKind::DeviceReported);
         assert!(e.to_string().contains("Hard limit triggered"));
         // Locked: further moves are refused without sending.
-        assert!(matches!(
-            stage.start_move_to_mm(1.0).await,
-            Err(GrblError::Alarm { .. })
-        ));
+        assert!(matches!(stage.start_move_to_mm(1.0).await, Err(GrblError::Alarm { .. })));
     }
 
     #[tokio::test]
@@ -884,9 +835,7 @@ mod tests {
             wr.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
             rd.read_exact(&mut b).await.unwrap();
             assert_eq!(b[0], b'?');
-            wr.write_all(b"<Idle|MPos:0.000,0.000,0.000|FS:0,0>\r\n")
-                .await
-                .unwrap();
+            wr.write_all(b"<Idle|MPos:0.000,0.000,0.000|FS:0,0>\r\n").await.unwrap();
             let mut reader = BufReader::new(rd);
             let mut in_buffer = 0usize;
             let mut max_seen = 0usize;
@@ -910,21 +859,13 @@ mod tests {
         });
         let mut stage = GrblStage::connect(host, cfg()).await.unwrap();
         let mut seqs = Vec::new();
-        let cmd = Command::Feed {
-            distance: Distance::Absolute,
-            axis: 'Z',
-            mm: 12.3456,
-            feed_mm_min: 1234.5,
-        };
+        let cmd = Command::Feed { distance: Distance::Absolute, axis: 'Z', mm: 12.3456, feed_mm_min: 1234.5 };
         for _ in 0..20 {
             seqs.push(stage.send_line(&cmd, "test").await.unwrap());
             assert!(stage.unacknowledged_bytes() <= RX_BUFFER_SIZE);
         }
         for s in seqs {
-            stage
-                .wait_answer(s, &cmd, Duration::from_secs(1), "test")
-                .await
-                .unwrap();
+            stage.wait_answer(s, &cmd, Duration::from_secs(1), "test").await.unwrap();
         }
         let max_seen = device.await.unwrap();
         assert!(max_seen <= RX_BUFFER_SIZE, "{max_seen}");

@@ -19,7 +19,7 @@
 
 use std::collections::VecDeque;
 use std::io;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -133,6 +133,10 @@ pub struct GrblPort {
 }
 
 impl GrblPort {
+    /// Slave path for the driver to open.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
     /// Close the pty master (the driver sees a hang-up).
     pub fn cut_cable(&self) {
         self.control.cut_cable();
@@ -148,11 +152,7 @@ pub async fn serve_grbl_stage(rig: Rig, cfg: GrblEmulatorConfig) -> io::Result<G
     let path = master.slave_path().to_path_buf();
     let (control, rx) = grbl_control();
     let task = tokio::spawn(run_grbl_emulator(master, rig, cfg, rx));
-    Ok(GrblPort {
-        path,
-        task,
-        control,
-    })
+    Ok(GrblPort { path, task, control })
 }
 
 /// Run the emulator over any byte stream until the stream ends or the cable is cut.
@@ -173,11 +173,7 @@ pub async fn run_grbl_emulator<T: AsyncRead + AsyncWrite + Unpin>(
             io.write_all(&out).await?;
             io.flush().await?;
         }
-        let tick = if emu.busy() {
-            Duration::from_millis(2)
-        } else {
-            Duration::from_millis(50)
-        };
+        let tick = if emu.busy() { Duration::from_millis(2) } else { Duration::from_millis(50) };
         tokio::select! {
             r = io.read(&mut buf) => {
                 let n = r?;
@@ -317,11 +313,7 @@ impl Emulator {
         set(&mut settings, 22, f64::from(u8::from(cfg.homing_enabled)));
         let (lo, hi) = rig.with_stage(|ax, _| (ax.config().min_position, ax.config().max_position));
         set(&mut settings, 132, hi - lo);
-        let state = if cfg.homing_enabled {
-            State::Alarm
-        } else {
-            State::Idle
-        };
+        let state = if cfg.homing_enabled { State::Alarm } else { State::Idle };
         Self {
             rig,
             cfg,
@@ -360,9 +352,7 @@ impl Emulator {
     }
 
     fn busy(&self) -> bool {
-        self.blocker.is_some()
-            || !matches!(self.state, State::Idle | State::Alarm)
-            || self.current.is_some()
+        self.blocker.is_some() || !matches!(self.state, State::Idle | State::Alarm) || self.current.is_some()
     }
 
     fn ok(&mut self) {
@@ -440,15 +430,10 @@ impl Emulator {
         };
         let mask = self.setting(10) as u8;
         let kind = if mask & 1 == 1 { "MPos" } else { "WPos" };
-        let mut s = format!(
-            "<{state}|{kind}:{:.3},{:.3},{:.3}",
-            axes[0], axes[1], axes[2]
-        );
+        let mut s = format!("<{state}|{kind}:{:.3},{:.3},{:.3}", axes[0], axes[1], axes[2]);
         if mask & 2 == 2 {
-            let free_blocks = self
-                .cfg
-                .planner_blocks
-                .saturating_sub(self.queue.len() + usize::from(self.current.is_some()));
+            let free_blocks =
+                self.cfg.planner_blocks.saturating_sub(self.queue.len() + usize::from(self.current.is_some()));
             let free_rx = self.cfg.rx_buffer - self.rx.len();
             s += &format!("|Bf:{free_blocks},{free_rx}");
         }
@@ -474,10 +459,7 @@ impl Emulator {
     }
 
     fn setting(&self, n: u16) -> f64 {
-        self.settings
-            .iter()
-            .find(|(k, _)| *k == n)
-            .map_or(0.0, |(_, v)| *v)
+        self.settings.iter().find(|(k, _)| *k == n).map_or(0.0, |(_, v)| *v)
     }
 
     fn feed_hold(&mut self) {
@@ -510,11 +492,8 @@ impl Emulator {
 
     fn soft_reset(&mut self) {
         let (_, moving, ..) = self.axis_now();
-        let in_motion = moving
-            || matches!(
-                self.state,
-                State::Run | State::Jog | State::Home | State::Hold { complete: false }
-            );
+        let in_motion =
+            moving || matches!(self.state, State::Run | State::Jog | State::Home | State::Hold { complete: false });
         if in_motion {
             self.rig.with_stage(|ax, t| ax.command_stop(t, true));
             let code = if self.state == State::Home { 6 } else { 3 };
@@ -575,11 +554,10 @@ impl Emulator {
                 if let Some(b) = self.current.take()
                     && b.to_switch
                     && (fwd || rev)
+                    && self.cfg.hard_limits
                 {
-                    if self.cfg.hard_limits {
-                        self.raise_alarm(1);
-                        return;
-                    }
+                    self.raise_alarm(1);
+                    return;
                 }
                 self.next_block();
             }
@@ -605,12 +583,7 @@ impl Emulator {
         {
             let now = self.rig.clock().now_s();
             match started {
-                None => {
-                    self.blocker = Some(Blocker::Dwell {
-                        seconds,
-                        started: Some(now),
-                    })
-                }
+                None => self.blocker = Some(Blocker::Dwell { seconds, started: Some(now) }),
                 Some(t0) if now - t0 >= seconds => {
                     self.blocker = None;
                     self.ok();
@@ -698,7 +671,8 @@ impl Emulator {
                 b')' => paren = false,
                 b';' if !paren => break,
                 _ if paren => {}
-                b' ' | b'\t' => {}
+                // GRBL throws away whitespace and control characters.
+                _ if c <= b' ' => {}
                 _ => text.push((c as char).to_ascii_uppercase()),
             }
         }
@@ -727,13 +701,11 @@ impl Emulator {
                 let lines: Vec<String> = self
                     .settings
                     .iter()
-                    .map(|(n, v)| {
-                        if v.fract() == 0.0 && *n < 100 {
-                            format!("${n}={v:.0}")
-                        } else {
-                            format!("${n}={v:.3}")
-                        }
-                    })
+                    .map(
+                        |(n, v)| {
+                            if v.fract() == 0.0 && *n < 100 { format!("${n}={v:.0}") } else { format!("${n}={v:.3}") }
+                        },
+                    )
                     .collect();
                 for l in lines {
                     self.say(&l);
@@ -741,16 +713,9 @@ impl Emulator {
                 self.ok();
             }
             "I" => {
-                let v = format!(
-                    "[VER:{}.{}:{}]",
-                    self.cfg.version, self.cfg.build_date, self.cfg.build_info
-                );
+                let v = format!("[VER:{}.{}:{}]", self.cfg.version, self.cfg.build_date, self.cfg.build_info);
                 self.say(&v);
-                let o = format!(
-                    "[OPT:V,{},{}]",
-                    self.cfg.planner_blocks + 1,
-                    self.cfg.rx_buffer
-                );
+                let o = format!("[OPT:V,{},{}]", self.cfg.planner_blocks + 1, self.cfg.rx_buffer);
                 self.say(&o);
                 self.ok();
             }
@@ -849,10 +814,7 @@ impl Emulator {
             i += 1;
             let start = i;
             while i < bytes.len()
-                && (bytes[i].is_ascii_digit()
-                    || bytes[i] == b'.'
-                    || bytes[i] == b'-'
-                    || bytes[i] == b'+')
+                && (bytes[i].is_ascii_digit() || bytes[i] == b'.' || bytes[i] == b'-' || bytes[i] == b'+')
             {
                 i += 1;
             }
@@ -874,11 +836,7 @@ impl Emulator {
                             if motion.is_some() || jog {
                                 return Err(if jog { 16 } else { 21 });
                             }
-                            motion = Some(if code == 0 {
-                                Motion::Rapid
-                            } else {
-                                Motion::Feed
-                            });
+                            motion = Some(if code == 0 { Motion::Rapid } else { Motion::Feed });
                         }
                         40 => {
                             if jog {
@@ -944,10 +902,7 @@ impl Emulator {
             if s < 0.0 {
                 return Err(4);
             }
-            self.blocker = Some(Blocker::Dwell {
-                seconds: s,
-                started: None,
-            });
+            self.blocker = Some(Blocker::Dwell { seconds: s, started: None });
             return Ok(());
         }
         if p.is_some() {
@@ -970,13 +925,7 @@ impl Emulator {
         self.plan(axis_words, self.absolute, f, false)
     }
 
-    fn plan(
-        &mut self,
-        words: [Option<f64>; 3],
-        absolute: bool,
-        feed: f64,
-        jog: bool,
-    ) -> Result<(), u8> {
+    fn plan(&mut self, words: [Option<f64>; 3], absolute: bool, feed: f64, jog: bool) -> Result<(), u8> {
         // Where the driven axis will be when this block starts.
         let start = match (self.queue.back(), self.current) {
             (Some(b), _) => b.target,
@@ -1004,12 +953,7 @@ impl Emulator {
             self.raise_alarm(2);
             return Ok(());
         }
-        let block = Block {
-            target,
-            feed,
-            jog,
-            to_switch: !inside,
-        };
+        let block = Block { target, feed, jog, to_switch: !inside };
         if self.queue.len() + usize::from(self.current.is_some()) >= self.cfg.planner_blocks {
             // `ok` only when the planner has room: the RX buffer fills meanwhile.
             self.blocker = Some(Blocker::PlannerFull(block));
@@ -1092,26 +1036,13 @@ mod tests {
     fn start(
         cfg: GrblEmulatorConfig,
         speedup: f64,
-    ) -> (
-        Host,
-        GrblControl,
-        Rig,
-        JoinHandle<io::Result<GrblEmulatorStats>>,
-    ) {
+    ) -> (Host, GrblControl, Rig, JoinHandle<io::Result<GrblEmulatorStats>>) {
         let rig = rig(speedup);
         let (a, b) = tokio::io::duplex(4096);
         let (ctl, rx) = grbl_control();
         let task = tokio::spawn(run_grbl_emulator(b, rig.clone(), cfg, rx));
         let (rd, wr) = tokio::io::split(a);
-        (
-            Host {
-                rd: BufReader::new(rd),
-                wr,
-            },
-            ctl,
-            rig,
-            task,
-        )
+        (Host { rd: BufReader::new(rd), wr }, ctl, rig, task)
     }
 
     fn z_of(status: &str) -> f64 {
@@ -1125,11 +1056,7 @@ mod tests {
         assert_eq!(h.line().await, "");
         assert_eq!(h.line().await, "Grbl 1.1h ['$' for help]");
         assert_eq!(h.line().await, "[MSG:'$H'|'$X' to unlock]");
-        assert!(
-            h.status()
-                .await
-                .starts_with("<Alarm|MPos:0.000,0.000,3.000")
-        );
+        assert!(h.status().await.starts_with("<Alarm|MPos:0.000,0.000,3.000"));
         h.send("G1 Z1 F60\n").await;
         assert_eq!(h.reply().await, "error:9");
         h.send("$H\n").await;
@@ -1159,11 +1086,7 @@ mod tests {
 
     #[tokio::test]
     async fn soft_limit_alarm_is_critical_until_reset() {
-        let cfg = GrblEmulatorConfig {
-            homing_enabled: false,
-            banner_on_start: false,
-            ..Default::default()
-        };
+        let cfg = GrblEmulatorConfig { homing_enabled: false, banner_on_start: false, ..Default::default() };
         let (mut h, _ctl, rig, _t) = start(cfg, 100.0);
         h.send("G90 G1 Z30 F60\n").await;
         assert_eq!(h.reply().await, "ALARM:2");
@@ -1197,11 +1120,7 @@ mod tests {
 
     #[tokio::test]
     async fn hold_resume_and_reset_during_motion() {
-        let cfg = GrblEmulatorConfig {
-            homing_enabled: false,
-            banner_on_start: false,
-            ..Default::default()
-        };
+        let cfg = GrblEmulatorConfig { homing_enabled: false, banner_on_start: false, ..Default::default() };
         let (mut h, _ctl, _rig, _t) = start(cfg, 20.0);
         h.send("G90 G1 Z20 F60\n").await;
         assert_eq!(h.reply().await, "ok");
@@ -1250,11 +1169,7 @@ mod tests {
 
     #[tokio::test]
     async fn errors_for_bad_lines() {
-        let cfg = GrblEmulatorConfig {
-            homing_enabled: false,
-            banner_on_start: false,
-            ..Default::default()
-        };
+        let cfg = GrblEmulatorConfig { homing_enabled: false, banner_on_start: false, ..Default::default() };
         let (mut h, _ctl, _rig, _t) = start(cfg, 1.0);
         for (line, want) in [
             ("1G0\n", "error:1"),
@@ -1283,11 +1198,7 @@ mod tests {
 
     #[tokio::test]
     async fn injected_alarm_and_cut() {
-        let cfg = GrblEmulatorConfig {
-            homing_enabled: false,
-            banner_on_start: false,
-            ..Default::default()
-        };
+        let cfg = GrblEmulatorConfig { homing_enabled: false, banner_on_start: false, ..Default::default() };
         let (mut h, ctl, _rig, task) = start(cfg, 1.0);
         ctl.inject_alarm(1);
         assert_eq!(h.reply().await, "ALARM:1");
