@@ -6,6 +6,7 @@
 
 pub mod grbl;
 pub mod motion;
+pub mod ops;
 pub mod sensor;
 
 pub use motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount};
