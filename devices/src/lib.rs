@@ -4,6 +4,7 @@
 //! (`AsyncRead + AsyncWrite`), so the same code runs over a USB serial port, a
 //! pseudo-terminal to an emulator, or an in-memory pipe in a unit test.
 
+pub mod discovery;
 pub mod grbl;
 pub mod motion;
 pub mod ops;
