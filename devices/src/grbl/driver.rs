@@ -872,4 +872,26 @@ mod tests {
         // 27-byte lines: the driver really did queue several (4 fit in 128).
         assert!(max_seen > 2 * 25, "{max_seen}");
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// Whatever a device sends before hanging up, connecting ends in a
+        /// typed error (or a session, if the bytes happen to hold a banner and
+        /// a status report) and never panics.
+        #[test]
+        fn garbage_from_the_device_never_panics(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..400)) {
+            let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+            rt.block_on(async {
+                let (host, mut dev) = tokio::io::duplex(4096);
+                dev.write_all(&bytes).await.unwrap();
+                drop(dev);
+                match GrblStage::connect(host, cfg()).await {
+                    Ok(_) => {}
+                    Err(e) => {
+                        assert!(matches!(e.kind(), FaultKind::Disconnected | FaultKind::Protocol | FaultKind::Timeout), "{e}");
+                    }
+                }
+            });
+        }
+    }
 }

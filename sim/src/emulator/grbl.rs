@@ -1210,4 +1210,21 @@ mod tests {
         let mut more = String::new();
         assert_eq!(h.rd.read_line(&mut more).await.unwrap(), 0);
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// Whatever a client sends, the emulator answers without panicking,
+        /// and every complete line gets at most one `ok`/`error:N`.
+        #[test]
+        fn random_input_never_panics(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..400)) {
+            let cfg = GrblEmulatorConfig { homing_enabled: false, ..Default::default() };
+            let mut emu = Emulator::new(rig(1000.0), cfg);
+            emu.ingest(&bytes);
+            emu.step();
+            let out = String::from_utf8(emu.out.clone()).unwrap();
+            let acks = out.lines().filter(|l| *l == "ok" || l.starts_with("error:")).count();
+            let lines = bytes.iter().filter(|b| matches!(b, b'\n' | b'\r')).count();
+            proptest::prop_assert!(acks <= lines, "{acks} answers to {lines} lines");
+        }
+    }
 }
