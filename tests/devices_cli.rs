@@ -137,5 +137,5 @@ async fn probe_identifies_grbl_emulator_on_a_pty_without_moving_it() {
     assert_eq!(rig.pose().stage_mm, before);
     port.cut_cable();
     let stats = port.task.await.unwrap().unwrap();
-    assert_eq!(stats.errors, 0, "{stats:?}");
+    assert_eq!(stats.alarms, 0, "{stats:?}");
 }

@@ -222,3 +222,26 @@ async fn probe_identifies_the_emulator_without_moving_it() {
     assert_eq!(stats.resets, 0);
     assert_eq!(stats.errors, 0);
 }
+
+#[tokio::test]
+async fn probe_still_identifies_grbl_after_an_apt_probe_went_first() {
+    use tokio::io::AsyncWriteExt;
+    let rig = rig(SPEEDUP);
+    let port = serve_grbl_stage(rig.clone(), GrblEmulatorConfig::default()).await.unwrap();
+    // What an APT prober sends on an unknown port (hardware.md A.8):
+    // HW_NO_FLASH_PROGRAMMING (its 0x18 is GRBL's soft reset) and HW_REQ_INFO
+    // (its 'P' bytes stay in GRBL's line buffer).
+    {
+        let mut apt = devices::grbl::open_serial(port.path()).unwrap();
+        apt.write_all(&[0x18, 0x00, 0x00, 0x00, 0x50, 0x01, 0x05, 0x00, 0x00, 0x00, 0x50, 0x01]).await.unwrap();
+        apt.flush().await.unwrap();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let info = devices::grbl::probe(port.path(), Duration::from_secs(1)).await.unwrap();
+    assert_eq!(info.model, "GRBL 1.1h");
+    assert_eq!(info.firmware, "1.1h.20190830");
+    assert!(!rig.with_stage(|ax, _| ax.is_moving()));
+    port.cut_cable();
+    let stats = port.task.await.unwrap().unwrap();
+    assert_eq!(stats.alarms, 0);
+}

@@ -15,6 +15,8 @@ use super::driver::{GrblError, open_serial};
 use crate::motion::DeviceInfo;
 
 const PROBE_BYTES: &[u8] = b"?$I\n";
+/// `$I` is sent again after a banner or a spoiled answer, at most this often.
+const MAX_RESENDS: u32 = 2;
 
 /// What a probe learned before it decided.
 #[derive(Debug, Default)]
@@ -67,6 +69,7 @@ where
         }
     }
     let mut ev = Evidence::default();
+    let mut resends = 0;
     let mut splitter = LineSplitter::new();
     let mut buf = [0u8; 256];
     loop {
@@ -87,7 +90,10 @@ where
                 Ok(Response::Welcome { version }) => {
                     // The board just (re)booted: whatever was sent before is gone.
                     ev.banner = Some(version);
-                    io.write_all(b"$I\n").await.map_err(io_err)?;
+                    if resends < MAX_RESENDS {
+                        resends += 1;
+                        io.write_all(b"$I\n").await.map_err(io_err)?;
+                    }
                 }
                 Ok(Response::Version { version, info }) => ev.ver = Some((version, info)),
                 Ok(Response::Status(_)) => ev.status = true,
@@ -95,6 +101,12 @@ where
                     ev.acks += 1;
                     if ev.ver.is_some() {
                         return Ok(ev.info());
+                    }
+                    // Leftover bytes in GRBL's line buffer (e.g. from another
+                    // protocol's probe) spoiled the request; the buffer is empty now.
+                    if resends < MAX_RESENDS {
+                        resends += 1;
+                        io.write_all(b"$I\n").await.map_err(io_err)?;
                     }
                 }
                 Ok(_) => {}
@@ -173,6 +185,21 @@ mod tests {
         let info = r.unwrap();
         assert_eq!(info.model, "GRBL 1.1f");
         assert_eq!(info.firmware, "1.1f.20170801");
+    }
+
+    #[tokio::test]
+    async fn spoiled_first_request_is_repeated() {
+        let (mut host, mut dev) = tokio::io::duplex(1024);
+        let script = async move {
+            expect(&mut dev, b"?$I\n").await;
+            // "P" left in the line buffer by an APT frame made the line "P$I".
+            dev.write_all(b"<Idle|MPos:0.000,0.000,0.000|FS:0,0>\r\nerror:2\r\n").await.unwrap();
+            expect(&mut dev, b"$I\n").await;
+            dev.write_all(b"[VER:1.1h.20190830:]\r\n[OPT:V,15,128]\r\nok\r\n").await.unwrap();
+            dev
+        };
+        let (r, _dev) = tokio::join!(probe_stream(&mut host, Duration::from_secs(1)), script);
+        assert_eq!(r.unwrap().firmware, "1.1h.20190830");
     }
 
     #[tokio::test]
