@@ -5,7 +5,10 @@
 //! pseudo-terminal to an emulator, or an in-memory pipe in a unit test.
 
 pub mod apt;
+pub mod discovery;
+pub mod grbl;
 pub mod motion;
+pub mod ops;
 pub mod sensor;
 pub mod serial;
 

@@ -3,5 +3,6 @@
 
 pub mod apt;
 pub mod axis;
+pub mod grbl;
 pub mod pty;
 pub mod rig;
