@@ -183,7 +183,10 @@ fn svgs_are_well_formed_and_carry_every_series() {
         let circles = svg.matches("<circle").count();
         assert_eq!(circles, back.phase(phase).count() + 1, "{path:?}");
         for label in [eq, "full model", "measured", &format!("{eq} residual"), "full model residual"] {
-            assert!(svg.contains(&format!(">{label}<")) || svg.contains(&format!(">\n{label}\n<")), "{label} in {path:?}");
+            assert!(
+                svg.contains(&format!(">{label}<")) || svg.contains(&format!(">\n{label}\n<")),
+                "{label} in {path:?}"
+            );
         }
         // Fit curves and zero line are polylines.
         assert!(svg.matches("<polyline").count() >= 3, "{path:?}");
@@ -212,7 +215,9 @@ fn markdown_summarises_with_units_and_references_the_figures() {
         )),
         "{md}"
     );
-    assert!(md.contains(&format!("| nu1 | full model | {:.4} | [{:.4}, {:.4}] | – |", f.nu1, f.ci95.nu1[0], f.ci95.nu1[1])));
+    assert!(
+        md.contains(&format!("| nu1 | full model | {:.4} | [{:.4}, {:.4}] | – |", f.nu1, f.ci95.nu1[0], f.ci95.nu1[1]))
+    );
     assert!(md.contains(&format!("| E1 | paper, rounded constants (Eqs. 39-40) | {:.4} |", cal2.paper.e1_mpa_rounded)));
     assert!(md.contains(&format!("| full model: residual RMS | {:.2} µm |", f.rms.normal_um)));
     assert!(md.contains("## Simulation truth") && md.contains("| truth | 0.3300 | 0.3900 |"));

@@ -61,7 +61,8 @@ pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &st
         num(f.contact_offset_mm * 1e3, 1),
         interval([f.ci95.contact_offset_mm[0] * 1e3, f.ci95.contact_offset_mm[1] * 1e3], 1)
     );
-    let _ = writeln!(s, "| E1 | paper, exact inversion | {} | {} | MPa |", num(p.e1_mpa, 4), interval(p.ci95.e1_mpa, 4));
+    let _ =
+        writeln!(s, "| E1 | paper, exact inversion | {} | {} | MPa |", num(p.e1_mpa, 4), interval(p.ci95.e1_mpa, 4));
     let _ = writeln!(s, "| nu1 | paper, exact inversion | {} | {} | – |", num(p.nu1, 4), interval(p.ci95.nu1, 4));
     let _ = writeln!(s, "| E1 | paper, rounded constants (Eqs. 39-40) | {} | | MPa |", num(p.e1_mpa_rounded, 4));
     let _ = writeln!(s, "| nu1 | paper, rounded constants (Eqs. 39-40) | {} | | – |", num(p.nu1_rounded, 4));

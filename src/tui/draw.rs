@@ -60,7 +60,8 @@ fn status_style(status: &RunStatus) -> Style {
 }
 
 fn draw_header(state: &State, frame: &mut Frame, area: Rect) {
-    let mut spans = vec![Span::styled(format!(" {} ", state.status().label()), status_style(state.status())), " ".into()];
+    let mut spans =
+        vec![Span::styled(format!(" {} ", state.status().label()), status_style(state.status())), " ".into()];
     match state.step() {
         Some(s) => {
             spans.push(format!("step {}/{} ", s.index + 1, s.total).bold());
@@ -245,7 +246,10 @@ fn axis_lines(name: &str, unit: &str, a: &AxisStatus) -> Vec<Line<'static>> {
     if !a.enabled {
         flags.push("  off".red());
     }
-    vec![Line::from(vec![format!("{name:<9}").bold(), format!("{:>10.4} {unit}", a.position).into()]), Line::from(flags)]
+    vec![
+        Line::from(vec![format!("{name:<9}").bold(), format!("{:>10.4} {unit}", a.position).into()]),
+        Line::from(flags),
+    ]
 }
 
 fn draw_devices(state: &State, frame: &mut Frame, area: Rect) {
@@ -306,7 +310,8 @@ fn draw_log(state: &State, frame: &mut Frame, area: Rect) {
 }
 
 fn draw_footer(state: &State, frame: &mut Frame, area: Rect) {
-    let key = |k: &'static str, what: &'static str| vec![Span::from(k).bold().reversed(), Span::from(format!(" {what}  "))];
+    let key =
+        |k: &'static str, what: &'static str| vec![Span::from(k).bold().reversed(), Span::from(format!(" {what}  "))];
     let mut spans = Vec::new();
     if state.status().is_over() {
         spans.extend(key(" q ", "leave"));
@@ -397,7 +402,8 @@ const HELP: [(&str, &str); 6] = [
 ];
 
 fn draw_help(frame: &mut Frame, area: Rect) {
-    let mut lines: Vec<Line> = HELP.iter().map(|(k, what)| Line::from(vec![format!("{k:>8}  ").bold(), (*what).into()])).collect();
+    let mut lines: Vec<Line> =
+        HELP.iter().map(|(k, what)| Line::from(vec![format!("{k:>8}  ").bold(), (*what).into()])).collect();
     lines.push(Line::from(""));
     lines.push(Line::from("any key closes this help".italic()));
     let height = (lines.len() as u16 + 2).min(area.height);

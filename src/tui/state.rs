@@ -29,7 +29,9 @@ pub enum RunStatus {
     Idle,
     Running,
     Paused,
-    Aborted { reason: String },
+    Aborted {
+        reason: String,
+    },
     Finished(RunSummary),
 }
 
