@@ -244,6 +244,45 @@ fn ctrl_c_and_q_while_running_ask_the_sequencer_to_quit() {
     let (mut st, _, _) = mid_normal();
     assert_eq!(st.on_key(key('q')), Some(RunControl::Quit));
     assert!(render(&st).contains("quitting: aborting the run first"));
+    assert!(!st.force_quit());
+    // A second q before the sequencer answered: leave without waiting.
+    st.on_key(key('q'));
+    assert!(st.force_quit());
+}
+
+#[tokio::test]
+async fn second_quit_leaves_a_stuck_sequencer() {
+    let (ev_tx, ev_rx) = mpsc::channel(16);
+    let (ctl_tx, mut ctl_rx) = mpsc::channel(4);
+    let (key_tx, key_rx) = mpsc::channel(4);
+    ev_tx
+        .send(RunEvent::StepStarted { index: 0, total: 3, name: "home".into(), phase: RunPhase::Setup })
+        .await
+        .unwrap();
+    key_tx.send(Event::Key(key('q'))).await.unwrap();
+    key_tx.send(Event::Key(key('q'))).await.unwrap();
+    let mut term = Terminal::new(TestBackend::new(W, H)).unwrap();
+    let opts = DriveOptions { frame_interval: Duration::from_millis(1), wait_for_key_at_end: true };
+    // The sequencer keeps its sender open and never answers.
+    let state = drive(&mut term, ev_rx, ctl_tx, key_rx, opts).await.unwrap();
+    assert!(state.force_quit());
+    assert_eq!(*state.status(), RunStatus::Running);
+    assert_eq!(ctl_rx.recv().await, Some(RunControl::Quit));
+    drop(ev_tx);
+}
+
+#[test]
+fn small_terminals_draw_without_panicking() {
+    let (mut st, _, _) = mid_normal();
+    st.apply(&RunEvent::Aborted { reason: "a long reason that will not fit in a tiny terminal at all".into() });
+    st.on_key(key('?'));
+    for (w, h) in [(80, 24), (60, 20), (30, 10), (10, 4), (1, 1)] {
+        let mut t = Terminal::new(TestBackend::new(w, h)).unwrap();
+        t.draw(|f| draw(&st, f)).unwrap();
+    }
+    let mut t = Terminal::new(TestBackend::new(80, 24)).unwrap();
+    t.draw(|f| draw(&st, f)).unwrap();
+    assert!(screen_of(t.backend().buffer()).contains("ABORTED"));
 }
 
 #[test]

@@ -13,5 +13,5 @@ mod runner;
 mod state;
 
 pub use draw::draw;
-pub use runner::{DriveOptions, NO_RESULT_REASON, drive, run_plain, run_tui, stdout_is_terminal};
+pub use runner::{DriveOptions, NO_RESULT_REASON, drive, run_display, run_plain, run_tui, stdout_is_terminal};
 pub use state::{LOG_CAPACITY, LogEntry, RunStatus, State, StepInfo};

@@ -47,7 +47,8 @@ impl Default for DriveOptions {
 /// terminal input into a [`State`], forwards the operator's controls, and
 /// redraws at most once per `frame_interval`. Returns the final state when the
 /// run is over and the operator has left (or, with `wait_for_key_at_end`
-/// off, when the run is over).
+/// off, when the run is over). A second quit key before the sequencer has
+/// answered the first leaves at once, with the run's status as last reported.
 pub async fn drive<B: Backend>(
     terminal: &mut Terminal<B>,
     mut events: mpsc::Receiver<RunEvent>,
@@ -72,7 +73,7 @@ pub async fn drive<B: Backend>(
             dirty = true;
             continue;
         }
-        if over && (state.quit_requested() || !opts.wait_for_key_at_end || !input_open) {
+        if over && (state.quit_requested() || !opts.wait_for_key_at_end || !input_open) || state.force_quit() {
             break;
         }
         // Biased: a due redraw first (so a flood of events cannot starve the
@@ -188,4 +189,19 @@ pub async fn run_plain<W: Write>(mut events: mpsc::Receiver<RunEvent>, mut out: 
     }
     emit(&RunEvent::Aborted { reason: NO_RESULT_REASON.to_string() }, &mut state, &mut out)?;
     Ok(state)
+}
+
+/// The display the issue asks for: the TUI when stdout is a terminal, plain
+/// progress lines on stdout otherwise. In plain mode nobody sends controls,
+/// but `controls` stays open until the run is over so the sequencer does not
+/// mistake a closed channel for an operator leaving (Ctrl-C there is the
+/// caller's signal handler's job).
+pub async fn run_display(events: mpsc::Receiver<RunEvent>, controls: mpsc::Sender<RunControl>) -> io::Result<State> {
+    if stdout_is_terminal() {
+        run_tui(events, controls).await
+    } else {
+        let state = run_plain(events, io::stdout()).await;
+        drop(controls);
+        state
+    }
 }

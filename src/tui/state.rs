@@ -76,6 +76,8 @@ pub struct State {
     pending: Option<RunControl>,
     help: bool,
     quit: bool,
+    /// The operator asked to quit again while the first request was pending.
+    force_quit: bool,
 }
 
 impl Default for State {
@@ -99,6 +101,7 @@ impl State {
             pending: None,
             help: false,
             quit: false,
+            force_quit: false,
         }
     }
 
@@ -204,6 +207,11 @@ impl State {
     }
 
     fn request_quit(&mut self) -> Option<RunControl> {
+        // A second request while the sequencer has not answered the first
+        // means it is stuck: let the operator leave anyway.
+        if self.quit && !self.status.is_over() {
+            self.force_quit = true;
+        }
         self.quit = true;
         if self.status.is_over() {
             None
@@ -251,6 +259,11 @@ impl State {
     /// The operator asked to leave (q, Esc, Ctrl-C, or Enter after the end).
     pub fn quit_requested(&self) -> bool {
         self.quit
+    }
+    /// The operator asked to quit twice before the run ended: the display
+    /// leaves without waiting for the sequencer to confirm.
+    pub fn force_quit(&self) -> bool {
+        self.force_quit
     }
 
     /// Fraction of the current step, clamped to 0..=1 (0 when unknown).
