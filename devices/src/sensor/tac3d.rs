@@ -9,6 +9,10 @@
 //! binary blob in order, and each `data` item points into it by `offset` and
 //! `length`. Matrices are float64, row-major, `height` rows by `width` columns.
 //!
+//! `3D_Positions` are the markers' *current* positions (reference +
+//! displacement; checked on the recordings that ship with PyTac3D), so the
+//! codec converts to and from [`SensorFrame`]'s reference positions.
+//!
 //! The codec here is pure (bytes in, frames out, time passed in explicitly);
 //! [`Tac3dReceiver`] is the I/O edge on a tokio UDP socket.
 
@@ -52,11 +56,7 @@ pub const INITIALIZE_PROGRESS: &str = "InitializeProgress";
 #[derive(Debug, Clone, PartialEq)]
 pub enum Tac3dValue {
     /// `type: mat, dtype: f64`: `rows` x `cols`, row-major.
-    Mat {
-        rows: usize,
-        cols: usize,
-        data: Vec<f64>,
-    },
+    Mat { rows: usize, cols: usize, data: Vec<f64> },
     /// `type: f64`.
     F64(f64),
     /// `type: i32`.
@@ -66,6 +66,12 @@ pub enum Tac3dValue {
 }
 
 impl Tac3dValue {
+    /// An `n x 3` matrix from rows (e.g. `3D_Forces`, `3D_Normals`, or a
+    /// `1 x 3` `3D_ResultantForce`), for senders adding items to a frame.
+    pub fn from_rows(rows: &[[f64; 3]]) -> Self {
+        Tac3dValue::Mat { rows: rows.len(), cols: 3, data: rows.iter().flatten().copied().collect() }
+    }
+
     fn type_name(&self) -> &'static str {
         match self {
             Tac3dValue::Mat { .. } => "mat",
@@ -106,28 +112,29 @@ pub struct Tac3dFrame {
 }
 
 impl Tac3dFrame {
-    /// A frame carrying a [`SensorFrame`]'s positions and displacements as
-    /// `n x 3` matrices.
+    /// A frame carrying a [`SensorFrame`] as `n x 3` matrices, as the main
+    /// program sends it: `3D_Positions` are the *current* marker positions,
+    /// reference + displacement (the example recordings shipped with PyTac3D
+    /// show `3D_Positions - 3D_Displacements` constant over a press: exactly
+    /// for HDL1 sensors, within 0.08 mm for an AD2). Markers beyond the
+    /// shorter of the two lists are left out.
     pub fn from_sensor_frame(frame: &SensorFrame, sn: &str) -> Self {
-        let mat = |rows: &[[f64; 3]]| Tac3dValue::Mat {
-            rows: rows.len(),
-            cols: 3,
-            data: rows.iter().flatten().copied().collect(),
-        };
+        let n = frame.positions.len().min(frame.displacements.len());
+        let current: Vec<f64> = frame
+            .positions
+            .iter()
+            .zip(&frame.displacements)
+            .flat_map(|(r, d)| [r[0] + d[0], r[1] + d[1], r[2] + d[2]])
+            .collect();
+        let disp: Vec<f64> = frame.displacements[..n].iter().flatten().copied().collect();
         Self {
             index: frame.index,
             sn: sn.to_string(),
             timestamp: frame.t_s,
             msg: Some(String::new()),
             items: vec![
-                Tac3dItem {
-                    name: POSITIONS.into(),
-                    value: mat(&frame.positions),
-                },
-                Tac3dItem {
-                    name: DISPLACEMENTS.into(),
-                    value: mat(&frame.displacements),
-                },
+                Tac3dItem { name: POSITIONS.into(), value: Tac3dValue::Mat { rows: n, cols: 3, data: current } },
+                Tac3dItem { name: DISPLACEMENTS.into(), value: Tac3dValue::Mat { rows: n, cols: 3, data: disp } },
             ],
         }
     }
@@ -139,9 +146,7 @@ impl Tac3dFrame {
     /// An `n x 3` matrix item as rows, checked finite.
     fn rows3(&self, name: &'static str) -> Result<Vec<[f64; 3]>, Tac3dError> {
         let Some(v) = self.item(name) else {
-            return Err(Tac3dError::MissingField {
-                field: name.to_string(),
-            });
+            return Err(Tac3dError::MissingField { field: name.to_string() });
         };
         let Tac3dValue::Mat { rows, cols, data } = v else {
             return Err(Tac3dError::BadField {
@@ -156,41 +161,37 @@ impl Tac3dFrame {
             });
         }
         if let Some(at) = data.iter().position(|x| !x.is_finite()) {
-            return Err(Tac3dError::NotFinite {
-                item: name.to_string(),
-                at,
-            });
+            return Err(Tac3dError::NotFinite { item: name.to_string(), at });
         }
         Ok(data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     }
 
-    /// The rig's view of this frame: positions and displacements (`n x 3`,
-    /// same `n`, finite) and a finite timestamp.
+    /// The rig's view of this frame: reference positions
+    /// (`3D_Positions - 3D_Displacements`, since Tac3D sends current
+    /// positions) and displacements (`n x 3`, same `n`, finite), and a finite
+    /// timestamp.
     pub fn to_sensor_frame(&self) -> Result<SensorFrame, Tac3dError> {
         if !self.timestamp.is_finite() {
-            return Err(Tac3dError::NotFinite {
-                item: "timestamp".into(),
-                at: 0,
-            });
+            return Err(Tac3dError::NotFinite { item: "timestamp".into(), at: 0 });
         }
-        let positions = self.rows3(POSITIONS)?;
+        let current = self.rows3(POSITIONS)?;
         let displacements = self.rows3(DISPLACEMENTS)?;
-        if positions.len() != displacements.len() {
+        if current.len() != displacements.len() {
             return Err(Tac3dError::Shape {
                 item: DISPLACEMENTS.into(),
-                what: format!(
-                    "{} rows but {POSITIONS} has {}",
-                    displacements.len(),
-                    positions.len()
-                ),
+                what: format!("{} rows but {POSITIONS} has {}", displacements.len(), current.len()),
             });
         }
-        Ok(SensorFrame {
-            index: self.index,
-            t_s: self.timestamp,
-            positions,
-            displacements,
-        })
+        let mut positions = Vec::with_capacity(current.len());
+        for (m, (c, d)) in current.iter().zip(&displacements).enumerate() {
+            let r = [c[0] - d[0], c[1] - d[1], c[2] - d[2]];
+            // Finite inputs can still overflow when subtracted.
+            if !r.iter().all(|x| x.is_finite()) {
+                return Err(Tac3dError::NotFinite { item: POSITIONS.into(), at: 3 * m });
+            }
+            positions.push(r);
+        }
+        Ok(SensorFrame { index: self.index, t_s: self.timestamp, positions, displacements })
     }
 }
 
@@ -201,14 +202,8 @@ pub enum Tac3dError {
     ShortDatagram { len: usize },
     #[error("frame serial {serial}: packet {index} beyond last packet {last}")]
     PacketIndex { serial: u32, index: u16, last: u16 },
-    #[error(
-        "frame serial {serial}: packet says last packet {got}, earlier packets said {expected}"
-    )]
-    PacketCount {
-        serial: u32,
-        expected: u16,
-        got: u16,
-    },
+    #[error("frame serial {serial}: packet says last packet {got}, earlier packets said {expected}")]
+    PacketCount { serial: u32, expected: u16, got: u16 },
     #[error("frame serial {serial}: {last} packets per frame exceeds the limit {limit}")]
     TooManyPackets { serial: u32, last: u16, limit: u16 },
     #[error("frame serial {serial}: packet {index} received twice")]
@@ -235,14 +230,12 @@ impl Tac3dError {
     pub fn reason(&self) -> BadReason {
         match self {
             Tac3dError::ShortDatagram { .. } => BadReason::ShortDatagram,
-            Tac3dError::PacketIndex { .. }
-            | Tac3dError::PacketCount { .. }
-            | Tac3dError::TooManyPackets { .. } => BadReason::PacketIndex,
+            Tac3dError::PacketIndex { .. } | Tac3dError::PacketCount { .. } | Tac3dError::TooManyPackets { .. } => {
+                BadReason::PacketIndex
+            }
             Tac3dError::DuplicatePacket { .. } => BadReason::DuplicatePacket,
             Tac3dError::NotAscii { .. } | Tac3dError::Yaml { .. } => BadReason::Yaml,
-            Tac3dError::MissingField { .. } | Tac3dError::BadField { .. } => {
-                BadReason::MissingField
-            }
+            Tac3dError::MissingField { .. } | Tac3dError::BadField { .. } => BadReason::MissingField,
             Tac3dError::Length { .. } | Tac3dError::Shape { .. } => BadReason::Length,
             Tac3dError::NotFinite { .. } => BadReason::NotFinite,
             Tac3dError::Initializing { .. } => BadReason::Initializing,
@@ -264,23 +257,21 @@ pub enum Tac3dEncodeError {
     #[error("frame needs {packets} packets; the header allows 65536")]
     TooManyPackets { packets: usize },
     #[error("item `{item}`: {rows} x {cols} matrix with {len} values")]
-    MatShape {
-        item: String,
-        rows: usize,
-        cols: usize,
-        len: usize,
-    },
+    MatShape { item: String, rows: usize, cols: usize, len: usize },
     #[error("timestamp {0} is not finite")]
     Timestamp(f64),
 }
 
 /// Write a scalar the way a YAML emitter would: plain when that reads back as
-/// the same string, single-quoted otherwise.
+/// the same string (so `3D_Positions` and `AD2-0065L` stay plain, as the
+/// vendor writes them), single-quoted otherwise.
 fn yaml_str(out: &mut String, s: &str) {
     let plain = !s.is_empty()
-        && s.bytes()
-            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
-        && s.as_bytes()[0].is_ascii_alphabetic()
+        && s.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
+        && s.as_bytes()[0].is_ascii_alphanumeric()
+        // A letter no YAML number can contain rules out every int/float
+        // reading (hex and octal digits, exponents, `.inf` are excluded).
+        && s.bytes().any(|b| b.is_ascii_alphabetic() && !b"abcdefABCDEFxXoObB".contains(&b))
         && !matches!(
             s.to_ascii_lowercase().as_str(),
             "true" | "false" | "null" | "yes" | "no" | "on" | "off" | "y" | "n"
@@ -351,10 +342,7 @@ pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncode
                         len: data.len(),
                     });
                 }
-                let _ = write!(
-                    head,
-                    "    dtype: f64\n    width: {cols}\n    height: {rows}\n"
-                );
+                let _ = write!(head, "    dtype: f64\n    width: {cols}\n    height: {rows}\n");
                 for x in data {
                     blob.extend_from_slice(&x.to_le_bytes());
                 }
@@ -363,11 +351,7 @@ pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncode
             Tac3dValue::I32(x) => blob.extend_from_slice(&x.to_le_bytes()),
             Tac3dValue::Img(b) => blob.extend_from_slice(b),
         }
-        let _ = writeln!(
-            head,
-            "    offset: {offset}\n    length: {}",
-            blob.len() - offset
-        );
+        let _ = writeln!(head, "    offset: {offset}\n    length: {}", blob.len() - offset);
     }
     Ok((head, blob))
 }
@@ -375,16 +359,10 @@ pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncode
 /// Split a frame into datagrams of at most `max_datagram` bytes (header
 /// included): packet 0 = YAML header, packets 1..N = blob chunks. The
 /// datagram serial is the frame index modulo 2^32.
-pub fn encode_frame(
-    frame: &Tac3dFrame,
-    max_datagram: usize,
-) -> Result<Vec<Vec<u8>>, Tac3dEncodeError> {
+pub fn encode_frame(frame: &Tac3dFrame, max_datagram: usize) -> Result<Vec<Vec<u8>>, Tac3dEncodeError> {
     let (head, blob) = encode_parts(frame)?;
     if max_datagram < HEADER_LEN + head.len() || max_datagram <= HEADER_LEN {
-        return Err(Tac3dEncodeError::DatagramTooSmall {
-            max_datagram,
-            needed: HEADER_LEN + head.len(),
-        });
+        return Err(Tac3dEncodeError::DatagramTooSmall { max_datagram, needed: HEADER_LEN + head.len() });
     }
     let chunk = max_datagram - HEADER_LEN;
     let chunks: Vec<&[u8]> = blob.chunks(chunk).collect();
@@ -423,9 +401,7 @@ pub struct PacketHeader {
 
 pub fn parse_packet_header(datagram: &[u8]) -> Result<PacketHeader, Tac3dError> {
     let Some(h) = datagram.get(..HEADER_LEN) else {
-        return Err(Tac3dError::ShortDatagram {
-            len: datagram.len(),
-        });
+        return Err(Tac3dError::ShortDatagram { len: datagram.len() });
     };
     Ok(PacketHeader {
         serial: u32::from_le_bytes([h[0], h[1], h[2], h[3]]),
@@ -435,15 +411,11 @@ pub fn parse_packet_header(datagram: &[u8]) -> Result<PacketHeader, Tac3dError> 
 }
 
 fn field<'a>(y: &'a Yaml, key: &str) -> Result<&'a Yaml, Tac3dError> {
-    y.get(key).ok_or_else(|| Tac3dError::MissingField {
-        field: key.to_string(),
-    })
+    y.get(key).ok_or_else(|| Tac3dError::MissingField { field: key.to_string() })
 }
 
 fn field_u64(y: &Yaml, key: &str, ctx: &str) -> Result<u64, Tac3dError> {
-    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField {
-        field: format!("{ctx}{key}"),
-    })?;
+    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField { field: format!("{ctx}{key}") })?;
     v.as_u64().ok_or_else(|| Tac3dError::BadField {
         field: format!("{ctx}{key}"),
         what: format!("is not an unsigned integer: {v:?}"),
@@ -451,13 +423,8 @@ fn field_u64(y: &Yaml, key: &str, ctx: &str) -> Result<u64, Tac3dError> {
 }
 
 fn field_str<'a>(y: &'a Yaml, key: &str, ctx: &str) -> Result<&'a str, Tac3dError> {
-    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField {
-        field: format!("{ctx}{key}"),
-    })?;
-    v.as_str().ok_or_else(|| Tac3dError::BadField {
-        field: format!("{ctx}{key}"),
-        what: "is not a scalar".into(),
-    })
+    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField { field: format!("{ctx}{key}") })?;
+    v.as_str().ok_or_else(|| Tac3dError::BadField { field: format!("{ctx}{key}"), what: "is not a scalar".into() })
 }
 
 /// Decode a frame from its header text bytes (packet 0's payload) and the
@@ -468,55 +435,34 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
     if let Some(at) = head.iter().position(|b| !b.is_ascii()) {
         return Err(Tac3dError::NotAscii { at });
     }
-    let text = std::str::from_utf8(head).map_err(|e| Tac3dError::NotAscii {
-        at: e.valid_up_to(),
-    })?;
-    let y = yaml::parse(text).map_err(|e| Tac3dError::Yaml {
-        line: e.line,
-        what: e.what,
-    })?;
+    let text = std::str::from_utf8(head).map_err(|e| Tac3dError::NotAscii { at: e.valid_up_to() })?;
+    let y = yaml::parse(text).map_err(|e| Tac3dError::Yaml { line: e.line, what: e.what })?;
     if !matches!(y, Yaml::Map(_)) {
-        return Err(Tac3dError::Yaml {
-            line: 1,
-            what: "header is not a mapping".into(),
-        });
+        return Err(Tac3dError::Yaml { line: 1, what: "header is not a mapping".into() });
     }
     let index = field_u64(&y, "index", "")?;
     let sn = field_str(&y, "SN", "")?.to_string();
     let ts = field(&y, "timestamp")?;
-    let timestamp = ts.as_f64().ok_or_else(|| Tac3dError::BadField {
-        field: "timestamp".into(),
-        what: format!("is not a number: {ts:?}"),
-    })?;
+    let timestamp = ts
+        .as_f64()
+        .ok_or_else(|| Tac3dError::BadField { field: "timestamp".into(), what: format!("is not a number: {ts:?}") })?;
     if !timestamp.is_finite() {
-        return Err(Tac3dError::NotFinite {
-            item: "timestamp".into(),
-            at: 0,
-        });
+        return Err(Tac3dError::NotFinite { item: "timestamp".into(), at: 0 });
     }
     let msg = match y.get("msg") {
         None => None,
         Some(m) => Some(
             m.as_str()
-                .ok_or_else(|| Tac3dError::BadField {
-                    field: "msg".into(),
-                    what: "is not a scalar".into(),
-                })?
+                .ok_or_else(|| Tac3dError::BadField { field: "msg".into(), what: "is not a scalar".into() })?
                 .to_string(),
         ),
     };
     let items_y = match field(&y, "data")? {
         Yaml::Seq(v) => v.as_slice(),
         // `data:` with nothing under it: a frame without items.
-        Yaml::Scalar {
-            text,
-            quoted: false,
-        } if text.is_empty() => &[],
+        Yaml::Scalar { text, quoted: false } if text.is_empty() => &[],
         other => {
-            return Err(Tac3dError::BadField {
-                field: "data".into(),
-                what: format!("is not a list: {other:?}"),
-            });
+            return Err(Tac3dError::BadField { field: "data".into(), what: format!("is not a list: {other:?}") });
         }
     };
     let mut items = Vec::with_capacity(items_y.len());
@@ -534,16 +480,11 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
         }
         let offset = field_u64(it, "offset", &ctx)?;
         let length = field_u64(it, "length", &ctx)?;
-        let end = offset
-            .checked_add(length)
-            .filter(|e| *e <= blob.len() as u64);
+        let end = offset.checked_add(length).filter(|e| *e <= blob.len() as u64);
         let Some(end) = end else {
             return Err(Tac3dError::Length {
                 item: name,
-                what: format!(
-                    "offset {offset} + length {length} runs past the {} B blob",
-                    blob.len()
-                ),
+                what: format!("offset {offset} + length {length} runs past the {} B blob", blob.len()),
             });
         };
         let bytes = &blob[offset as usize..end as usize];
@@ -555,20 +496,14 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
                 if want != Some(length) {
                     return Err(Tac3dError::Length {
                         item: name,
-                        what: format!(
-                            "{rows} x {cols} f64 matrix needs {want:?} B, length says {length}"
-                        ),
+                        what: format!("{rows} x {cols} f64 matrix needs {want:?} B, length says {length}"),
                     });
                 }
                 let data = bytes
                     .chunks_exact(8)
                     .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
                     .collect();
-                Tac3dValue::Mat {
-                    rows: rows as usize,
-                    cols: cols as usize,
-                    data,
-                }
+                Tac3dValue::Mat { rows: rows as usize, cols: cols as usize, data }
             }
             "f64" => match <[u8; 8]>::try_from(bytes) {
                 Ok(b) => Tac3dValue::F64(f64::from_le_bytes(b)),
@@ -602,13 +537,7 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
         }
         items.push(Tac3dItem { name, value });
     }
-    Ok(Tac3dFrame {
-        index,
-        sn,
-        timestamp,
-        msg,
-        items,
-    })
+    Ok(Tac3dFrame { index, sn, timestamp, msg, items })
 }
 
 #[derive(Debug)]
@@ -629,6 +558,8 @@ pub struct Tac3dReassembler {
     timeout: Duration,
     max_packets: u16,
     max_pending: usize,
+    /// Partials pushed out to make room, not yet reported by `expire`.
+    evicted: usize,
 }
 
 impl Tac3dReassembler {
@@ -641,6 +572,7 @@ impl Tac3dReassembler {
             max_packets: 4096,
             // Frames in flight at once; bounds memory against a flood of serials.
             max_pending: 32,
+            evicted: 0,
         }
     }
 
@@ -652,35 +584,19 @@ impl Tac3dReassembler {
     /// Take one datagram. `Ok(Some(frame))` when it completed a frame.
     /// Errors name the bad datagram or frame; the frame they belong to (if any)
     /// is dropped. Call [`Self::expire`] regularly to drop stale partials.
-    pub fn push(
-        &mut self,
-        datagram: &[u8],
-        now: Instant,
-    ) -> Result<Option<Tac3dFrame>, Tac3dError> {
+    pub fn push(&mut self, datagram: &[u8], now: Instant) -> Result<Option<Tac3dFrame>, Tac3dError> {
         let h = parse_packet_header(datagram)?;
         if h.last >= self.max_packets {
-            return Err(Tac3dError::TooManyPackets {
-                serial: h.serial,
-                last: h.last,
-                limit: self.max_packets,
-            });
+            return Err(Tac3dError::TooManyPackets { serial: h.serial, last: h.last, limit: self.max_packets });
         }
         if h.this > h.last {
-            return Err(Tac3dError::PacketIndex {
-                serial: h.serial,
-                index: h.this,
-                last: h.last,
-            });
+            return Err(Tac3dError::PacketIndex { serial: h.serial, index: h.this, last: h.last });
         }
         if !self.partial.contains_key(&h.serial) && self.partial.len() >= self.max_pending {
             // Make room by dropping the stalest partial; expire() would drop it soon anyway.
-            if let Some(oldest) = self
-                .partial
-                .iter()
-                .min_by_key(|(_, p)| p.touched)
-                .map(|(k, _)| *k)
-            {
+            if let Some(oldest) = self.partial.iter().min_by_key(|(_, p)| p.touched).map(|(k, _)| *k) {
                 self.partial.remove(&oldest);
+                self.evicted += 1;
             }
         }
         let p = self.partial.entry(h.serial).or_insert_with(|| Partial {
@@ -692,18 +608,11 @@ impl Tac3dReassembler {
         if p.last != h.last {
             let expected = p.last;
             self.partial.remove(&h.serial);
-            return Err(Tac3dError::PacketCount {
-                serial: h.serial,
-                expected,
-                got: h.last,
-            });
+            return Err(Tac3dError::PacketCount { serial: h.serial, expected, got: h.last });
         }
         let slot = &mut p.parts[usize::from(h.this)];
         if slot.is_some() {
-            return Err(Tac3dError::DuplicatePacket {
-                serial: h.serial,
-                index: h.this,
-            });
+            return Err(Tac3dError::DuplicatePacket { serial: h.serial, index: h.this });
         }
         *slot = Some(datagram[HEADER_LEN..].to_vec());
         p.got += 1;
@@ -716,18 +625,19 @@ impl Tac3dReassembler {
         };
         let mut parts = p.parts.into_iter().flatten();
         let head = parts.next().unwrap_or_default();
-        let blob: Vec<u8> = parts.flatten().collect();
+        let rest: Vec<Vec<u8>> = parts.collect();
+        let blob = rest.concat();
         decode_frame(&head, &blob).map(Some)
     }
 
     /// Drop partial frames whose latest packet is older than the timeout;
-    /// returns how many were dropped.
+    /// returns how many incomplete frames were dropped since the last call
+    /// (including those pushed out because too many were in flight).
     pub fn expire(&mut self, now: Instant) -> usize {
         let before = self.partial.len();
         let timeout = self.timeout;
-        self.partial
-            .retain(|_, p| now.saturating_duration_since(p.touched) <= timeout);
-        before - self.partial.len()
+        self.partial.retain(|_, p| now.saturating_duration_since(p.touched) <= timeout);
+        before - self.partial.len() + std::mem::take(&mut self.evicted)
     }
 }
 
@@ -782,25 +692,11 @@ impl Drop for Tac3dReceiver {
 impl Tac3dReceiver {
     /// Bind the socket and start decoding in the background.
     pub async fn bind(cfg: Tac3dReceiverConfig) -> Result<Self, SensorError> {
-        let socket = Arc::new(
-            UdpSocket::bind(cfg.bind)
-                .await
-                .map_err(io_err("bind UDP socket"))?,
-        );
+        let socket = Arc::new(UdpSocket::bind(cfg.bind).await.map_err(io_err("bind UDP socket"))?);
         let inbox = Arc::new(Inbox::new(cfg.queue_capacity));
         let peer = Arc::new(Mutex::new(Peer::default()));
-        let task = tokio::spawn(receive_loop(
-            socket.clone(),
-            inbox.clone(),
-            peer.clone(),
-            cfg,
-        ));
-        Ok(Self {
-            socket,
-            inbox,
-            peer,
-            task,
-        })
+        let task = tokio::spawn(receive_loop(socket.clone(), inbox.clone(), peer.clone(), cfg));
+        Ok(Self { socket, inbox, peer, task })
     }
 
     pub fn local_addr(&self) -> Result<SocketAddr, SensorError> {
@@ -809,38 +705,22 @@ impl Tac3dReceiver {
 
     /// Serial number of the sensor whose frame arrived last.
     pub fn sensor_serial(&self) -> Option<String> {
-        self.peer
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .sn
-            .clone()
+        self.peer.lock().unwrap_or_else(|p| p.into_inner()).sn.clone()
     }
 
     fn peer_addr(&self, command: &'static str) -> Result<SocketAddr, SensorError> {
-        self.peer
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .addr
-            .ok_or(SensorError::NoPeer { command })
+        self.peer.lock().unwrap_or_else(|p| p.into_inner()).addr.ok_or(SensorError::NoPeer { command })
     }
 
     /// Send `$Q`: the main program stops the sensor (it needs a restart there).
     pub async fn quit_sensor(&mut self) -> Result<(), SensorError> {
         let to = self.peer_addr("$Q")?;
-        self.socket
-            .send_to(CMD_QUIT, to)
-            .await
-            .map_err(io_err("send $Q"))?;
+        self.socket.send_to(CMD_QUIT, to).await.map_err(io_err("send $Q"))?;
         Ok(())
     }
 }
 
-async fn receive_loop(
-    socket: Arc<UdpSocket>,
-    inbox: Arc<Inbox>,
-    peer: Arc<Mutex<Peer>>,
-    cfg: Tac3dReceiverConfig,
-) {
+async fn receive_loop(socket: Arc<UdpSocket>, inbox: Arc<Inbox>, peer: Arc<Mutex<Peer>>, cfg: Tac3dReceiverConfig) {
     let mut re = Tac3dReassembler::new(cfg.reassembly_timeout);
     // Largest UDP payload: any datagram fits, so none is silently truncated.
     let mut buf = vec![0u8; 65536];
@@ -911,14 +791,145 @@ impl SensorLink for Tac3dReceiver {
     /// re-zero read zero displacement while the sensor stays untouched.
     async fn tare(&mut self) -> Result<(), SensorError> {
         let to = self.peer_addr("$C")?;
-        self.socket
-            .send_to(CMD_CALIBRATE, to)
-            .await
-            .map_err(io_err("send $C"))?;
+        self.socket.send_to(CMD_CALIBRATE, to).await.map_err(io_err("send $C"))?;
         Ok(())
     }
 
     fn stats(&self) -> LinkStats {
         self.inbox.stats()
+    }
+}
+
+/// Largest UDP payload that fits one Ethernet frame without IP fragmentation
+/// (1500 MTU - 20 IP - 8 UDP). The vendor's packet size is not documented
+/// (hardware.md C.1 [U]); any size up to 65 507 B reads back through PyTac3D,
+/// which receives with a 65 535-byte buffer. Smaller packets also exercise the
+/// reassembly path on loopback.
+pub const DEFAULT_MAX_DATAGRAM: usize = 1472;
+/// Sensor serial the emulated sensor reports by default (a Tac3D-style SN).
+pub const DEFAULT_SN: &str = "EC1-0000SIM";
+
+/// A command a Tac3D client sent back to the main program.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Tac3dCommand {
+    /// `$C`: re-zero the displacement field (the sensor must be untouched).
+    Calibrate,
+    /// `$Q`: stop the sensor.
+    Quit,
+}
+
+impl Tac3dCommand {
+    /// Parse a client datagram; `None` for anything that is not `$C` / `$Q`.
+    pub fn parse(datagram: &[u8]) -> Option<Self> {
+        match datagram {
+            CMD_CALIBRATE => Some(Tac3dCommand::Calibrate),
+            CMD_QUIT => Some(Tac3dCommand::Quit),
+            _ => None,
+        }
+    }
+}
+
+/// How a [`Tac3dSender`] frames its stream.
+#[derive(Debug, Clone)]
+pub struct Tac3dSenderConfig {
+    /// Sensor serial in every frame header (`SN`).
+    pub sn: String,
+    /// Largest datagram, 8-byte header included.
+    pub max_datagram: usize,
+}
+
+impl Default for Tac3dSenderConfig {
+    fn default() -> Self {
+        Self { sn: DEFAULT_SN.to_string(), max_datagram: DEFAULT_MAX_DATAGRAM }
+    }
+}
+
+/// The Tac3D main program's side of the link, for emulators: sends frames as
+/// the main program does (8-byte header, YAML packet 0, f64 blob packets) to a
+/// fixed client address, and hears the `$C` / `$Q` commands the client sends
+/// back to the address frames came from (this socket).
+#[derive(Debug)]
+pub struct Tac3dSender {
+    socket: UdpSocket,
+    to: SocketAddr,
+    cfg: Tac3dSenderConfig,
+    /// Datagrams from the client that were not `$C` / `$Q`.
+    unknown_commands: u64,
+}
+
+impl Tac3dSender {
+    /// Bind `bind` (port 0 for any) and send to `to` (the client's port, 9988
+    /// for PyTac3D's default).
+    pub async fn bind(bind: SocketAddr, to: SocketAddr, cfg: Tac3dSenderConfig) -> Result<Self, SensorError> {
+        let socket = UdpSocket::bind(bind).await.map_err(io_err("bind UDP socket"))?;
+        Ok(Self { socket, to, cfg, unknown_commands: 0 })
+    }
+
+    pub fn local_addr(&self) -> Result<SocketAddr, SensorError> {
+        self.socket.local_addr().map_err(io_err("local address"))
+    }
+
+    /// Where frames go.
+    pub fn destination(&self) -> SocketAddr {
+        self.to
+    }
+
+    /// Send one rig frame as `3D_Positions` and `3D_Displacements` (`n x 3`).
+    pub async fn send(&mut self, frame: &SensorFrame) -> Result<(), SensorError> {
+        self.send_tac3d(&Tac3dFrame::from_sensor_frame(frame, &self.cfg.sn)).await
+    }
+
+    /// Send a full Tac3D frame (any items, e.g. forces and normals too).
+    pub async fn send_tac3d(&mut self, frame: &Tac3dFrame) -> Result<(), SensorError> {
+        let packets = encode_frame(frame, self.cfg.max_datagram).map_err(|e| SensorError::Io {
+            what: "encode Tac3D frame",
+            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, e),
+        })?;
+        for p in &packets {
+            match self.socket.send_to(p, self.to).await {
+                Ok(_) => {}
+                // Nobody listening yet (ICMP port unreachable from an earlier
+                // datagram): the main program keeps streaming regardless.
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {}
+                Err(e) => return Err(io_err("send Tac3D datagram")(e)),
+            }
+        }
+        Ok(())
+    }
+
+    /// A command the client sent, if one is waiting (never blocks).
+    pub fn try_command(&mut self) -> Result<Option<Tac3dCommand>, SensorError> {
+        let mut buf = [0u8; 64];
+        loop {
+            match self.socket.try_recv_from(&mut buf) {
+                Ok((n, _from)) => match Tac3dCommand::parse(&buf[..n]) {
+                    Some(c) => return Ok(Some(c)),
+                    None => self.unknown_commands += 1,
+                },
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(None),
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => continue,
+                Err(e) => return Err(io_err("receive client command")(e)),
+            }
+        }
+    }
+
+    /// Wait for the client's next command.
+    pub async fn recv_command(&mut self) -> Result<Tac3dCommand, SensorError> {
+        let mut buf = [0u8; 64];
+        loop {
+            match self.socket.recv_from(&mut buf).await {
+                Ok((n, _from)) => match Tac3dCommand::parse(&buf[..n]) {
+                    Some(c) => return Ok(c),
+                    None => self.unknown_commands += 1,
+                },
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => continue,
+                Err(e) => return Err(io_err("receive client command")(e)),
+            }
+        }
+    }
+
+    /// Datagrams from the client that were neither `$C` nor `$Q`.
+    pub fn unknown_commands(&self) -> u64 {
+        self.unknown_commands
     }
 }
