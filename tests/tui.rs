@@ -302,37 +302,35 @@ fn log_pane_keeps_the_newest_lines() {
 /// backs off and ends). It reports each reaction on `acks` so the test knows
 /// when the display has something new to show.
 async fn fake_sequencer(
-    events: mpsc::Sender<RunEvent>,
-    mut controls: mpsc::Receiver<RunControl>,
+    events: mpsc::UnboundedSender<RunEvent>,
+    mut controls: mpsc::UnboundedReceiver<RunControl>,
     acks: mpsc::UnboundedSender<&'static str>,
 ) -> Vec<RunControl> {
     let rec = recording();
     let mut seen = Vec::new();
     events
         .send(RunEvent::StepStarted { index: 3, total: 8, name: "normal sweep".into(), phase: RunPhase::Normal })
-        .await
         .unwrap();
     for s in rec.phase(Phase::Normal).take(10) {
-        events.send(RunEvent::Sample(*s)).await.unwrap();
+        events.send(RunEvent::Sample(*s)).unwrap();
     }
     acks.send("running").unwrap();
     while let Some(c) = controls.recv().await {
         seen.push(c);
         match c {
             RunControl::Pause => {
-                events.send(RunEvent::Paused).await.unwrap();
+                events.send(RunEvent::Paused).unwrap();
                 acks.send("paused").unwrap();
             }
             RunControl::Resume => {
-                events.send(RunEvent::Resumed).await.unwrap();
+                events.send(RunEvent::Resumed).unwrap();
                 acks.send("resumed").unwrap();
             }
             RunControl::Abort | RunControl::Quit => {
                 events
                     .send(RunEvent::Log { level: LogLevel::Warn, message: "backing the stage off 2.000 mm".into() })
-                    .await
                     .unwrap();
-                events.send(RunEvent::Aborted { reason: "aborted by the operator".into() }).await.unwrap();
+                events.send(RunEvent::Aborted { reason: "aborted by the operator".into() }).unwrap();
                 acks.send("aborted").unwrap();
                 break;
             }
@@ -343,8 +341,9 @@ async fn fake_sequencer(
 
 #[tokio::test]
 async fn keys_reach_a_fake_sequencer_through_the_display_loop() {
-    let (ev_tx, ev_rx) = mpsc::channel(16);
-    let (ctl_tx, ctl_rx) = mpsc::channel(4);
+    // Unbounded channels, as the real sequencer uses.
+    let (ev_tx, ev_rx) = mpsc::unbounded_channel();
+    let (ctl_tx, ctl_rx) = mpsc::unbounded_channel();
     let (key_tx, key_rx) = mpsc::channel(4);
     let (ack_tx, mut ack_rx) = mpsc::unbounded_channel();
     let seq = tokio::spawn(fake_sequencer(ev_tx, ctl_rx, ack_tx));

@@ -8,10 +8,12 @@
 //! ratatui backend (tests use `TestBackend`); [`run_tui`] runs it on the real
 //! terminal and [`run_plain`] prints lines for logs.
 
+mod channel;
 mod draw;
 mod runner;
 mod state;
 
+pub use channel::{ControlSink, EventSource};
 pub use draw::draw;
 pub use runner::{DriveOptions, NO_RESULT_REASON, drive, run_display, run_plain, run_tui, stdout_is_terminal};
 pub use state::{LOG_CAPACITY, LogEntry, RunStatus, State, StepInfo};

@@ -13,9 +13,10 @@ use ratatui::crossterm::event::{self, Event};
 use tokio::sync::mpsc;
 use tokio::time::MissedTickBehavior;
 
+use super::channel::{ControlSink, EventSource};
 use super::draw::draw;
 use super::state::State;
-use crate::run::events::{ProgressLine, RunControl, RunEvent};
+use crate::run::events::{ProgressLine, RunEvent};
 
 /// What the display says when the sequencer's channel closes without a result.
 pub const NO_RESULT_REASON: &str = "the sequencer stopped without reporting a result";
@@ -49,10 +50,10 @@ impl Default for DriveOptions {
 /// run is over and the operator has left (or, with `wait_for_key_at_end`
 /// off, when the run is over). A second quit key before the sequencer has
 /// answered the first leaves at once, with the run's status as last reported.
-pub async fn drive<B: Backend>(
+pub async fn drive<B: Backend, E: EventSource, C: ControlSink>(
     terminal: &mut Terminal<B>,
-    mut events: mpsc::Receiver<RunEvent>,
-    controls: mpsc::Sender<RunControl>,
+    mut events: E,
+    controls: C,
     mut input: mpsc::Receiver<Event>,
     opts: DriveOptions,
 ) -> Result<State, B::Error> {
@@ -86,7 +87,7 @@ pub async fn drive<B: Backend>(
                     dirty = false;
                 }
             }
-            ev = events.recv(), if events_open => {
+            ev = events.next_event(), if events_open => {
                 match ev {
                     Some(ev) => state.apply(&ev),
                     None => events_open = false,
@@ -96,11 +97,7 @@ pub async fn drive<B: Backend>(
             inp = input.recv(), if input_open => match inp {
                 Some(Event::Key(k)) => {
                     if let Some(c) = state.on_key(k) {
-                        // Never block the display on a busy sequencer; a
-                        // closed channel means it has already stopped.
-                        if let Err(mpsc::error::TrySendError::Full(c)) = controls.try_send(c) {
-                            let _ = controls.send(c).await;
-                        }
+                        controls.send_control(c).await;
                     }
                     dirty = true;
                 }
@@ -149,7 +146,7 @@ fn read_input(tx: mpsc::Sender<Event>, stop: Arc<AtomicBool>) {
 /// screen for the duration, keys read on a helper thread, redraws at most 20
 /// times a second. Returns the final state (the run's outcome is
 /// `state.status()`).
-pub async fn run_tui(events: mpsc::Receiver<RunEvent>, controls: mpsc::Sender<RunControl>) -> io::Result<State> {
+pub async fn run_tui(events: impl EventSource, controls: impl ControlSink) -> io::Result<State> {
     let _restore = RestoreOnDrop;
     let mut terminal = ratatui::try_init()?;
     let (tx, rx) = mpsc::channel(64);
@@ -170,7 +167,7 @@ pub async fn run_tui(events: mpsc::Receiver<RunEvent>, controls: mpsc::Sender<Ru
 /// step start, per 10 % of a step, per log message, pause, abort and the
 /// result, flushed as it goes. Returns the final state once the run is over
 /// or the sequencer's channel closes.
-pub async fn run_plain<W: Write>(mut events: mpsc::Receiver<RunEvent>, mut out: W) -> io::Result<State> {
+pub async fn run_plain<W: Write>(mut events: impl EventSource, mut out: W) -> io::Result<State> {
     let mut state = State::new();
     let mut lines = ProgressLine::new();
     let mut emit = |ev: &RunEvent, state: &mut State, out: &mut W| -> io::Result<()> {
@@ -181,7 +178,7 @@ pub async fn run_plain<W: Write>(mut events: mpsc::Receiver<RunEvent>, mut out: 
         }
         Ok(())
     };
-    while let Some(ev) = events.recv().await {
+    while let Some(ev) = events.next_event().await {
         emit(&ev, &mut state, &mut out)?;
         if state.status().is_over() {
             return Ok(state);
@@ -196,7 +193,7 @@ pub async fn run_plain<W: Write>(mut events: mpsc::Receiver<RunEvent>, mut out: 
 /// but `controls` stays open until the run is over so the sequencer does not
 /// mistake a closed channel for an operator leaving (Ctrl-C there is the
 /// caller's signal handler's job).
-pub async fn run_display(events: mpsc::Receiver<RunEvent>, controls: mpsc::Sender<RunControl>) -> io::Result<State> {
+pub async fn run_display(events: impl EventSource, controls: impl ControlSink) -> io::Result<State> {
     if stdout_is_terminal() {
         run_tui(events, controls).await
     } else {
