@@ -438,3 +438,121 @@ async fn plain_mode_prints_ci_lines() {
     let text = String::from_utf8(out).unwrap();
     assert_eq!(text.lines().last().unwrap(), format!("[1/8] home ABORTED: {NO_RESULT_REASON}"));
 }
+
+/// Child side of `terminal_is_set_up_and_restored_on_a_pty`: runs `run_tui`
+/// on its own stdio (a pty). `mode` "quit" answers the operator's quit with an
+/// abort; "panic" panics when the operator presses p.
+fn tui_child(mode: &str) {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let (ev_tx, ev_rx) = mpsc::unbounded_channel();
+        let (ctl_tx, mut ctl_rx) = mpsc::unbounded_channel();
+        ev_tx
+            .send(RunEvent::StepStarted { index: 3, total: 8, name: "normal sweep".into(), phase: RunPhase::Normal })
+            .unwrap();
+        let seq = async move {
+            while let Some(c) = ctl_rx.recv().await {
+                match c {
+                    RunControl::Pause => panic!("child panic for the test"),
+                    RunControl::Quit | RunControl::Abort => {
+                        ev_tx.send(RunEvent::Aborted { reason: "quit by the operator".into() }).unwrap();
+                    }
+                    RunControl::Resume => {}
+                }
+            }
+            std::future::pending::<()>().await
+        };
+        let state = tokio::select! {
+            s = easycalib::tui::run_tui(ev_rx, ctl_tx) => s.unwrap(),
+            _ = seq => unreachable!(),
+        };
+        assert_eq!(mode, "quit", "only the quit child gets here");
+        use std::io::Write;
+        let mut out = std::io::stdout();
+        write!(out, "child-finished: {}\r\n", state.status().label()).unwrap();
+        out.flush().unwrap();
+    });
+}
+
+fn stty(path: &std::path::Path, args: &[&str]) -> String {
+    let out = std::process::Command::new("stty").arg("-F").arg(path).args(args).output().unwrap();
+    assert!(out.status.success(), "stty {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn has_flag(stty_all: &str, flag: &str) -> bool {
+    stty_all.split_whitespace().any(|w| w == flag)
+}
+
+/// Runs the real terminal setup in a child process on a pseudo-terminal:
+/// raw mode and the alternate screen while the TUI runs, both undone when
+/// it returns and when a panic unwinds through it.
+#[test]
+fn terminal_is_set_up_and_restored_on_a_pty() {
+    if let Ok(mode) = std::env::var("EASYCALIB_TUI_CHILD") {
+        tui_child(&mode);
+        return;
+    }
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    const ENTER_ALT: &[u8] = b"\x1b[?1049h";
+    const LEAVE_ALT: &[u8] = b"\x1b[?1049l";
+    fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+        hay.windows(needle.len()).position(|w| w == needle)
+    }
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    for (mode, key, marker) in
+        [("quit", b"q", &b"child-finished: ABORTED"[..]), ("panic", b"p", b"child panic for the test")]
+    {
+        rt.block_on(async {
+            let mut master = sim::emulator::pty::PtyMaster::open().unwrap();
+            let slave = master.slave_path().to_path_buf();
+            // A cooked terminal of known size, as a shell would leave it.
+            stty(&slave, &["sane", "rows", "40", "cols", "120"]);
+            assert!(has_flag(&stty(&slave, &["-a"]), "icanon"));
+            let io = || std::fs::OpenOptions::new().read(true).write(true).open(&slave).unwrap();
+            let mut child = tokio::process::Command::new(std::env::current_exe().unwrap())
+                .args(["--exact", "terminal_is_set_up_and_restored_on_a_pty", "--nocapture", "--test-threads=1"])
+                .env("EASYCALIB_TUI_CHILD", mode)
+                .stdin(io())
+                .stdout(io())
+                .stderr(io())
+                .kill_on_drop(true)
+                .spawn()
+                .unwrap();
+            let mut seen = Vec::new();
+            let mut buf = [0u8; 4096];
+            // A guard against a hung child, not a timing assertion.
+            let deadline = tokio::time::Instant::now() + Duration::from_secs(60);
+            while find(&seen, ENTER_ALT).is_none() {
+                let n =
+                    tokio::time::timeout_at(deadline, master.read(&mut buf)).await.expect("child never drew").unwrap();
+                seen.extend_from_slice(&buf[..n]);
+            }
+            // Wait for the first frame (the header) so the TUI is in its loop.
+            while find(&seen, b"easycalib run").is_none() {
+                let n = tokio::time::timeout_at(deadline, master.read(&mut buf)).await.expect("no frame").unwrap();
+                seen.extend_from_slice(&buf[..n]);
+            }
+            let during = stty(&slave, &["-a"]);
+            assert!(has_flag(&during, "-icanon") && has_flag(&during, "-echo"), "raw mode while running: {during}");
+            master.write_all(key).await.unwrap();
+            while find(&seen, marker).is_none() {
+                let n =
+                    tokio::time::timeout_at(deadline, master.read(&mut buf)).await.expect("child never ended").unwrap();
+                seen.extend_from_slice(&buf[..n]);
+            }
+            let status = tokio::time::timeout_at(deadline, child.wait()).await.unwrap().unwrap();
+            let text = String::from_utf8_lossy(&seen);
+            let leave =
+                find(&seen, LEAVE_ALT).unwrap_or_else(|| panic!("{mode}: alternate screen never left: {text:?}"));
+            let end = find(&seen, marker).unwrap();
+            assert!(leave < end, "{mode}: the terminal is restored before the last words: {text:?}");
+            let after = stty(&slave, &["-a"]);
+            assert!(has_flag(&after, "icanon") && has_flag(&after, "echo"), "{mode}: cooked mode restored: {after}");
+            match mode {
+                "quit" => assert!(status.success(), "{text:?}"),
+                _ => assert!(!status.success(), "a panicking child fails"),
+            }
+        });
+    }
+}
