@@ -556,3 +556,20 @@ fn terminal_is_set_up_and_restored_on_a_pty() {
         });
     }
 }
+
+/// The lead spawns the display next to the sequencer: its futures must be Send.
+#[test]
+fn display_futures_can_be_spawned() {
+    fn assert_send<T: Send>(_: &T) {}
+    let (_etx, erx) = mpsc::unbounded_channel::<RunEvent>();
+    let (ctx, _crx) = mpsc::unbounded_channel::<RunControl>();
+    let f = easycalib::tui::run_display(erx, ctx);
+    assert_send(&f);
+    let (_etx, erx) = mpsc::channel::<RunEvent>(1);
+    let (ctx, _crx) = mpsc::channel::<RunControl>(1);
+    let f = easycalib::tui::run_tui(erx, ctx);
+    assert_send(&f);
+    let (_etx, erx) = mpsc::channel::<RunEvent>(1);
+    let f = run_plain(erx, Vec::new());
+    assert_send(&f);
+}
