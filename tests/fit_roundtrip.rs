@@ -29,7 +29,15 @@ fn full_model_fit_recovers_truth_on_20_seeds() {
         );
         assert!(fe < 0.005, "seed {seed}: E1 {} vs {e1}", cal.full.e1_mpa);
         assert!(fn_ < 0.015, "seed {seed}: nu1 {} vs {nu1}", cal.full.nu1);
-        println!("  se E1 {:.3}% nu1 {:.3}% z0 {:.4} mm corr {:.3} beta {:.4} it {}", cal.full.e1_se/e1*100.0, cal.full.nu1_se/nu1*100.0, cal.full.contact_offset_mm, cal.full.corr_e1_nu1, cal.full.beta, cal.full.iterations);
+        println!(
+            "  se E1 {:.3}% nu1 {:.3}% z0 {:.4} mm corr {:.3} beta {:.4} it {}",
+            cal.full.e1_se / e1 * 100.0,
+            cal.full.nu1_se / nu1 * 100.0,
+            cal.full.contact_offset_mm,
+            cal.full.corr_e1_nu1,
+            cal.full.beta,
+            cal.full.iterations
+        );
         if cal.full.ci95.e1_mpa[0] <= e1 && e1 <= cal.full.ci95.e1_mpa[1] {
             inside += 1;
         }

@@ -54,7 +54,12 @@ pub struct NoiseSpec {
 
 impl Default for NoiseSpec {
     fn default() -> Self {
-        Self { gamma1_sigma_mm: 0.002, theta1_sigma_deg: 0.02, stage_resolution_mm: 0.001, rotation_resolution_deg: 0.01 }
+        Self {
+            gamma1_sigma_mm: 0.002,
+            theta1_sigma_deg: 0.02,
+            stage_resolution_mm: 0.001,
+            rotation_resolution_deg: 0.01,
+        }
     }
 }
 
@@ -191,7 +196,8 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     let stage_t = quantize(depth.delta_mm, noise.stage_resolution_mm);
     let (g1_t, _) = rig.normal(stage_t)?;
     let n_twist = (plan.torsion_amplitude_deg / plan.torsion_step_deg).round().max(1.0) as usize;
-    let mut angles: Vec<(f64, Direction)> = (0..=n_twist).map(|i| (i as f64 * plan.torsion_step_deg, Direction::Load)).collect();
+    let mut angles: Vec<(f64, Direction)> =
+        (0..=n_twist).map(|i| (i as f64 * plan.torsion_step_deg, Direction::Load)).collect();
     angles.extend((0..n_twist).rev().map(|i| (i as f64 * plan.torsion_step_deg, Direction::Unload)));
     for (angle, dir) in angles {
         let rot = quantize(angle, noise.rotation_resolution_deg);

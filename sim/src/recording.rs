@@ -178,10 +178,16 @@ impl Recording {
         }
 
         let Some((vline, v)) = version else {
-            return Err(err(1, "missing required metadata `# easycalib-recording: 1` (is this an easycalib recording?)"));
+            return Err(err(
+                1,
+                "missing required metadata `# easycalib-recording: 1` (is this an easycalib recording?)",
+            ));
         };
         if v.trim() != "1" {
-            return Err(err(vline, format!("unsupported recording format version `{v}` (this easycalib reads version 1)")));
+            return Err(err(
+                vline,
+                format!("unsupported recording format version `{v}` (this easycalib reads version 1)"),
+            ));
         }
         // A missing key has no line of its own: point at where the metadata block ends.
         let meta_end = header.map(|(n, _)| n).unwrap_or(last_line).max(1);
@@ -233,10 +239,18 @@ impl Recording {
             if fields.len() != names.len() {
                 return Err(err(
                     n,
-                    format!("expected {} fields as in the header, found {} (truncated or malformed row)", names.len(), fields.len()),
+                    format!(
+                        "expected {} fields as in the header, found {} (truncated or malformed row)",
+                        names.len(),
+                        fields.len()
+                    ),
                 ));
             }
-            let col_err = |i: usize, msg: String| RecordingError { line: n, column: Some((i + 1, names[i].to_string())), message: msg };
+            let col_err = |i: usize, msg: String| RecordingError {
+                line: n,
+                column: Some((i + 1, names[i].to_string())),
+                message: msg,
+            };
             let num = |k: usize| -> Result<f64, RecordingError> {
                 let i = idx[k];
                 let s = fields[i];
@@ -250,20 +264,27 @@ impl Recording {
             let phase = match fields[idx[1]] {
                 "normal" => Phase::Normal,
                 "torsion" => Phase::Torsion,
-                other => return Err(col_err(idx[1], format!("unknown phase `{other}` (expected `normal` or `torsion`)"))),
+                other => {
+                    return Err(col_err(idx[1], format!("unknown phase `{other}` (expected `normal` or `torsion`)")));
+                }
             };
             let stage_mm = num(2)?;
             let rot_deg = num(3)?;
             let gamma1_mm = num(4)?;
             let theta1_deg = num(5)?;
             if t_s < last_t {
-                return Err(col_err(idx[0], format!("time {t_s} s goes backwards (previous row {last_t} s); rows must be in time order")));
+                return Err(col_err(
+                    idx[0],
+                    format!("time {t_s} s goes backwards (previous row {last_t} s); rows must be in time order"),
+                ));
             }
             last_t = t_s;
             let rep = match rep_idx {
-                Some(i) if !fields[i].is_empty() => {
-                    Some(fields[i].parse::<u32>().map_err(|_| col_err(i, format!("`{}` is not a repeat index", fields[i])))?)
-                }
+                Some(i) if !fields[i].is_empty() => Some(
+                    fields[i]
+                        .parse::<u32>()
+                        .map_err(|_| col_err(i, format!("`{}` is not a repeat index", fields[i])))?,
+                ),
                 _ => None,
             };
             let dir = match dir_idx {
@@ -271,7 +292,9 @@ impl Recording {
                     "" => None,
                     "load" => Some(Direction::Load),
                     "unload" => Some(Direction::Unload),
-                    other => return Err(col_err(i, format!("unknown direction `{other}` (expected `load` or `unload`)"))),
+                    other => {
+                        return Err(col_err(i, format!("unknown direction `{other}` (expected `load` or `unload`)")));
+                    }
                 },
                 None => None,
             };
@@ -340,11 +363,18 @@ impl<W: Write> RecordingWriter<W> {
 
     /// Appends one row and flushes it. Non-finite values are refused, not written.
     pub fn append(&mut self, s: &Sample) -> io::Result<()> {
-        for (name, v) in
-            [("t_s", s.t_s), ("stage_mm", s.stage_mm), ("rot_deg", s.rot_deg), ("gamma1_mm", s.gamma1_mm), ("theta1_deg", s.theta1_deg)]
-        {
+        for (name, v) in [
+            ("t_s", s.t_s),
+            ("stage_mm", s.stage_mm),
+            ("rot_deg", s.rot_deg),
+            ("gamma1_mm", s.gamma1_mm),
+            ("theta1_deg", s.theta1_deg),
+        ] {
             if !v.is_finite() {
-                return Err(io::Error::new(io::ErrorKind::InvalidData, format!("refusing to record non-finite {name} = {v}")));
+                return Err(io::Error::new(
+                    io::ErrorKind::InvalidData,
+                    format!("refusing to record non-finite {name} = {v}"),
+                ));
             }
         }
         let rep = s.rep.map(|r| r.to_string()).unwrap_or_default();

@@ -50,10 +50,8 @@ pub struct Prediction {
 
 /// Forward-predict every sample of `rec` with the given parameters.
 pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitError> {
-    let pair = ContactPair {
-        elastomer: Body::new(p.e1_mpa, p.nu1, rec.meta.elastomer_r_mm),
-        indenter: rec.meta.indenter,
-    };
+    let pair =
+        ContactPair { elastomer: Body::new(p.e1_mpa, p.nu1, rec.meta.elastomer_r_mm), indenter: rec.meta.indenter };
     let model = NormalModel::new(pair).map_err(|e| FitError::Model(e.to_string()))?;
     let mut out = Vec::with_capacity(rec.samples.len());
     let mut cache: Option<(f64, sim::physics::NormalState)> = None;
@@ -195,7 +193,11 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         return Err(FitError::TooFewSamples { what: "torsion samples".into(), found: n_torsion, need: 3 });
     }
     if n_normal_live < 5 {
-        return Err(FitError::TooFewSamples { what: "normal samples in contact".into(), found: n_normal_live, need: 5 });
+        return Err(FitError::TooFewSamples {
+            what: "normal samples in contact".into(),
+            found: n_normal_live,
+            need: 5,
+        });
     }
     let mut start = start;
     if !(start.e1_mpa.is_finite() && start.e1_mpa > 0.0) {
@@ -267,14 +269,25 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
 
     let pred = predict(rec, &params)?;
     let r = residuals(rec, &pred);
-    let live: Vec<(f64, f64)> =
-        rec.samples.iter().zip(&pred).filter(|(s, _)| s.phase == Phase::Normal && s.gamma1_mm != 0.0).map(|(s, p)| (s.gamma1_mm, p.gamma1_mm)).collect();
-    let tor: Vec<(f64, f64)> =
-        rec.samples.iter().zip(&pred).filter(|(s, _)| s.phase == Phase::Torsion).map(|(s, p)| (s.theta1_deg, p.theta1_deg)).collect();
+    let live: Vec<(f64, f64)> = rec
+        .samples
+        .iter()
+        .zip(&pred)
+        .filter(|(s, _)| s.phase == Phase::Normal && s.gamma1_mm != 0.0)
+        .map(|(s, p)| (s.gamma1_mm, p.gamma1_mm))
+        .collect();
+    let tor: Vec<(f64, f64)> = rec
+        .samples
+        .iter()
+        .zip(&pred)
+        .filter(|(s, _)| s.phase == Phase::Torsion)
+        .map(|(s, p)| (s.theta1_deg, p.theta1_deg))
+        .collect();
     let split = |v: &[(f64, f64)]| -> (Vec<f64>, Vec<f64>) { v.iter().copied().unzip() };
     let (lo_n, lp_n) = split(&live);
     let (lo_t, lp_t) = split(&tor);
-    let beta = rec.samples.iter().zip(&pred).find(|(s, _)| s.phase == Phase::Torsion).map(|(_, p)| p.beta).unwrap_or(f64::NAN);
+    let beta =
+        rec.samples.iter().zip(&pred).find(|(s, _)| s.phase == Phase::Torsion).map(|(_, p)| p.beta).unwrap_or(f64::NAN);
 
     Ok(FullFit {
         e1_mpa: params.e1_mpa,

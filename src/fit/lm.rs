@@ -194,7 +194,15 @@ mod tests {
         .unwrap();
         assert!(res.x[0] <= 2.0 && res.x[0] > 1.9, "{:?}", res.x);
         assert!(matches!(
-            minimize(|_, r| { r.clear(); r.push(1.0); false }, &[0.0], LmOptions::default()),
+            minimize(
+                |_, r| {
+                    r.clear();
+                    r.push(1.0);
+                    false
+                },
+                &[0.0],
+                LmOptions::default()
+            ),
             Err(LmError::BadStart)
         ));
     }

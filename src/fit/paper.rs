@@ -132,7 +132,8 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
     let depths: Vec<f64> = rec.phase(Phase::Torsion).map(|s| (s.stage_mm - s.gamma1_mm) / r2_mm).collect();
     let beta = depths.iter().sum::<f64>() / depths.len() as f64;
     let beta_se = if depths.len() > 1 {
-        (depths.iter().map(|b| (b - beta).powi(2)).sum::<f64>() / (depths.len() - 1) as f64 / depths.len() as f64).sqrt()
+        (depths.iter().map(|b| (b - beta).powi(2)).sum::<f64>() / (depths.len() - 1) as f64 / depths.len() as f64)
+            .sqrt()
     } else {
         0.0
     };

@@ -10,7 +10,7 @@ pub mod torsion;
 pub use inversion::{
     ExactInversion, h1_from_materials, h3_from_materials, invert_exact, invert_paper_rounded, reduced_coefficients,
 };
-pub use normal::{NormalModel, NormalState, NormalError};
+pub use normal::{NormalError, NormalModel, NormalState};
 pub use params::{Body, ContactPair, ParamError};
 pub use torsion::{TorsionState, rod_correction_factor, torsion_at};
 

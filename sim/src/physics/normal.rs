@@ -76,11 +76,8 @@ impl NormalModel {
         let r_star = pair.composite_radius_mm();
         let a1 = e_star / (pair.elastomer.plane_strain_mpa() * r_star);
         let a2 = e_star / (pair.indenter.plane_strain_mpa() * r_star) * if yoffe { YOFFE } else { 1.0 };
-        let (b1, b2) = if tatara {
-            (pair.elastomer.tatara_mm_per_n(), pair.indenter.tatara_mm_per_n())
-        } else {
-            (0.0, 0.0)
-        };
+        let (b1, b2) =
+            if tatara { (pair.elastomer.tatara_mm_per_n(), pair.indenter.tatara_mm_per_n()) } else { (0.0, 0.0) };
         let k_force = 4.0 * e_star / (3.0 * r_star);
         let p = a1 + a2;
         let q = (b1 + b2) * k_force;
@@ -103,16 +100,18 @@ impl NormalModel {
         let f = self.force_at_radius_n(a);
         let gamma1 = self.a1 * a * a - self.b1 * f;
         let gamma2 = self.a2 * a * a - self.b2 * f;
-        NormalState { delta_mm: gamma1 + gamma2, gamma1_mm: gamma1, gamma2_mm: gamma2, force_n: f, contact_radius_mm: a }
+        NormalState {
+            delta_mm: gamma1 + gamma2,
+            gamma1_mm: gamma1,
+            gamma2_mm: gamma2,
+            force_n: f,
+            contact_radius_mm: a,
+        }
     }
 
     /// The largest approach the model can describe (delta at the turning radius).
     pub fn max_approach_mm(&self) -> f64 {
-        if self.a_turn.is_finite() {
-            self.p * self.a_turn * self.a_turn / 3.0
-        } else {
-            f64::INFINITY
-        }
+        if self.a_turn.is_finite() { self.p * self.a_turn * self.a_turn / 3.0 } else { f64::INFINITY }
     }
 
     /// Solve for the state at stage approach `delta_mm` (gamma1 + gamma2 = delta).
@@ -235,8 +234,8 @@ mod tests {
         let s1 = m.solve(1e-14).unwrap();
         let s2 = m.solve(2e-14).unwrap();
         let slope = (s2.gamma2_mm - s1.gamma2_mm) / (s2.gamma1_mm - s1.gamma1_mm);
-        let expect = 32.0 / (9.0 * std::f64::consts::PI) * pair.elastomer.plane_strain_mpa()
-            / pair.indenter.plane_strain_mpa();
+        let expect =
+            32.0 / (9.0 * std::f64::consts::PI) * pair.elastomer.plane_strain_mpa() / pair.indenter.plane_strain_mpa();
         assert!((slope / expect - 1.0).abs() < 1e-6, "{slope} vs {expect}");
     }
 
