@@ -19,6 +19,11 @@ pub mod stage_backlash;
 pub mod thermal_drift;
 pub mod viscoelastic;
 
+#[cfg(test)]
+mod signatures;
+
+pub mod corpus;
+
 use serde::{Deserialize, Serialize};
 
 pub use rig::{Command, Reading, TrueRig, simulate};
