@@ -84,17 +84,19 @@ fn neutral_parameters_give_the_clean_model() {
         SimProfile { finite_thickness: Some(finite_thickness::Params { h_mm: 1000.0 }), ..Default::default() },
         &cmds,
     );
+    // The layer's effect vanishes like a/h: ten times thicker, ten times smaller.
     let (g, t) = max_diff(&thick, &c);
-    assert!(g < 1e-3 && t < 1e-3, "{g} {t}");
+    assert!(g < 5e-3 && t < 2e-3, "{g} {t}");
     let thicker = run(
         SimProfile { finite_thickness: Some(finite_thickness::Params { h_mm: 100.0 }), ..Default::default() },
         &cmds,
     );
-    assert!(max_diff(&thicker, &c).0 > 5.0 * g, "the layer's effect shrinks like a/h");
+    let ratio = max_diff(&thicker, &c).0 / g;
+    assert!(ratio > 8.0 && ratio < 11.0, "{ratio}");
     let sticky =
         run(SimProfile { partial_slip: Some(partial_slip::Params { mu: 100.0 }), ..Default::default() }, &cmds);
     let (g, t) = max_diff(&sticky, &c);
-    assert!(g == 0.0 && t < 2e-3, "{g} {t}");
+    assert!(g == 0.0 && t < 5e-3, "{g} {t}");
 }
 
 #[test]
@@ -111,15 +113,29 @@ fn finite_thickness_stiffens_at_depth_and_lowers_h3() {
     // Force at the same indentation is Hertz times Phi(a/h) in the rigid-indenter
     // limit; here the composite stiffens less, but the force at equal stage rises.
     assert!(l[60].force_n > c[60].force_n);
-    // Torsion at the clean beta = 0.2 stage: a smaller contact and a stiffer layer
-    // change the split; the rod route lowers theta2/theta1 = H3.
-    let tw = twist(8.0, 8);
-    let ct = clean(&tw);
-    let lt =
-        run(SimProfile { finite_thickness: Some(finite_thickness::Params { h_mm: 20.0 }), ..Default::default() }, &tw);
-    let h3 = |r: &Reading, c: &Command| (c.rot_deg - r.theta1_deg) / r.theta1_deg;
-    assert!(lt[8].contact_radius_mm < ct[8].contact_radius_mm);
-    assert!(h3(&lt[8], &tw[8]) != h3(&ct[8], &tw[8]));
+    // Torsion at the same indenter deformation gamma2 = 1 mm (beta = 0.2): the
+    // stiffer layer makes a smaller contact, the contact compliances grow against
+    // the rod's, and theta2/theta1 = H3 comes out low (the rod route, physics.md 2.1).
+    let layer = SimProfile { finite_thickness: Some(finite_thickness::Params { h_mm: 20.0 }), ..Default::default() };
+    let stage_for_gamma2 = |p: &SimProfile| {
+        let (mut lo, mut hi) = (0.0, 10.0);
+        for _ in 0..100 {
+            let mid = 0.5 * (lo + hi);
+            let r = simulate(pair(), p, &[Command { t_s: 0.0, stage_mm: mid, rot_deg: 0.0 }]).unwrap();
+            if r[0].gamma2_mm < 1.0 { lo = mid } else { hi = mid }
+        }
+        0.5 * (lo + hi)
+    };
+    let at = |p: &SimProfile| {
+        let st = stage_for_gamma2(p);
+        simulate(pair(), p, &[Command { t_s: 0.0, stage_mm: st, rot_deg: 4.0 }]).unwrap()[0]
+    };
+    let (lr, cr) = (at(&layer), at(&SimProfile::default()));
+    assert!(lr.contact_radius_mm < cr.contact_radius_mm, "{} vs {}", lr.contact_radius_mm, cr.contact_radius_mm);
+    let h3 = |r: &Reading| (4.0 - r.theta1_deg) / r.theta1_deg;
+    let clean_h3 = crate::physics::h3_from_materials(&pair().elastomer, &pair().indenter, 0.2);
+    assert!((h3(&cr) / clean_h3 - 1.0).abs() < 1e-6, "{} vs {clean_h3}", h3(&cr));
+    assert!(h3(&lr) < clean_h3 * 0.99, "{} vs {clean_h3}", h3(&lr));
 }
 
 #[test]
@@ -252,22 +268,30 @@ fn frame_compliance_removes_c_times_f() {
 fn partial_slip_is_sublinear_at_large_twist_with_a_masing_return() {
     let tw = twist(8.0, 40);
     let c = clean(&tw);
-    let s = run(SimProfile { partial_slip: Some(partial_slip::Params { mu: 1.0 }), ..Default::default() }, &tw);
+    let s = run(SimProfile { partial_slip: Some(partial_slip::Params { mu: 0.5 }), ..Default::default() }, &tw);
     // Small twist: stick, the clean slope.
     assert!((s[1].theta1_deg / c[1].theta1_deg - 1.0).abs() < 0.01);
-    // Sublinear: the secant falls with twist.
+    // Sublinear: the secant falls with twist, and more with less friction.
     let sec = |i: usize| s[i].theta1_deg / tw[i].rot_deg;
-    assert!(sec(10) < sec(1) && sec(20) < sec(10) && sec(40) < sec(20), "{} {} {}", sec(1), sec(20), sec(40));
-    assert!(s[40].theta1_deg < 0.97 * c[40].theta1_deg, "{} vs {}", s[40].theta1_deg, c[40].theta1_deg);
+    assert!(sec(20) < sec(5) && sec(30) < sec(20) && sec(40) < sec(30), "{} {} {}", sec(5), sec(20), sec(40));
+    assert!(s[40].theta1_deg < 0.995 * c[40].theta1_deg, "{} vs {}", s[40].theta1_deg, c[40].theta1_deg);
+    let more = run(SimProfile { partial_slip: Some(partial_slip::Params { mu: 0.35 }), ..Default::default() }, &tw);
+    assert!(more[40].theta1_deg < s[40].theta1_deg);
     // The return does not retrace the outgoing branch.
     assert!((s[60].theta1_deg - s[20].theta1_deg).abs() > 1e-3);
     // Normal readings untouched.
     assert_eq!(s[10].gamma1_mm, c[10].gamma1_mm);
-    // Past gross slip (M_max = 3 pi mu F a / 16) there is no solution: a typed error.
+    // Low friction: the torque saturates towards Lubkin's M_max = 3 pi mu F a / 16,
+    // so theta1 flattens; the twist needed for full gross slip diverges
+    // (logarithmically), and past the tabulated range it is a typed error.
+    let low =
+        run(SimProfile { partial_slip: Some(partial_slip::Params { mu: 0.05 }), ..Default::default() }, &twist(8.0, 4));
+    let inc: Vec<f64> = (1..=4).map(|i| low[i].theta1_deg - low[i - 1].theta1_deg).collect();
+    assert!(inc.windows(2).all(|w| w[1] < w[0]) && inc[3] < 0.4 * inc[0], "{inc:?}");
     let err = simulate(
         pair(),
         &SimProfile { partial_slip: Some(partial_slip::Params { mu: 0.05 }), ..Default::default() },
-        &twist(8.0, 4),
+        &twist(90.0, 2),
     );
     assert!(matches!(err, Err(EffectError::GrossSlip { .. })), "{err:?}");
 }
