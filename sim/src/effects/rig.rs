@@ -126,8 +126,14 @@ impl TrueRig {
         })
     }
 
+    /// The contact pair the rig uses (the profile's `material` applied).
     pub fn pair(&self) -> &ContactPair {
         &self.pair
+    }
+
+    /// The effects this rig has.
+    pub fn profile(&self) -> &SimProfile {
+        &self.profile
     }
 
     fn frame_c(&self) -> f64 {

@@ -389,3 +389,31 @@ fn profile_errors_name_the_effect_and_parameter() {
     let e = SimProfile::load(&dir.path().join("missing.toml")).unwrap_err().to_string();
     assert!(e.contains("missing.toml"), "{e}");
 }
+
+#[test]
+fn catalogue_parameter_names_are_the_toml_keys() {
+    // Every effect switched on (serialisation does not validate the combination).
+    let p = SimProfile {
+        finite_thickness: Some(finite_thickness::Params { h_mm: 5.0 }),
+        adhesion: Some(adhesion::Params { w_mj_m2: 50.0, eta: 2.0 }),
+        viscoelastic: Some(viscoelastic::Params { rho: 1.02, tau_s: 5.0 }),
+        contact_offset: Some(contact_offset::Params { z0_mm: 0.003 }),
+        stage_backlash: Some(stage_backlash::Params { b_mm: 0.005, engaged: true }),
+        frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }),
+        partial_slip: Some(partial_slip::Params { mu: 1.0 }),
+        rotation_backlash: Some(rotation_backlash::Params { b_deg: 0.1, engaged: true }),
+        thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 1e-5, vdot_mm_per_s2: 0.0 }),
+        sensor_gain: Some(sensor_gain::Params { g: 1.01 }),
+        material: None,
+    };
+    let v: toml::Table = toml::from_str(&p.to_toml_string().unwrap()).unwrap();
+    for info in ALL {
+        let sec = v[info.name].as_table().unwrap_or_else(|| panic!("{}", info.name));
+        for par in info.params {
+            assert!(sec.contains_key(par.name), "{}.{}", info.name, par.name);
+            assert!(par.min < par.max);
+        }
+    }
+    assert_eq!(p.enabled().len(), 10);
+    assert!(matches!(p.validate(), Err(EffectError::Unsupported(_))));
+}
