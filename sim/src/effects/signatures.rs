@@ -184,6 +184,18 @@ fn viscoelastic_creeps_during_a_hold_and_saturates_at_the_relaxed_model() {
     let gap = |i: usize| relaxed - v[i].gamma1_mm;
     let frac = gap(20) / gap(0);
     assert!(frac > 0.25 && frac < 0.45, "{frac}");
+    // Torsion hold: a twist step is met by the glassy elastomer (theta1 low), then
+    // theta1 creeps up to the relaxed split with the same kernel.
+    let st = NormalModel::new(pair()).unwrap().solve_for_gamma2(1.0).unwrap().delta_mm;
+    let mut tw: Vec<Command> =
+        (0..=200).map(|i| Command { t_s: i as f64 * 0.25, stage_mm: st, rot_deg: 0.0 }).collect();
+    tw.extend((1..=200).map(|i| Command { t_s: 50.0 + i as f64 * 0.25, stage_mm: st, rot_deg: 5.0 }));
+    let prof = SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() };
+    let vt = run(prof, &tw);
+    let relaxed_split = run(SimProfile::default(), &tw[400..])[0].theta1_deg;
+    assert!(vt[201].theta1_deg < relaxed_split * 0.99, "{} vs {relaxed_split}", vt[201].theta1_deg);
+    assert!(vt[240].theta1_deg > vt[201].theta1_deg);
+    assert!((vt[400].theta1_deg / relaxed_split - 1.0).abs() < 2e-3, "{} vs {relaxed_split}", vt[400].theta1_deg);
     // Sweep: unload above load.
     let s = run(
         SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() },
