@@ -436,4 +436,27 @@ mod tests {
         let drop = 1.0 - h3(&rec) / clean_h3;
         assert!((drop - 0.04).abs() < 0.01, "H3 drop {drop}");
     }
+
+    /// Real sensor layers (2-6 mm) at the standard sweep: the layer is not
+    /// concealed, the generator must still produce the whole run (a/h up to ~2).
+    #[test]
+    fn thin_layers_generate_full_runs() {
+        use crate::effects::finite_thickness;
+        let clean = generate(&GeneratorConfig::default()).unwrap();
+        let top = |r: &Recording| r.phase(Phase::Normal).map(|s| s.stage_mm).fold(0.0, f64::max);
+        for h in [2.0, 3.0, 5.0, 6.0] {
+            let cfg = GeneratorConfig {
+                profile: SimProfile {
+                    finite_thickness: Some(finite_thickness::Params { h_mm: h }),
+                    ..Default::default()
+                },
+                ..Default::default()
+            };
+            let rec = generate(&cfg).unwrap();
+            let first = rec.phase(Phase::Torsion).next().unwrap();
+            assert!(((first.stage_mm - first.gamma1_mm) / 5.0 - 0.2).abs() < 0.01, "h {h}");
+            // The stiffer layer deforms less at the same force: the target beta comes at a smaller stage.
+            assert!(top(&rec) < top(&clean), "h {h}: {} vs {}", top(&rec), top(&clean));
+        }
+    }
 }
