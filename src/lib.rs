@@ -1,1 +1,4 @@
-//! easycalib: the rig controller.
+//! easycalib: the rig controller — fitting, diagnosis, the calibration run, TUI and reports.
+
+pub mod cli;
+pub mod fit;

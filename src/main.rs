@@ -1,3 +1,3 @@
-fn main() {
-    println!("easycalib");
+fn main() -> std::process::ExitCode {
+    easycalib::cli::main()
 }

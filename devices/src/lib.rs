@@ -7,6 +7,4 @@
 pub mod motion;
 pub mod sensor;
 
-pub use motion::{
-    AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount,
-};
+pub use motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount};

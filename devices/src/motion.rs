@@ -105,11 +105,7 @@ pub trait RotationMount: Send {
     async fn position_deg(&mut self) -> Result<f64, Self::Error>;
     async fn status(&mut self) -> Result<AxisStatus, Self::Error>;
 
-    async fn move_to_deg(
-        &mut self,
-        target_deg: f64,
-        timeout: Duration,
-    ) -> Result<f64, Self::Error> {
+    async fn move_to_deg(&mut self, target_deg: f64, timeout: Duration) -> Result<f64, Self::Error> {
         self.start_move_to_deg(target_deg).await?;
         self.wait_until_stopped(timeout).await
     }

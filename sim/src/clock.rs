@@ -15,15 +15,8 @@ pub struct VirtualClock {
 impl VirtualClock {
     /// A clock starting at rig time 0 now. `speedup` = 1 is real time.
     pub fn new(speedup: f64) -> Self {
-        let speedup = if speedup.is_finite() && speedup > 0.0 {
-            speedup
-        } else {
-            1.0
-        };
-        Self {
-            origin: Instant::now(),
-            speedup,
-        }
+        let speedup = if speedup.is_finite() && speedup > 0.0 { speedup } else { 1.0 };
+        Self { origin: Instant::now(), speedup }
     }
 
     pub fn realtime() -> Self {

@@ -4,4 +4,8 @@
 
 pub mod clock;
 pub mod emulator;
+pub mod generator;
+pub mod physics;
+pub mod recording;
+pub mod rng;
 pub mod sensor;

@@ -61,9 +61,7 @@ pub struct Axis {
 
 impl Axis {
     pub fn new(cfg: AxisConfig) -> Self {
-        let p = cfg
-            .power_on_position
-            .clamp(cfg.min_position, cfg.max_position);
+        let p = cfg.power_on_position.clamp(cfg.min_position, cfg.max_position);
         Self {
             cfg,
             t_s: 0.0,
@@ -217,10 +215,7 @@ impl Axis {
     pub fn command_move_to(&mut self, t_s: f64, target: f64) -> bool {
         self.advance_to(t_s);
         let mech = self.quantize(target) + self.counter_offset;
-        if !target.is_finite()
-            || mech < self.cfg.min_position - 1e-9
-            || mech > self.cfg.max_position + 1e-9
-        {
+        if !target.is_finite() || mech < self.cfg.min_position - 1e-9 || mech > self.cfg.max_position + 1e-9 {
             return false;
         }
         self.target = mech;
@@ -285,10 +280,7 @@ impl Axis {
     }
     /// Soft-limit range in counter coordinates.
     pub fn travel(&self) -> (f64, f64) {
-        (
-            self.cfg.min_position - self.counter_offset,
-            self.cfg.max_position - self.counter_offset,
-        )
+        (self.cfg.min_position - self.counter_offset, self.cfg.max_position - self.counter_offset)
     }
 }
 
@@ -337,12 +329,7 @@ mod tests {
         ax.advance_to(14.0);
         assert!(!ax.is_moving());
         // v = 2 mm/s, a = 4 mm/s^2 -> 0.5 mm.
-        assert!(
-            (ax.position() - p - 0.5).abs() < 0.01,
-            "{} vs {}",
-            ax.position(),
-            p
-        );
+        assert!((ax.position() - p - 0.5).abs() < 0.01, "{} vs {}", ax.position(), p);
     }
 
     #[test]
@@ -364,11 +351,7 @@ mod tests {
         assert!((load_up - 5.0).abs() < 1e-9);
         ax.command_move_to(10.0, 4.0);
         ax.advance_to(20.0);
-        assert!(
-            (ax.load_position() - 4.01).abs() < 1e-9,
-            "{}",
-            ax.load_position()
-        );
+        assert!((ax.load_position() - 4.01).abs() < 1e-9, "{}", ax.load_position());
         assert!((ax.position() - 4.0).abs() < 1e-9);
     }
 }

@@ -24,11 +24,7 @@ pub struct PtyMaster {
 }
 
 fn cvt(ret: libc::c_int) -> io::Result<libc::c_int> {
-    if ret < 0 {
-        Err(io::Error::last_os_error())
-    } else {
-        Ok(ret)
-    }
+    if ret < 0 { Err(io::Error::last_os_error()) } else { Ok(ret) }
 }
 
 fn set_raw(fd: RawFd) -> io::Result<()> {
@@ -47,9 +43,7 @@ impl PtyMaster {
     pub fn open() -> io::Result<Self> {
         // SAFETY: plain libc calls on a freshly opened descriptor we own.
         unsafe {
-            let master = cvt(libc::posix_openpt(
-                libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC,
-            ))?;
+            let master = cvt(libc::posix_openpt(libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC))?;
             let master = OwnedFd::from_raw_fd(master);
             cvt(libc::grantpt(master.as_raw_fd()))?;
             cvt(libc::unlockpt(master.as_raw_fd()))?;
@@ -58,22 +52,15 @@ impl PtyMaster {
             if rc != 0 {
                 return Err(io::Error::from_raw_os_error(rc));
             }
-            let slave_path =
-                PathBuf::from(CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned());
-            let slave = cvt(libc::open(
-                buf.as_ptr(),
-                libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC,
-            ))?;
+            let slave_path = PathBuf::from(CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned());
+            let slave = cvt(libc::open(buf.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC))?;
             let slave = OwnedFd::from_raw_fd(slave);
             set_raw(slave.as_raw_fd())?;
             let flags = cvt(libc::fcntl(master.as_raw_fd(), libc::F_GETFL))?;
-            cvt(libc::fcntl(
-                master.as_raw_fd(),
-                libc::F_SETFL,
-                flags | libc::O_NONBLOCK,
-            ))?;
+            cvt(libc::fcntl(master.as_raw_fd(), libc::F_SETFL, flags | libc::O_NONBLOCK))?;
             Ok(Self {
-                fd: AsyncFd::new(master)?,
+                // SAFETY: we own `master` and nothing else registers or closes this fd.
+                fd: AsyncFd::register(master)?,
                 slave_path,
                 _slave_keepalive: slave,
             })
@@ -87,28 +74,14 @@ impl PtyMaster {
 }
 
 impl AsyncRead for PtyMaster {
-    fn poll_read(
-        self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        buf: &mut ReadBuf<'_>,
-    ) -> Poll<io::Result<()>> {
+    fn poll_read(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
         loop {
             let mut guard = ready!(self.fd.poll_read_ready(cx))?;
             let unfilled = buf.initialize_unfilled();
             // SAFETY: reading into an initialized buffer of the given length.
             let res = guard.try_io(|inner| {
-                let n = unsafe {
-                    libc::read(
-                        inner.as_raw_fd(),
-                        unfilled.as_mut_ptr().cast(),
-                        unfilled.len(),
-                    )
-                };
-                if n < 0 {
-                    Err(io::Error::last_os_error())
-                } else {
-                    Ok(n as usize)
-                }
+                let n = unsafe { libc::read(inner.as_raw_fd(), unfilled.as_mut_ptr().cast(), unfilled.len()) };
+                if n < 0 { Err(io::Error::last_os_error()) } else { Ok(n as usize) }
             });
             match res {
                 Ok(Ok(n)) => {
@@ -125,21 +98,13 @@ impl AsyncRead for PtyMaster {
 }
 
 impl AsyncWrite for PtyMaster {
-    fn poll_write(
-        self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        data: &[u8],
-    ) -> Poll<io::Result<usize>> {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
         loop {
             let mut guard = ready!(self.fd.poll_write_ready(cx))?;
             // SAFETY: writing from a valid slice.
             let res = guard.try_io(|inner| {
                 let n = unsafe { libc::write(inner.as_raw_fd(), data.as_ptr().cast(), data.len()) };
-                if n < 0 {
-                    Err(io::Error::last_os_error())
-                } else {
-                    Ok(n as usize)
-                }
+                if n < 0 { Err(io::Error::last_os_error()) } else { Ok(n as usize) }
             });
             match res {
                 Ok(r) => return Poll::Ready(r),
@@ -165,11 +130,7 @@ mod tests {
     #[tokio::test]
     async fn bytes_pass_unchanged_both_ways() {
         let mut master = PtyMaster::open().unwrap();
-        let std_slave = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .open(master.slave_path())
-            .unwrap();
+        let std_slave = std::fs::OpenOptions::new().read(true).write(true).open(master.slave_path()).unwrap();
         let mut slave = tokio::fs::File::from_std(std_slave);
         // Bytes a line discipline would mangle: CR, LF, ^C, ^S, DEL, 0x00, 0xff.
         let payload: Vec<u8> = vec![0x0d, 0x0a, 0x03, 0x13, 0x7f, 0x00, 0xff, 0x23, 0x00];

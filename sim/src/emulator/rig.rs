@@ -74,10 +74,6 @@ impl Rig {
             ax.advance_to(t_s);
             ax.load_position()
         };
-        RigPose {
-            t_s,
-            stage_mm,
-            rot_deg,
-        }
+        RigPose { t_s, stage_mm, rot_deg }
     }
 }

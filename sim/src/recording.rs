@@ -1,0 +1,508 @@
+//! Calibration recordings, format v1 (`shared/docs/recording-format.md`):
+//! `# key: value` metadata lines, a CSV header row, then one row per settled
+//! sample. The reader rejects anything it cannot take at face value with an
+//! error naming the line (and column); nothing is silently dropped. The writer
+//! flushes every row, so a run killed mid-way leaves a readable file.
+
+use std::fmt;
+use std::io::{self, Write};
+use std::path::Path;
+
+use serde::Serialize;
+
+use crate::physics::Body;
+
+pub const FORMAT_VERSION: u32 = 1;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Phase {
+    Normal,
+    Torsion,
+}
+
+impl Phase {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Phase::Normal => "normal",
+            Phase::Torsion => "torsion",
+        }
+    }
+}
+
+/// Direction of travel within a sweep: `load` going in / twisting out, `unload` coming back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Direction {
+    Load,
+    Unload,
+}
+
+impl Direction {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Direction::Load => "load",
+            Direction::Unload => "unload",
+        }
+    }
+}
+
+/// One settled sample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Sample {
+    pub t_s: f64,
+    pub phase: Phase,
+    pub stage_mm: f64,
+    pub rot_deg: f64,
+    pub gamma1_mm: f64,
+    pub theta1_deg: f64,
+    pub rep: Option<u32>,
+    pub dir: Option<Direction>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Metadata {
+    pub sensor: Option<String>,
+    /// The calibration indenter (E2, nu2, R2).
+    pub indenter: Body,
+    /// Effective radius R1 of the elastomer, mm (`inf` = flat).
+    pub elastomer_r_mm: f64,
+    pub created: Option<String>,
+    /// Keys this version does not know, kept in order.
+    pub extra: Vec<(String, String)>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Recording {
+    pub meta: Metadata,
+    pub samples: Vec<Sample>,
+}
+
+/// What is wrong with a recording, and where (1-based line; column by number and name).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordingError {
+    pub line: usize,
+    pub column: Option<(usize, String)>,
+    pub message: String,
+}
+
+impl fmt::Display for RecordingError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match &self.column {
+            Some((n, name)) => write!(f, "line {}, column {} ({}): {}", self.line, n, name, self.message),
+            None if self.line > 0 => write!(f, "line {}: {}", self.line, self.message),
+            None => write!(f, "{}", self.message),
+        }
+    }
+}
+
+impl std::error::Error for RecordingError {}
+
+fn err(line: usize, message: impl Into<String>) -> RecordingError {
+    RecordingError { line, column: None, message: message.into() }
+}
+
+const REQUIRED_COLUMNS: [&str; 6] = ["t_s", "phase", "stage_mm", "rot_deg", "gamma1_mm", "theta1_deg"];
+
+fn parse_meta_number(line: usize, key: &str, value: &str) -> Result<f64, RecordingError> {
+    let v = value.trim();
+    let x = if v.eq_ignore_ascii_case("inf") || v.eq_ignore_ascii_case("infinity") {
+        f64::INFINITY
+    } else {
+        v.parse::<f64>().map_err(|_| err(line, format!("`{key}` value `{v}` is not a number")))?
+    };
+    if x.is_nan() {
+        return Err(err(line, format!("`{key}` is NaN")));
+    }
+    Ok(x)
+}
+
+impl Recording {
+    pub fn read_path(path: &Path) -> Result<Recording, RecordingError> {
+        let bytes = std::fs::read(path).map_err(|e| err(0, format!("cannot read {}: {e}", path.display())))?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            let upto = &e.as_bytes()[..e.utf8_error().valid_up_to()];
+            let line = upto.iter().filter(|&&b| b == b'\n').count() + 1;
+            err(line, "not valid UTF-8 text")
+        })?;
+        Recording::parse(&text)
+    }
+
+    pub fn parse(text: &str) -> Result<Recording, RecordingError> {
+        let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r')));
+        let mut version: Option<(usize, String)> = None;
+        let mut e2 = None;
+        let mut nu2 = None;
+        let mut r2 = None;
+        let mut r1 = f64::INFINITY;
+        let mut r1_line = 0;
+        let mut sensor = None;
+        let mut created = None;
+        let mut extra = Vec::new();
+        let mut seen: Vec<String> = Vec::new();
+        let mut header: Option<(usize, &str)> = None;
+        let mut last_line = 0;
+
+        for (n, line) in lines.by_ref() {
+            last_line = n;
+            if line.trim().is_empty() {
+                continue;
+            }
+            let Some(rest) = line.strip_prefix('#') else {
+                header = Some((n, line));
+                break;
+            };
+            let Some((key, value)) = rest.split_once(':') else {
+                // A plain comment line: allowed, carries no data.
+                continue;
+            };
+            let key = key.trim();
+            let value = value.trim();
+            if seen.iter().any(|k| k == key) {
+                return Err(err(n, format!("metadata key `{key}` appears twice")));
+            }
+            seen.push(key.to_string());
+            match key {
+                "easycalib-recording" => version = Some((n, value.to_string())),
+                "indenter_E_MPa" => e2 = Some((n, parse_meta_number(n, key, value)?)),
+                "indenter_nu" => nu2 = Some((n, parse_meta_number(n, key, value)?)),
+                "indenter_R_mm" => r2 = Some((n, parse_meta_number(n, key, value)?)),
+                "elastomer_R_mm" => {
+                    r1 = parse_meta_number(n, key, value)?;
+                    r1_line = n;
+                }
+                "sensor" => sensor = Some(value.to_string()),
+                "created" => created = Some(value.to_string()),
+                _ => extra.push((key.to_string(), value.to_string())),
+            }
+        }
+
+        let Some((vline, v)) = version else {
+            return Err(err(
+                1,
+                "missing required metadata `# easycalib-recording: 1` (is this an easycalib recording?)",
+            ));
+        };
+        if v.trim() != "1" {
+            return Err(err(
+                vline,
+                format!("unsupported recording format version `{v}` (this easycalib reads version 1)"),
+            ));
+        }
+        // A missing key has no line of its own: point at where the metadata block ends.
+        let meta_end = header.map(|(n, _)| n).unwrap_or(last_line).max(1);
+        let need = |x: Option<(usize, f64)>, key: &str| {
+            x.ok_or_else(|| err(meta_end, format!("missing required metadata key `{key}` before the header row")))
+        };
+        let (e2_line, e2) = need(e2, "indenter_E_MPa")?;
+        let (nu2_line, nu2) = need(nu2, "indenter_nu")?;
+        let (r2_line, r2) = need(r2, "indenter_R_mm")?;
+        if !(e2.is_finite() && e2 > 0.0) {
+            return Err(err(e2_line, format!("indenter_E_MPa must be > 0, got {e2}")));
+        }
+        if !(nu2 > 0.0 && nu2 < 0.5) {
+            return Err(err(nu2_line, format!("indenter_nu must lie in (0, 0.5), got {nu2}")));
+        }
+        if !(r2.is_finite() && r2 > 0.0) {
+            return Err(err(r2_line, format!("indenter_R_mm must be a finite radius > 0, got {r2}")));
+        }
+        if r1 <= 0.0 {
+            return Err(err(r1_line, format!("elastomer_R_mm must be > 0 (or inf), got {r1}")));
+        }
+
+        let Some((hline, header)) = header else {
+            return Err(err(last_line.max(1), "missing the column header row after the metadata"));
+        };
+        let names: Vec<&str> = header.split(',').map(str::trim).collect();
+        let mut idx = [0usize; 6];
+        for (k, want) in REQUIRED_COLUMNS.iter().enumerate() {
+            let hits: Vec<usize> = names.iter().enumerate().filter(|(_, n)| *n == want).map(|(i, _)| i).collect();
+            match hits.as_slice() {
+                [i] => idx[k] = *i,
+                [] => return Err(err(hline, format!("header row lacks the required column `{want}`"))),
+                _ => return Err(err(hline, format!("header row names column `{want}` twice"))),
+            }
+        }
+        let rep_idx = names.iter().position(|n| *n == "rep");
+        let dir_idx = names.iter().position(|n| *n == "dir");
+
+        let mut samples = Vec::new();
+        let mut last_t = f64::NEG_INFINITY;
+        for (n, line) in lines {
+            if line.trim().is_empty() {
+                continue;
+            }
+            if line.starts_with('#') {
+                return Err(err(n, "metadata line after the header row"));
+            }
+            let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+            if fields.len() != names.len() {
+                return Err(err(
+                    n,
+                    format!(
+                        "expected {} fields as in the header, found {} (truncated or malformed row)",
+                        names.len(),
+                        fields.len()
+                    ),
+                ));
+            }
+            let col_err = |i: usize, msg: String| RecordingError {
+                line: n,
+                column: Some((i + 1, names[i].to_string())),
+                message: msg,
+            };
+            let num = |k: usize| -> Result<f64, RecordingError> {
+                let i = idx[k];
+                let s = fields[i];
+                let x: f64 = s.parse().map_err(|_| col_err(i, format!("`{s}` is not a number")))?;
+                if !x.is_finite() {
+                    return Err(col_err(i, format!("`{s}` is not a finite number")));
+                }
+                Ok(x)
+            };
+            let t_s = num(0)?;
+            let phase = match fields[idx[1]] {
+                "normal" => Phase::Normal,
+                "torsion" => Phase::Torsion,
+                other => {
+                    return Err(col_err(idx[1], format!("unknown phase `{other}` (expected `normal` or `torsion`)")));
+                }
+            };
+            let stage_mm = num(2)?;
+            let rot_deg = num(3)?;
+            let gamma1_mm = num(4)?;
+            let theta1_deg = num(5)?;
+            if t_s < last_t {
+                return Err(col_err(
+                    idx[0],
+                    format!("time {t_s} s goes backwards (previous row {last_t} s); rows must be in time order"),
+                ));
+            }
+            last_t = t_s;
+            let rep = match rep_idx {
+                Some(i) if !fields[i].is_empty() => Some(
+                    fields[i]
+                        .parse::<u32>()
+                        .map_err(|_| col_err(i, format!("`{}` is not a repeat index", fields[i])))?,
+                ),
+                _ => None,
+            };
+            let dir = match dir_idx {
+                Some(i) => match fields[i] {
+                    "" => None,
+                    "load" => Some(Direction::Load),
+                    "unload" => Some(Direction::Unload),
+                    other => {
+                        return Err(col_err(i, format!("unknown direction `{other}` (expected `load` or `unload`)")));
+                    }
+                },
+                None => None,
+            };
+            samples.push(Sample { t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg, rep, dir });
+        }
+        if samples.is_empty() {
+            return Err(err(hline, "the recording has a header but no samples"));
+        }
+        Ok(Recording {
+            meta: Metadata { sensor, indenter: Body::new(e2, nu2, r2), elastomer_r_mm: r1, created, extra },
+            samples,
+        })
+    }
+
+    /// The whole recording as text, exactly as `RecordingWriter` writes it.
+    pub fn to_csv_string(&self) -> String {
+        let mut buf = Vec::new();
+        // Writing to a Vec cannot fail.
+        if let Ok(mut w) = RecordingWriter::new(&mut buf, &self.meta) {
+            for s in &self.samples {
+                let _ = w.append(s);
+            }
+        }
+        String::from_utf8_lossy(&buf).into_owned()
+    }
+
+    pub fn write_path(&self, path: &Path) -> io::Result<()> {
+        std::fs::write(path, self.to_csv_string())
+    }
+
+    pub fn phase(&self, phase: Phase) -> impl Iterator<Item = &Sample> {
+        self.samples.iter().filter(move |s| s.phase == phase)
+    }
+}
+
+fn fmt_radius(r: f64) -> String {
+    if r.is_infinite() { "inf".to_string() } else { format!("{r}") }
+}
+
+/// Appends samples to a recording as they are taken, flushing each row.
+pub struct RecordingWriter<W: Write> {
+    out: W,
+}
+
+impl<W: Write> RecordingWriter<W> {
+    /// Writes the metadata block and the header row.
+    pub fn new(mut out: W, meta: &Metadata) -> io::Result<Self> {
+        writeln!(out, "# easycalib-recording: {FORMAT_VERSION}")?;
+        if let Some(s) = &meta.sensor {
+            writeln!(out, "# sensor: {s}")?;
+        }
+        writeln!(out, "# indenter_E_MPa: {}", meta.indenter.e_mpa)?;
+        writeln!(out, "# indenter_nu: {}", meta.indenter.nu)?;
+        writeln!(out, "# indenter_R_mm: {}", fmt_radius(meta.indenter.r_mm))?;
+        writeln!(out, "# elastomer_R_mm: {}", fmt_radius(meta.elastomer_r_mm))?;
+        if let Some(c) = &meta.created {
+            writeln!(out, "# created: {c}")?;
+        }
+        for (k, v) in &meta.extra {
+            writeln!(out, "# {k}: {v}")?;
+        }
+        writeln!(out, "t_s,phase,stage_mm,rot_deg,gamma1_mm,theta1_deg,rep,dir")?;
+        out.flush()?;
+        Ok(Self { out })
+    }
+
+    /// Appends one row and flushes it. Non-finite values are refused, not written.
+    pub fn append(&mut self, s: &Sample) -> io::Result<()> {
+        for (name, v) in [
+            ("t_s", s.t_s),
+            ("stage_mm", s.stage_mm),
+            ("rot_deg", s.rot_deg),
+            ("gamma1_mm", s.gamma1_mm),
+            ("theta1_deg", s.theta1_deg),
+        ] {
+            if !v.is_finite() {
+                return Err(io::Error::new(
+                    io::ErrorKind::InvalidData,
+                    format!("refusing to record non-finite {name} = {v}"),
+                ));
+            }
+        }
+        let rep = s.rep.map(|r| r.to_string()).unwrap_or_default();
+        let dir = s.dir.map(Direction::as_str).unwrap_or("");
+        writeln!(
+            self.out,
+            "{:.3},{},{:.4},{:.3},{:.5},{:.5},{},{}",
+            s.t_s,
+            s.phase.as_str(),
+            s.stage_mm,
+            s.rot_deg,
+            s.gamma1_mm,
+            s.theta1_deg,
+            rep,
+            dir
+        )?;
+        self.out.flush()
+    }
+
+    pub fn into_inner(self) -> W {
+        self.out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = "# easycalib-recording: 1\n# sensor: tac3d-SN0042\n# indenter_E_MPa: 2.0\n# indenter_nu: 0.40\n# indenter_R_mm: 5.0\n# elastomer_R_mm: inf\n# created: 2026-11-22T09:30:00Z\n# lab_note: kept\nt_s,phase,stage_mm,rot_deg,gamma1_mm,theta1_deg\n0.00,normal,0.000,0.000,0.0000,0.0000\n0.80,normal,0.050,0.000,0.0171,0.0000\n31.20,torsion,1.450,0.500,1.0,0.1602\n";
+
+    #[test]
+    fn reads_the_documented_example() {
+        let r = Recording::parse(GOOD).unwrap();
+        assert_eq!(r.samples.len(), 3);
+        assert_eq!(r.meta.indenter, Body::new(2.0, 0.4, 5.0));
+        assert!(r.meta.elastomer_r_mm.is_infinite());
+        assert_eq!(r.meta.sensor.as_deref(), Some("tac3d-SN0042"));
+        assert_eq!(r.meta.extra, vec![("lab_note".to_string(), "kept".to_string())]);
+        assert_eq!(r.samples[2].phase, Phase::Torsion);
+        assert_eq!(r.samples[2].theta1_deg, 0.1602);
+    }
+
+    #[test]
+    fn columns_in_any_order_with_extras() {
+        let text = "# easycalib-recording: 1\n# indenter_E_MPa: 2\n# indenter_nu: 0.4\n# indenter_R_mm: 5\nphase,extra,gamma1_mm,t_s,theta1_deg,rot_deg,stage_mm,dir\nnormal,x,0.1,0,0,0,0.2,load\n";
+        let r = Recording::parse(text).unwrap();
+        assert_eq!(r.samples[0].gamma1_mm, 0.1);
+        assert_eq!(r.samples[0].stage_mm, 0.2);
+        assert_eq!(r.samples[0].dir, Some(Direction::Load));
+    }
+
+    #[test]
+    fn write_then_read_round_trips() {
+        let r = Recording::parse(GOOD).unwrap();
+        let text = r.to_csv_string();
+        let back = Recording::parse(&text).unwrap();
+        assert_eq!(back.samples, r.samples);
+        assert_eq!(back.meta, r.meta);
+    }
+
+    fn error_of(text: &str) -> RecordingError {
+        Recording::parse(text).expect_err("must be rejected")
+    }
+
+    #[test]
+    fn every_bad_input_names_line_and_column() {
+        let e = error_of(&GOOD.replace("# indenter_nu: 0.40\n", ""));
+        assert!(e.message.contains("indenter_nu"), "{e}");
+        let e = error_of(&GOOD.replace("0.80,normal,0.050", "0.80,normal,0.0x0"));
+        assert_eq!((e.line, e.column.clone()), (11, Some((3, "stage_mm".to_string()))), "{e}");
+        let e = error_of(&GOOD.replace("0.0171", "NaN"));
+        assert_eq!((e.line, e.column.clone().map(|c| c.1)), (11, Some("gamma1_mm".to_string())), "{e}");
+        let e = error_of(&GOOD.replace("0.0171", "inf"));
+        assert!(e.message.contains("finite"), "{e}");
+        let e = error_of(&GOOD.replace("31.20,torsion", "31.20,twist"));
+        assert_eq!(e.line, 12);
+        assert!(e.message.contains("unknown phase `twist`"), "{e}");
+        let e = error_of(&GOOD.replace("indenter_E_MPa: 2.0", "indenter_E_MPa: -2.0"));
+        assert_eq!(e.line, 3, "{e}");
+        let e = error_of(&GOOD.replace("indenter_nu: 0.40", "indenter_nu: 0.6"));
+        assert_eq!(e.line, 4, "{e}");
+        let e = error_of(&GOOD.replace("indenter_nu: 0.40", "indenter_nu: abc"));
+        assert_eq!(e.line, 4, "{e}");
+        let e = error_of(&GOOD.replace("indenter_R_mm: 5.0", "indenter_R_mm: 0"));
+        assert_eq!(e.line, 5, "{e}");
+        let e = error_of(&GOOD.replace("elastomer_R_mm: inf", "elastomer_R_mm: -3"));
+        assert_eq!(e.line, 6, "{e}");
+        let e = error_of(&GOOD.replace("# easycalib-recording: 1\n", ""));
+        assert!(e.message.contains("easycalib-recording"), "{e}");
+        let e = error_of(&GOOD.replace("easycalib-recording: 1", "easycalib-recording: 7"));
+        assert!(e.message.contains("version"), "{e}");
+        // Truncated mid-row: the last line lost its tail.
+        let cut = &GOOD[..GOOD.len() - 12];
+        let e = error_of(cut);
+        assert_eq!(e.line, 12, "{e}");
+        assert!(e.message.contains("truncated"), "{e}");
+        let e = error_of(&GOOD.replace(",theta1_deg\n", ",theta_deg\n"));
+        assert!(e.message.contains("theta1_deg"), "{e}");
+        let e = error_of(&GOOD.replace("31.20,torsion", "0.10,torsion"));
+        assert!(e.message.contains("backwards"), "{e}");
+        let header_only: String = GOOD.lines().take(9).map(|l| format!("{l}\n")).collect();
+        let e = error_of(&header_only);
+        assert!(e.message.contains("no samples"), "{e}");
+        let e = error_of("");
+        assert!(e.message.contains("easycalib-recording"), "{e}");
+        let e = error_of(&GOOD.replace("# sensor: tac3d-SN0042\n", "# sensor: a\n# sensor: b\n"));
+        assert!(e.message.contains("twice"), "{e}");
+    }
+
+    #[test]
+    fn writer_refuses_non_finite_and_flushes_each_row() {
+        let meta = Recording::parse(GOOD).unwrap().meta;
+        let mut w = RecordingWriter::new(Vec::new(), &meta).unwrap();
+        let s = Sample {
+            t_s: 0.0,
+            phase: Phase::Normal,
+            stage_mm: 0.1,
+            rot_deg: 0.0,
+            gamma1_mm: f64::NAN,
+            theta1_deg: 0.0,
+            rep: None,
+            dir: None,
+        };
+        assert!(w.append(&s).is_err());
+        let ok = Sample { gamma1_mm: 0.05, ..s };
+        w.append(&ok).unwrap();
+        let text = String::from_utf8(w.into_inner()).unwrap();
+        let r = Recording::parse(&text).unwrap();
+        assert_eq!(r.samples.len(), 1);
+    }
+}

@@ -1,0 +1,226 @@
+//! `easycalib fit`, `easycalib simulate` and the simulated `easycalib run`.
+
+use std::path::Path;
+
+use serde::Serialize;
+use sim::generator::{GeneratorConfig, generate};
+use sim::physics::{Body, ContactPair};
+use sim::recording::{Phase, Recording};
+
+use super::{CliError, ElastomerArgs, FitArgs, RunArgs, SimulateArgs};
+use crate::fit::{Calibration, FitOptions, FullFit, PaperFit, calibrate};
+
+/// The stable JSON document of `easycalib fit --json` (documented in docs/cli.md).
+#[derive(Debug, Clone, Serialize)]
+pub struct CalibrationOutput {
+    pub recording: Option<String>,
+    pub samples: SampleCounts,
+    /// Best estimate: the full-model fit.
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    pub ci95: Ci95Out,
+    pub paper: PaperFit,
+    pub full: FullFit,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sim_truth: Option<Truth>,
+}
+
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct SampleCounts {
+    pub normal: usize,
+    pub torsion: usize,
+}
+
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Ci95Out {
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: [f64; 2],
+    pub nu1: [f64; 2],
+}
+
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Truth {
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+}
+
+pub fn calibration_output(
+    rec: &Recording,
+    cal: &Calibration,
+    path: Option<&Path>,
+    truth: Option<Truth>,
+) -> CalibrationOutput {
+    CalibrationOutput {
+        recording: path.map(|p| p.display().to_string()),
+        samples: SampleCounts { normal: rec.phase(Phase::Normal).count(), torsion: rec.phase(Phase::Torsion).count() },
+        e1_mpa: cal.full.e1_mpa,
+        nu1: cal.full.nu1,
+        ci95: Ci95Out { e1_mpa: cal.full.ci95.e1_mpa, nu1: cal.full.ci95.nu1 },
+        paper: cal.paper.clone(),
+        full: cal.full.clone(),
+        sim_truth: truth,
+    }
+}
+
+fn pm(ci: [f64; 2]) -> f64 {
+    0.5 * (ci[1] - ci[0])
+}
+
+/// The human summary, with units.
+pub fn human_summary(out: &CalibrationOutput, meta: &sim::recording::Metadata) -> String {
+    let f = &out.full;
+    let p = &out.paper;
+    let mut s = String::new();
+    let r1 =
+        if meta.elastomer_r_mm.is_infinite() { "flat".to_string() } else { format!("R1 {} mm", meta.elastomer_r_mm) };
+    s += &format!(
+        "Recording: {} ({} normal + {} torsion samples); indenter E2 {} MPa, nu2 {}, R2 {} mm; elastomer {}\n\n",
+        out.recording.as_deref().unwrap_or("(simulated)"),
+        out.samples.normal,
+        out.samples.torsion,
+        meta.indenter.e_mpa,
+        meta.indenter.nu,
+        meta.indenter.r_mm,
+        r1
+    );
+    s += "Elastomer (full-model fit, best estimate; ± is the 95% interval)\n";
+    s += &format!(
+        "  E1  = {:.4} MPa ± {:.4} MPa  [{:.4} .. {:.4}]\n",
+        f.e1_mpa,
+        pm(f.ci95.e1_mpa),
+        f.ci95.e1_mpa[0],
+        f.ci95.e1_mpa[1]
+    );
+    s += &format!(
+        "  nu1 = {:.4}     ± {:.4}      [{:.4} .. {:.4}]\n",
+        f.nu1,
+        pm(f.ci95.nu1),
+        f.ci95.nu1[0],
+        f.ci95.nu1[1]
+    );
+    s += &format!(
+        "  contact offset z0 = {:+.1} µm ± {:.1} µm; corr(E1, nu1) = {:+.3}; torsion depth beta = {:.4}\n",
+        f.contact_offset_mm * 1e3,
+        pm(f.ci95.contact_offset_mm) * 1e3,
+        f.corr_e1_nu1,
+        f.beta
+    );
+    s += &format!(
+        "  residual RMS: normal {:.2} µm (noise floor {:.2} µm, R² {:.6}); torsion {:.4}° (noise floor {:.4}°, R² {:.6})\n",
+        f.rms.normal_um,
+        f.noise_floor.normal_um,
+        f.r2.normal,
+        f.rms.torsion_deg,
+        f.noise_floor.torsion_deg,
+        f.r2.torsion
+    );
+    if !f.converged {
+        s += "  warning: the full-model fit stopped before converging\n";
+    }
+    s += &format!(
+        "\nPaper's method (Eq. 22 over gamma1 {}-{} mm, {} samples; Eq. 38 through the origin, {} samples)\n",
+        p.window_mm[0], p.window_mm[1], p.n_normal, p.n_torsion
+    );
+    s += &format!("  H1 = {:.4} ± {:.4}   H2 = {:+.4}   R² {:.6}\n", p.h1, pm(p.h1_ci95), p.h2, p.r2_normal);
+    s += &format!(
+        "  H3 = {:.4} ± {:.4}   R² {:.6}; beta = {:.4}, c(beta) = {:.4}\n",
+        p.h3,
+        pm(p.h3_ci95),
+        p.r2_torsion,
+        p.beta,
+        p.rod_factor
+    );
+    s += &format!(
+        "  exact inversion:   E1 = {:.4} MPa ± {:.4}, nu1 = {:.4} ± {:.4}, corr {:+.3}\n",
+        p.e1_mpa,
+        pm(p.ci95.e1_mpa),
+        p.nu1,
+        pm(p.ci95.nu1),
+        p.corr_e1_nu1
+    );
+    s += &format!("  rounded constants: E1 = {:.4} MPa, nu1 = {:.4} (Eqs. 39-40)\n", p.e1_mpa_rounded, p.nu1_rounded);
+    if let Some(t) = out.sim_truth {
+        s += &format!(
+            "\nSimulation truth: E1 = {:.4} MPa, nu1 = {:.4} -> full fit error E1 {:+.2}%, nu1 {:+.2}%; paper's method E1 {:+.2}%, nu1 {:+.2}%\n",
+            t.e1_mpa,
+            t.nu1,
+            (f.e1_mpa / t.e1_mpa - 1.0) * 100.0,
+            (f.nu1 / t.nu1 - 1.0) * 100.0,
+            (p.e1_mpa / t.e1_mpa - 1.0) * 100.0,
+            (p.nu1 / t.nu1 - 1.0) * 100.0
+        );
+    }
+    s
+}
+
+fn fit_options(window: &[f64], noise_um: Option<f64>) -> Result<FitOptions, CliError> {
+    let mut opts = FitOptions::default();
+    if let [lo, hi] = window {
+        opts.paper.window_mm = [*lo, *hi];
+    }
+    if let Some(n) = noise_um {
+        if !(n.is_finite() && n > 0.0) {
+            return Err(CliError::bad_input(format!("--noise-um must be a positive number of micrometres, got {n}")));
+        }
+        opts.full.gamma1_sigma_mm = Some(n * 1e-3);
+    }
+    Ok(opts)
+}
+
+pub fn fit(args: &FitArgs) -> Result<(), CliError> {
+    let rec = Recording::read_path(&args.recording)
+        .map_err(|e| CliError::bad_input(format!("{}: {e}", args.recording.display())))?;
+    let opts = fit_options(&args.window_mm, args.noise_um)?;
+    let cal = calibrate(&rec, &opts).map_err(|e| CliError::fit_failed(format!("{}: {e}", args.recording.display())))?;
+    let out = calibration_output(&rec, &cal, Some(&args.recording), None);
+    print_output(&out, &rec, args.json)
+}
+
+fn print_output(out: &CalibrationOutput, rec: &Recording, json: bool) -> Result<(), CliError> {
+    if json {
+        let text = serde_json::to_string_pretty(out).map_err(|e| CliError::other(e.to_string()))?;
+        println!("{text}");
+    } else {
+        print!("{}", human_summary(out, &rec.meta));
+    }
+    Ok(())
+}
+
+pub fn generator_config(a: &ElastomerArgs) -> Result<GeneratorConfig, CliError> {
+    let pair = ContactPair {
+        elastomer: Body::new(a.e1_mpa, a.nu1, a.r1_mm),
+        indenter: Body::new(a.indenter_e_mpa, a.indenter_nu, a.indenter_r_mm),
+    };
+    pair.validate().map_err(|e| CliError::bad_input(e.to_string()))?;
+    Ok(GeneratorConfig { pair, seed: a.seed, ..GeneratorConfig::default() })
+}
+
+pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {
+    let cfg = generator_config(&args.elastomer)?;
+    let rec = generate(&cfg).map_err(|e| CliError::bad_input(format!("cannot simulate: {e}")))?;
+    rec.write_path(&args.output)
+        .map_err(|e| CliError::other(format!("cannot write {}: {e}", args.output.display())))?;
+    eprintln!(
+        "wrote {} ({} samples; E1 {} MPa, nu1 {}, seed {})",
+        args.output.display(),
+        rec.samples.len(),
+        cfg.pair.elastomer.e_mpa,
+        cfg.pair.elastomer.nu,
+        cfg.seed
+    );
+    Ok(())
+}
+
+pub fn run_simulated(args: &RunArgs) -> Result<(), CliError> {
+    let cfg = generator_config(&args.elastomer)?;
+    let rec = generate(&cfg).map_err(|e| CliError::bad_input(format!("cannot simulate: {e}")))?;
+    if let Some(path) = &args.output {
+        rec.write_path(path).map_err(|e| CliError::other(format!("cannot write {}: {e}", path.display())))?;
+    }
+    let cal = calibrate(&rec, &FitOptions::default()).map_err(|e| CliError::fit_failed(e.to_string()))?;
+    let truth = Truth { e1_mpa: cfg.pair.elastomer.e_mpa, nu1: cfg.pair.elastomer.nu };
+    let out = calibration_output(&rec, &cal, args.output.as_deref(), Some(truth));
+    print_output(&out, &rec, args.json)
+}

@@ -1,0 +1,128 @@
+//! Command-line interface: argument parsing and dispatch to the subcommands.
+
+mod calibrate;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+
+pub use calibrate::{CalibrationOutput, calibration_output};
+
+#[derive(Debug, Parser)]
+#[command(name = "easycalib", version, about = "Calibrate a tactile sensor's elastomer (E1, nu1) on an EasyCalib rig")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run a calibration (default: on the built-in simulated rig) and print E1 and nu1.
+    Run(RunArgs),
+    /// Fit E1 and nu1 from a recording (the paper's method and the full-model fit).
+    Fit(FitArgs),
+    /// Write a synthetic recording of a simulated elastomer.
+    Simulate(SimulateArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct FitArgs {
+    /// Recording in easycalib format v1 (CSV with `#` metadata).
+    pub recording: PathBuf,
+    /// Print the stable JSON document instead of the human summary.
+    #[arg(long)]
+    pub json: bool,
+    /// gamma1 window of the paper's Eq. 22 fit, mm (low, high).
+    #[arg(long, num_args = 2, value_names = ["LOW_MM", "HIGH_MM"], default_values_t = [0.2, 0.8])]
+    pub window_mm: Vec<f64>,
+    /// Noise of the gamma1 readings, µm (estimated from the data if not given).
+    #[arg(long)]
+    pub noise_um: Option<f64>,
+}
+
+#[derive(Debug, Clone, Args)]
+pub struct ElastomerArgs {
+    /// True Young's modulus of the simulated elastomer, MPa.
+    #[arg(long, default_value_t = 0.33)]
+    pub e1_mpa: f64,
+    /// True Poisson's ratio of the simulated elastomer.
+    #[arg(long, default_value_t = 0.39)]
+    pub nu1: f64,
+    /// Effective radius of the elastomer's dome, mm (`inf` for flat).
+    #[arg(long, default_value_t = 33.0)]
+    pub r1_mm: f64,
+    /// Young's modulus of the calibration indenter, MPa.
+    #[arg(long, default_value_t = 1.1)]
+    pub indenter_e_mpa: f64,
+    /// Poisson's ratio of the calibration indenter.
+    #[arg(long, default_value_t = 0.39)]
+    pub indenter_nu: f64,
+    /// Radius of the hemispherical indenter, mm.
+    #[arg(long, default_value_t = 5.0)]
+    pub indenter_r_mm: f64,
+    /// Seed of the simulated measurement noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+#[derive(Debug, Args)]
+pub struct SimulateArgs {
+    #[command(flatten)]
+    pub elastomer: ElastomerArgs,
+    /// Where to write the recording.
+    #[arg(short = 'o', long = "output")]
+    pub output: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub elastomer: ElastomerArgs,
+    /// Print the stable JSON document instead of the human summary.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the recording here.
+    #[arg(short = 'o', long = "output")]
+    pub output: Option<PathBuf>,
+}
+
+/// Exit code for bad input (unreadable or invalid recording, impossible parameters).
+pub const EXIT_BAD_INPUT: u8 = 2;
+/// Exit code when the data cannot be fitted.
+pub const EXIT_FIT_FAILED: u8 = 3;
+
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match &cli.command {
+        Command::Fit(a) => calibrate::fit(a),
+        Command::Simulate(a) => calibrate::simulate(a),
+        Command::Run(a) => calibrate::run_simulated(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", e.message);
+            ExitCode::from(e.code)
+        }
+    }
+}
+
+/// A failure with the exit code it maps to.
+#[derive(Debug)]
+pub struct CliError {
+    pub code: u8,
+    pub message: String,
+}
+
+impl CliError {
+    pub fn bad_input(message: impl Into<String>) -> Self {
+        Self { code: EXIT_BAD_INPUT, message: message.into() }
+    }
+    pub fn fit_failed(message: impl Into<String>) -> Self {
+        Self { code: EXIT_FIT_FAILED, message: message.into() }
+    }
+    pub fn other(message: impl Into<String>) -> Self {
+        Self { code: 1, message: message.into() }
+    }
+}

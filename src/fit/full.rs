@@ -1,0 +1,316 @@
+//! The full-model fit: E1, nu1 and the contact-point offset z0 fitted directly
+//! against the forward model (Hertz–Tatara–Yoffe normal contact, Jäger torsion
+//! with the rod correction) over every sample of both sweeps (physics.md 1.6).
+//! Unlike the paper's reduced relations it has no truncated series, no
+//! nuisance H2 and no fixed beta: the torsion depth comes from the model's own
+//! gamma2 at the torsion stage position.
+
+use nalgebra::DMatrix;
+use serde::Serialize;
+use sim::physics::{Body, ContactPair, NormalModel, torsion_at};
+use sim::recording::{Phase, Recording};
+
+use super::FitError;
+use super::lm::{self, LmOptions};
+use super::stats::{interval, noise_from_second_differences, r_squared, rms};
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FullOptions {
+    /// Noise of gamma1 readings, mm; estimated from the data when `None`.
+    pub gamma1_sigma_mm: Option<f64>,
+    /// Noise of theta1 readings, degrees; estimated from the data when `None`.
+    pub theta1_sigma_deg: Option<f64>,
+}
+
+impl Default for FullOptions {
+    fn default() -> Self {
+        Self { gamma1_sigma_mm: None, theta1_sigma_deg: None }
+    }
+}
+
+/// Parameters of the clean forward model.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ModelParams {
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    /// Stage reading at true first contact, mm (true approach = stage - z0).
+    pub contact_offset_mm: f64,
+}
+
+/// The model's reading for one sample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Prediction {
+    pub gamma1_mm: f64,
+    /// Predicted theta1 (torsion samples), degrees; 0 in the normal phase.
+    pub theta1_deg: f64,
+    /// Torsion depth gamma2 / R2 the model has at this sample.
+    pub beta: f64,
+}
+
+/// Forward-predict every sample of `rec` with the given parameters.
+pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitError> {
+    let pair =
+        ContactPair { elastomer: Body::new(p.e1_mpa, p.nu1, rec.meta.elastomer_r_mm), indenter: rec.meta.indenter };
+    let model = NormalModel::new(pair).map_err(|e| FitError::Model(e.to_string()))?;
+    let mut out = Vec::with_capacity(rec.samples.len());
+    let mut cache: Option<(f64, sim::physics::NormalState)> = None;
+    for s in &rec.samples {
+        let state = match cache {
+            Some((stage, st)) if stage == s.stage_mm => st,
+            _ => {
+                let st = model.solve(s.stage_mm - p.contact_offset_mm).map_err(|e| FitError::Model(e.to_string()))?;
+                cache = Some((s.stage_mm, st));
+                st
+            }
+        };
+        let beta = state.gamma2_mm / pair.indenter.r_mm;
+        let theta1_deg = match s.phase {
+            Phase::Normal => 0.0,
+            Phase::Torsion => torsion_at(&pair, beta, s.rot_deg.to_radians()).theta1_rad.to_degrees(),
+        };
+        out.push(Prediction { gamma1_mm: state.gamma1_mm, theta1_deg, beta });
+    }
+    Ok(out)
+}
+
+/// Residuals per group, in time order.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Residuals {
+    /// gamma1 residuals of the normal sweep (dead-band zeros excluded), mm.
+    pub normal_mm: Vec<f64>,
+    /// gamma1 residuals while the torsion sweep holds the depth, mm.
+    pub hold_mm: Vec<f64>,
+    /// theta1 residuals of the torsion sweep, degrees.
+    pub torsion_deg: Vec<f64>,
+}
+
+pub fn residuals(rec: &Recording, pred: &[Prediction]) -> Residuals {
+    let mut r = Residuals::default();
+    for (s, p) in rec.samples.iter().zip(pred) {
+        match s.phase {
+            Phase::Normal => {
+                if s.gamma1_mm != 0.0 {
+                    r.normal_mm.push(s.gamma1_mm - p.gamma1_mm);
+                }
+            }
+            Phase::Torsion => {
+                if s.gamma1_mm != 0.0 {
+                    r.hold_mm.push(s.gamma1_mm - p.gamma1_mm);
+                }
+                r.torsion_deg.push(s.theta1_deg - p.theta1_deg);
+            }
+        }
+    }
+    r
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct GroupFigures {
+    /// gamma1 over the normal sweep, µm.
+    pub normal_um: f64,
+    /// theta1 over the torsion sweep, degrees.
+    pub torsion_deg: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FullFit {
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    pub contact_offset_mm: f64,
+    #[serde(rename = "E1_MPa_se")]
+    pub e1_se: f64,
+    pub nu1_se: f64,
+    pub contact_offset_se_mm: f64,
+    pub ci95: FullCi95,
+    #[serde(rename = "corr_E1_nu1")]
+    pub corr_e1_nu1: f64,
+    /// Torsion depth the fitted model reaches at the torsion stage position.
+    pub beta: f64,
+    /// Residual RMS per sweep.
+    pub rms: GroupFigures,
+    /// Noise floor per sweep, estimated from second differences of the residuals.
+    pub noise_floor: GroupFigures,
+    /// R² of gamma1 (normal) and theta1 (torsion).
+    pub r2: R2,
+    pub iterations: usize,
+    pub converged: bool,
+    pub samples_used: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FullCi95 {
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: [f64; 2],
+    pub nu1: [f64; 2],
+    pub contact_offset_mm: [f64; 2],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct R2 {
+    pub normal: f64,
+    pub torsion: f64,
+}
+
+fn logit(p: f64) -> f64 {
+    (p / (1.0 - p)).ln()
+}
+fn logistic(x: f64) -> f64 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// Internal parametrisation keeps E1 > 0 and 0 < nu1 < 0.5 without bounds.
+fn to_internal(p: &ModelParams) -> [f64; 3] {
+    [p.e1_mpa.ln(), logit(p.nu1 / 0.5), p.contact_offset_mm]
+}
+fn from_internal(x: &[f64]) -> ModelParams {
+    ModelParams { e1_mpa: x[0].exp(), nu1: 0.5 * logistic(x[1]), contact_offset_mm: x[2] }
+}
+
+/// Weighted residual vector: gamma1 of every sample (dead band included: it pins z0),
+/// then theta1 of every torsion sample.
+fn weighted_residuals(rec: &Recording, p: &ModelParams, sg: f64, st: f64, out: &mut Vec<f64>) -> bool {
+    let Ok(pred) = predict(rec, p) else {
+        return false;
+    };
+    out.clear();
+    for (s, q) in rec.samples.iter().zip(&pred) {
+        out.push((s.gamma1_mm - q.gamma1_mm) / sg);
+    }
+    for (s, q) in rec.samples.iter().zip(&pred) {
+        if s.phase == Phase::Torsion {
+            out.push((s.theta1_deg - q.theta1_deg) / st);
+        }
+    }
+    true
+}
+
+pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result<FullFit, FitError> {
+    let n_torsion = rec.phase(Phase::Torsion).count();
+    let n_normal_live = rec.phase(Phase::Normal).filter(|s| s.gamma1_mm != 0.0).count();
+    if n_torsion < 3 {
+        return Err(FitError::TooFewSamples { what: "torsion samples".into(), found: n_torsion, need: 3 });
+    }
+    if n_normal_live < 5 {
+        return Err(FitError::TooFewSamples {
+            what: "normal samples in contact".into(),
+            found: n_normal_live,
+            need: 5,
+        });
+    }
+    let mut start = start;
+    if !(start.e1_mpa.is_finite() && start.e1_mpa > 0.0) {
+        start.e1_mpa = rec.meta.indenter.e_mpa / 3.0;
+    }
+    if !(start.nu1 > 0.01 && start.nu1 < 0.49) {
+        start.nu1 = 0.4;
+    }
+    let mut sg = opts.gamma1_sigma_mm.unwrap_or(0.002);
+    let mut st = opts.theta1_sigma_deg.unwrap_or(0.02);
+    let mut params = start;
+    let mut res = None;
+    // Pass 1 with nominal noise, pass 2 re-weighted by the noise floor the data show.
+    for pass in 0..2 {
+        let x0 = to_internal(&params);
+        let out = lm::minimize(|x, r| weighted_residuals(rec, &from_internal(x), sg, st, r), &x0, LmOptions::default())
+            .map_err(|e| FitError::Model(e.to_string()))?;
+        params = from_internal(&out.x);
+        res = Some(out);
+        if pass == 0 {
+            let pred = predict(rec, &params)?;
+            let r = residuals(rec, &pred);
+            if opts.gamma1_sigma_mm.is_none() {
+                if let Some(s) = noise_from_second_differences(&r.normal_mm) {
+                    sg = s.max(1e-6);
+                }
+            }
+            if opts.theta1_sigma_deg.is_none() {
+                if let Some(s) = noise_from_second_differences(&r.torsion_deg) {
+                    st = s.max(1e-5);
+                }
+            }
+        }
+    }
+    let out = res.ok_or_else(|| FitError::Model("no fit pass ran".into()))?;
+
+    // Covariance in physical parameters: central-difference Jacobian at the optimum.
+    let phys = [params.e1_mpa, params.nu1, params.contact_offset_mm];
+    let mut r0 = Vec::new();
+    weighted_residuals(rec, &params, sg, st, &mut r0);
+    let m = r0.len();
+    let mut jac = DMatrix::zeros(m, 3);
+    let steps = [1e-5 * params.e1_mpa, 1e-5, 1e-6];
+    for j in 0..3 {
+        let mut hi = phys;
+        let mut lo = phys;
+        hi[j] += steps[j];
+        lo[j] -= steps[j];
+        let (mut rp, mut rm) = (Vec::new(), Vec::new());
+        let mk = |v: [f64; 3]| ModelParams { e1_mpa: v[0], nu1: v[1], contact_offset_mm: v[2] };
+        if !weighted_residuals(rec, &mk(hi), sg, st, &mut rp) || !weighted_residuals(rec, &mk(lo), sg, st, &mut rm) {
+            return Err(FitError::Model("the model cannot be evaluated next to the optimum".into()));
+        }
+        for i in 0..m {
+            jac[(i, j)] = (rp[i] - rm[i]) / (2.0 * steps[j]);
+        }
+    }
+    // Dead-band rows carry no noise: count only noisy readings as observations.
+    let n_obs = n_normal_live + rec.phase(Phase::Torsion).filter(|s| s.gamma1_mm != 0.0).count() + n_torsion;
+    let dof = n_obs.saturating_sub(3).max(1);
+    let s2 = r0.iter().map(|v| v * v).sum::<f64>() / dof as f64;
+    let jtj = jac.transpose() * &jac;
+    let cov = jtj
+        .try_inverse()
+        .ok_or_else(|| FitError::Degenerate("E1, nu1 and z0 cannot be separated by these sweeps".into()))?
+        * s2;
+    let se = |i: usize| cov[(i, i)].max(0.0).sqrt();
+    let corr = cov[(0, 1)] / (se(0) * se(1));
+
+    let pred = predict(rec, &params)?;
+    let r = residuals(rec, &pred);
+    let live: Vec<(f64, f64)> = rec
+        .samples
+        .iter()
+        .zip(&pred)
+        .filter(|(s, _)| s.phase == Phase::Normal && s.gamma1_mm != 0.0)
+        .map(|(s, p)| (s.gamma1_mm, p.gamma1_mm))
+        .collect();
+    let tor: Vec<(f64, f64)> = rec
+        .samples
+        .iter()
+        .zip(&pred)
+        .filter(|(s, _)| s.phase == Phase::Torsion)
+        .map(|(s, p)| (s.theta1_deg, p.theta1_deg))
+        .collect();
+    let split = |v: &[(f64, f64)]| -> (Vec<f64>, Vec<f64>) { v.iter().copied().unzip() };
+    let (lo_n, lp_n) = split(&live);
+    let (lo_t, lp_t) = split(&tor);
+    let beta =
+        rec.samples.iter().zip(&pred).find(|(s, _)| s.phase == Phase::Torsion).map(|(_, p)| p.beta).unwrap_or(f64::NAN);
+
+    Ok(FullFit {
+        e1_mpa: params.e1_mpa,
+        nu1: params.nu1,
+        contact_offset_mm: params.contact_offset_mm,
+        e1_se: se(0),
+        nu1_se: se(1),
+        contact_offset_se_mm: se(2),
+        ci95: FullCi95 {
+            e1_mpa: interval(params.e1_mpa, se(0), dof),
+            nu1: interval(params.nu1, se(1), dof),
+            contact_offset_mm: interval(params.contact_offset_mm, se(2), dof),
+        },
+        corr_e1_nu1: corr,
+        beta,
+        rms: GroupFigures { normal_um: rms(&r.normal_mm) * 1e3, torsion_deg: rms(&r.torsion_deg) },
+        noise_floor: GroupFigures {
+            normal_um: noise_from_second_differences(&r.normal_mm).unwrap_or(f64::NAN) * 1e3,
+            torsion_deg: noise_from_second_differences(&r.torsion_deg).unwrap_or(f64::NAN),
+        },
+        r2: R2 { normal: r_squared(&lo_n, &lp_n), torsion: r_squared(&lo_t, &lp_t) },
+        iterations: out.iterations,
+        converged: out.converged,
+        samples_used: n_obs,
+    })
+}
