@@ -1,0 +1,113 @@
+//! Hand-over between a transport's background receive task and the consumer.
+//! The task decodes continuously (so the OS socket buffer never overflows while
+//! the rig is busy moving) and queues good frames; the consumer takes them with
+//! a real wall-clock timeout. A full queue drops its oldest frame: the rig
+//! wants recent deformation, not a backlog.
+
+use std::collections::VecDeque;
+use std::sync::{Mutex, MutexGuard};
+use std::time::Duration;
+
+use tokio::sync::Notify;
+
+use super::error::SensorError;
+use super::frame::SensorFrame;
+use super::stats::{BadReason, FrameTracker, LinkStats, Verdict};
+
+#[derive(Debug)]
+struct State {
+    tracker: FrameTracker,
+    queue: VecDeque<SensorFrame>,
+    capacity: usize,
+    streaming: bool,
+    closed: Option<String>,
+}
+
+#[derive(Debug)]
+pub(crate) struct Inbox {
+    state: Mutex<State>,
+    notify: Notify,
+}
+
+impl Inbox {
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            state: Mutex::new(State {
+                tracker: FrameTracker::new(),
+                queue: VecDeque::new(),
+                capacity: capacity.max(1),
+                streaming: false,
+                closed: None,
+            }),
+            notify: Notify::new(),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // A panicking consumer must not wedge the receive task.
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Account for a decoded frame and queue it if the link is streaming.
+    pub fn frame(&self, frame: SensorFrame) {
+        let mut s = self.lock();
+        if s.tracker.frame(frame.index, frame.t_s) == Verdict::Stale || !s.streaming {
+            return;
+        }
+        if s.queue.len() == s.capacity {
+            s.queue.pop_front();
+            s.tracker.bad(BadReason::Overrun);
+        }
+        s.queue.push_back(frame);
+        drop(s);
+        self.notify.notify_one();
+    }
+
+    pub fn bad(&self, reason: BadReason) {
+        self.lock().tracker.bad(reason);
+    }
+
+    pub fn close(&self, reason: String) {
+        self.lock().closed.get_or_insert(reason);
+        self.notify.notify_one();
+    }
+
+    pub fn set_streaming(&self, on: bool) {
+        let mut s = self.lock();
+        s.streaming = on;
+        // Frames queued before a start/stop belong to another phase of the run.
+        s.queue.clear();
+    }
+
+    pub fn stats(&self) -> LinkStats {
+        self.lock().tracker.stats()
+    }
+
+    pub async fn next(&self, timeout: Duration) -> Result<SensorFrame, SensorError> {
+        let deadline = tokio::time::Instant::now() + timeout;
+        loop {
+            {
+                let mut s = self.lock();
+                if !s.streaming {
+                    return Err(SensorError::NotStreaming);
+                }
+                if let Some(f) = s.queue.pop_front() {
+                    return Ok(f);
+                }
+                if let Some(reason) = &s.closed {
+                    return Err(SensorError::Closed {
+                        reason: reason.clone(),
+                    });
+                }
+            }
+            // notify_one stores a permit, so a frame queued between the check
+            // above and this wait is not missed.
+            if tokio::time::timeout_at(deadline, self.notify.notified())
+                .await
+                .is_err()
+            {
+                return Err(SensorError::Timeout { waited: timeout });
+            }
+        }
+    }
+}
