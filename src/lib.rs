@@ -2,3 +2,6 @@
 
 pub mod cli;
 pub mod fit;
+pub mod report;
+pub mod run;
+pub mod tui;

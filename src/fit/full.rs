@@ -14,7 +14,7 @@ use super::FitError;
 use super::lm::{self, LmOptions};
 use super::stats::{interval, noise_from_second_differences, r_squared, rms};
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
 pub struct FullOptions {
     /// Noise of gamma1 readings, mm; estimated from the data when `None`.
     pub gamma1_sigma_mm: Option<f64>,
@@ -22,11 +22,6 @@ pub struct FullOptions {
     pub theta1_sigma_deg: Option<f64>,
 }
 
-impl Default for FullOptions {
-    fn default() -> Self {
-        Self { gamma1_sigma_mm: None, theta1_sigma_deg: None }
-    }
-}
 
 /// Parameters of the clean forward model.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
