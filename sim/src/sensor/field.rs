@@ -76,14 +76,18 @@ impl ContactState {
         if r == 0.0 {
             return [0.0, 0.0, -w];
         }
-        // Each ring of radius r turns rigidly by psi(r) = u_phi(r) / r: exactly
-        // theta inside the stuck disc (a finite rigid rotation, which the
-        // twist sweep's several degrees need), the linear elastic field outside.
+        // The ring of radius r first contracts radially (Hertz, u_r), then
+        // turns rigidly by psi(r) = u_phi(r) / r: exactly theta inside the
+        // stuck disc (a finite rigid rotation, which the twist sweep's several
+        // degrees need), the linear elastic field outside. Contracting before
+        // turning keeps the stuck disc a rigidly rotated copy of the pressed
+        // one, so its rotation is theta whatever nu is.
         let psi = self.theta1_rad * a * twist_shape(rho) / r;
         let (s, c) = psi.sin_cos();
         let u_r = -self.gamma1_mm * radial_coefficient(self.nu1) * radial_shape(rho);
-        let (er_x, er_y) = (dx / r, dy / r);
-        [dx * (c - 1.0) - dy * s + u_r * er_x, dx * s + dy * (c - 1.0) + u_r * er_y, -w]
+        let scale = 1.0 + u_r / r;
+        let (px, py) = (dx * scale, dy * scale);
+        [c * px - s * py - dx, s * px + c * py - dy, -w]
     }
 }
 
@@ -421,7 +425,9 @@ mod tests {
         assert_eq!(d, [0.0, 0.0, -1.2]);
         // A point on +x of the centre, inside the contact: positive twist moves it +y.
         let d = s.displacement_at(1.3, -0.2);
-        assert!((d[1] - 0.01f64.sin()).abs() < 1e-15);
+        // Contracted by u_r (r = 1, rho = 0.5), then turned by theta.
+        let u_r = -1.2 * radial_coefficient(0.4) * radial_shape(0.5);
+        assert!((d[1] - 0.01f64.sin() * (1.0 + u_r)).abs() < 1e-15);
         // Radial contraction: moves toward the centre (-x).
         assert!(d[0] < 0.0);
         assert!((d[2] + 1.2 * 0.875).abs() < 1e-14);
