@@ -238,3 +238,68 @@ fn tare_removes_a_standing_offset_and_keeps_the_dead_band() {
     let zero = tare.apply(&no_contact_frame(&grid, 2, 0.0)).unwrap();
     assert!(zero.displacements.iter().all(|d| *d == [0.0; 3]));
 }
+
+/// Frames to a UDP address in the Tac3D main program's format.
+struct Tac3dUdpSink {
+    socket: tokio::net::UdpSocket,
+    to: std::net::SocketAddr,
+}
+
+impl sim::sensor::stream::FrameSink for Tac3dUdpSink {
+    async fn send(&mut self, frame: &SensorFrame) -> Result<(), sim::sensor::stream::SinkError> {
+        use devices::sensor::tac3d::{Tac3dFrame, encode_frame};
+        let tf = Tac3dFrame::from_sensor_frame(frame, "SIM-0001");
+        let datagrams = encode_frame(&tf, 8192).map_err(|e| sim::sensor::stream::SinkError::Other(e.to_string()))?;
+        for d in datagrams {
+            self.socket.send_to(&d, self.to).await?;
+        }
+        Ok(())
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn end_to_end_stage_move_reaches_gamma1_over_loopback_tac3d() {
+    use devices::sensor::SensorLink;
+    use devices::sensor::tac3d::{Tac3dReceiver, Tac3dReceiverConfig};
+    use sim::physics::NormalModel;
+    use std::time::Duration;
+
+    let fast = AxisConfig { max_velocity: 20.0, acceleration: 200.0, ..axis() };
+    let rig = Rig::new(VirtualClock::new(20.0), fast, fast);
+    let mut rx = Tac3dReceiver::bind(Tac3dReceiverConfig {
+        bind: "127.0.0.1:0".parse().unwrap(),
+        queue_capacity: 64,
+        ..Tac3dReceiverConfig::default()
+    })
+    .await
+    .unwrap();
+    rx.start().await.unwrap();
+    let socket = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    let sink = Tac3dUdpSink { socket, to: rx.local_addr().unwrap() };
+    let cfg = SensorSimConfig::default();
+    let model = NormalModel::new(cfg.pair).unwrap();
+    let stream = sim::sensor::stream::spawn_sensor_stream(rig.clone(), cfg, sink).unwrap();
+    let scfg = SensingConfig::default();
+
+    let f = rx.next_frame(Duration::from_secs(2)).await.unwrap();
+    assert!(matches!(measure(&f, &scfg), Err(SensingError::NoContact { .. })));
+
+    rig.with_stage(|ax, t| ax.command_move_to(t, 2.0));
+    while rig.with_stage(|ax, _| ax.is_moving()) {
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    let settled = rig.clock().now_s();
+    let truth = model.solve(2.0).unwrap().gamma1_mm;
+    let mut got = Vec::new();
+    while got.len() < 5 {
+        let f = rx.next_frame(Duration::from_secs(2)).await.unwrap();
+        if f.t_s > settled {
+            got.push(measure(&f, &scfg).unwrap().gamma1_mm);
+        }
+    }
+    let mean = got.iter().sum::<f64>() / got.len() as f64;
+    println!("end to end: gamma1 {mean:.4} mm vs model {truth:.4} mm");
+    assert!((mean - truth).abs() < 0.005, "{mean} vs {truth}");
+    assert_eq!(rx.sensor_serial().as_deref(), Some("SIM-0001"));
+    assert!(matches!(stream.stop().await, sim::sensor::stream::StreamEnd::Stopped { .. }));
+}

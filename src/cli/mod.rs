@@ -1,6 +1,7 @@
 //! Command-line interface: argument parsing and dispatch to the subcommands.
 
 mod calibrate;
+pub mod sensor;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -24,6 +25,8 @@ pub enum Command {
     Fit(FitArgs),
     /// Write a synthetic recording of a simulated elastomer.
     Simulate(SimulateArgs),
+    /// Tactile sensor link tools.
+    Sensor(sensor::SensorArgs),
 }
 
 #[derive(Debug, Args)]
@@ -98,6 +101,7 @@ pub fn main() -> ExitCode {
         Command::Fit(a) => calibrate::fit(a),
         Command::Simulate(a) => calibrate::simulate(a),
         Command::Run(a) => calibrate::run_simulated(a),
+        Command::Sensor(a) => sensor::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
