@@ -166,10 +166,16 @@ fn deepest_marker(frame: &SensorFrame) -> (usize, f64, f64) {
     if k < n {
         order.select_nth_unstable_by(k - 1, |&a, &b| depth(b).total_cmp(&depth(a)));
     }
+    order[..k].sort_unstable_by(|&a, &b| depth(b).total_cmp(&depth(a)));
     let mut best = (order[0], f64::NEG_INFINITY, 0.0);
     let mut near: Vec<(f64, usize)> = Vec::with_capacity(n);
     let mut around = Vec::with_capacity(5);
     for &c in &order[..k] {
+        // Deepest first: a shallower marker can only score higher with two
+        // neighbours deeper than the best score, and those came earlier.
+        if depth(c) < best.1 {
+            break;
+        }
         let pc = xy(&frame.positions[c]);
         near.clear();
         near.extend((0..n).filter(|&j| j != c).map(|j| (dist2(pc, xy(&frame.positions[j])), j)));
