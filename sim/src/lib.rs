@@ -9,3 +9,4 @@ pub mod generator;
 pub mod physics;
 pub mod recording;
 pub mod rng;
+pub mod sensor;

@@ -2,6 +2,7 @@
 
 mod calibrate;
 pub mod devices;
+pub mod sensor;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -27,6 +28,8 @@ pub enum Command {
     Simulate(SimulateArgs),
     /// List serial ports (USB ids, serial, product, udev links); `--probe` asks each what it is.
     Devices(devices::DevicesArgs),
+    /// Tactile sensor link tools.
+    Sensor(sensor::SensorArgs),
 }
 
 #[derive(Debug, Args)]
@@ -102,6 +105,7 @@ pub fn main() -> ExitCode {
         Command::Simulate(a) => calibrate::simulate(a),
         Command::Run(a) => calibrate::run_simulated(a),
         Command::Devices(a) => devices::run(a),
+        Command::Sensor(a) => sensor::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
