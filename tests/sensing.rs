@@ -301,5 +301,20 @@ async fn end_to_end_stage_move_reaches_gamma1_over_loopback_tac3d() {
     println!("end to end: gamma1 {mean:.4} mm vs model {truth:.4} mm");
     assert!((mean - truth).abs() < 0.005, "{mean} vs {truth}");
     assert_eq!(rx.sensor_serial().as_deref(), Some("SIM-0001"));
+    // A link dropout: the sensor keeps counting while nothing is sent, so the
+    // receiver reports the lost frames once the stream resumes.
+    assert_eq!(rx.stats().dropped, 0);
+    stream.set_silenced(true);
+    let before = stream.frames_generated();
+    while stream.frames_generated() < before + 5 {
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    stream.set_silenced(false);
+    let mut waited = 0;
+    while rx.stats().dropped < 4 && waited < 2000 {
+        let _ = rx.next_frame(Duration::from_millis(100)).await;
+        waited += 1;
+    }
+    assert!(rx.stats().dropped >= 4, "{:?}", rx.stats());
     assert!(matches!(stream.stop().await, sim::sensor::stream::StreamEnd::Stopped { .. }));
 }
