@@ -1,6 +1,7 @@
 //! Command-line interface: argument parsing and dispatch to the subcommands.
 
 mod calibrate;
+mod script;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -24,6 +25,18 @@ pub enum Command {
     Fit(FitArgs),
     /// Write a synthetic recording of a simulated elastomer.
     Simulate(SimulateArgs),
+    /// Print the built-in calibration script (`--default`) or check a script file.
+    Script(ScriptArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ScriptArgs {
+    /// Print the built-in default script (TOML) to stdout.
+    #[arg(long, conflicts_with = "check")]
+    pub default: bool,
+    /// Validate this script file instead.
+    #[arg(long, value_name = "SCRIPT")]
+    pub check: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -98,6 +111,7 @@ pub fn main() -> ExitCode {
         Command::Fit(a) => calibrate::fit(a),
         Command::Simulate(a) => calibrate::simulate(a),
         Command::Run(a) => calibrate::run_simulated(a),
+        Command::Script(a) => script::script(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
