@@ -22,7 +22,6 @@ pub struct FullOptions {
     pub theta1_sigma_deg: Option<f64>,
 }
 
-
 /// Parameters of the clean forward model.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ModelParams {

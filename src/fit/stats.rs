@@ -1,14 +1,28 @@
 //! Small statistics helpers shared by the fits.
 
 /// Two-sided 95 % quantile of Student's t with `dof` degrees of freedom
-/// (Cornish–Fisher expansion around the normal quantile; < 0.1 % error for dof >= 3).
+/// (tabulated up to 12 degrees of freedom, where the expansion is poor; above,
+/// the Cornish–Fisher expansion around the normal quantile, < 0.05 % error).
 pub fn t_quantile_975(dof: usize) -> f64 {
     const Z: f64 = 1.959_963_984_540_054;
-    match dof {
-        0 => f64::INFINITY,
-        1 => 12.706_204_736,
-        2 => 4.302_652_730,
-        _ => {
+    const TABLE: [f64; 13] = [
+        f64::INFINITY,
+        12.706_205,
+        4.302_653,
+        3.182_446,
+        2.776_445,
+        2.570_582,
+        2.446_912,
+        2.364_624,
+        2.306_004,
+        2.262_157,
+        2.228_139,
+        2.200_985,
+        2.178_813,
+    ];
+    match TABLE.get(dof) {
+        Some(&t) => t,
+        None => {
             let v = dof as f64;
             let z3 = Z * Z * Z;
             let z5 = z3 * Z * Z;
@@ -60,8 +74,9 @@ mod tests {
 
     #[test]
     fn t_quantiles_match_tables() {
-        for (dof, t) in [(3, 3.182446), (5, 2.570582), (10, 2.228139), (30, 2.042272), (200, 1.971896)] {
-            assert!((t_quantile_975(dof) / t - 1.0).abs() < 2e-3, "dof {dof}: {}", t_quantile_975(dof));
+        for (dof, t) in [(3, 3.182446), (5, 2.570582), (10, 2.228139), (13, 2.160369), (30, 2.042272), (200, 1.971896)]
+        {
+            assert!((t_quantile_975(dof) / t - 1.0).abs() < 5e-4, "dof {dof}: {}", t_quantile_975(dof));
         }
     }
 

@@ -209,21 +209,33 @@ pub struct RunSummary {
 #[serde(tag = "event", rename_all = "snake_case")]
 pub enum RunEvent {
     /// A script step began; `index` counts from 0, `total` is the number of steps.
-    StepStarted { index: usize, total: usize, name: String, phase: RunPhase },
+    StepStarted {
+        index: usize,
+        total: usize,
+        name: String,
+        phase: RunPhase,
+    },
     Progress(Progress),
     DeviceStatus(DeviceStatus),
     /// A settled sample, just appended (and flushed) to the recording.
     Sample(Sample),
     /// The running fit changed.
     Fit(FitUpdate),
-    Log { level: LogLevel, message: String },
+    Log {
+        level: LogLevel,
+        message: String,
+    },
     /// The run stopped at a safe point and waits for `Resume`.
     Paused,
     Resumed,
     /// The run was aborted (motion stopped, stage backed off); `reason` says why.
-    Aborted { reason: String },
+    Aborted {
+        reason: String,
+    },
     /// The run completed.
-    Finished { summary: RunSummary },
+    Finished {
+        summary: RunSummary,
+    },
 }
 
 /// What an observer may ask of a running sequencer.
@@ -406,7 +418,7 @@ mod tests {
             vec![
                 "[4/9] normal sweep (normal) started",
                 "[4/9] normal sweep  10% elapsed 11.0s eta 50.0s samples 0",
-                "[4/9] normal sweep  20% elapsed 13.0s eta 47.0s samples 0",
+                "[4/9] normal sweep  25% elapsed 13.0s eta 47.0s samples 0",
                 "[4/9] normal sweep paused",
                 "[4/9] normal sweep resumed",
                 "[4/9] normal sweep warn: sensor slow",
@@ -471,7 +483,8 @@ mod tests {
         assert_eq!(v["index"], 2);
         let v = serde_json::to_value(RunEvent::Aborted { reason: "x".into() }).unwrap();
         assert_eq!(v, serde_json::json!({"event": "aborted", "reason": "x"}));
-        let v = serde_json::to_value(RunEvent::Progress(Progress { step_fraction: 0.5, elapsed_s: 1.0, eta_s: None })).unwrap();
+        let v = serde_json::to_value(RunEvent::Progress(Progress { step_fraction: 0.5, elapsed_s: 1.0, eta_s: None }))
+            .unwrap();
         assert_eq!(v["event"], "progress");
         assert_eq!(v["step_fraction"], 0.5);
         let c: RunControl = serde_json::from_str("\"pause\"").unwrap();

@@ -26,10 +26,7 @@ pub enum SensorError {
     NoPeer { command: &'static str },
     /// The device did not confirm a command.
     #[error("sensor did not acknowledge {command} within {waited:?}")]
-    NoAck {
-        command: &'static str,
-        waited: Duration,
-    },
+    NoAck { command: &'static str, waited: Duration },
     /// The transport ended (end of stream, socket closed, receiver task gone).
     #[error("sensor link closed: {reason}")]
     Closed { reason: String },
@@ -40,9 +37,7 @@ impl DeviceFault for SensorError {
         match self {
             SensorError::Timeout { .. } | SensorError::NoAck { .. } => FaultKind::Timeout,
             SensorError::NotStreaming => FaultKind::Protocol,
-            SensorError::Io { .. } | SensorError::NoPeer { .. } | SensorError::Closed { .. } => {
-                FaultKind::Disconnected
-            }
+            SensorError::Io { .. } | SensorError::NoPeer { .. } | SensorError::Closed { .. } => FaultKind::Disconnected,
         }
     }
 }

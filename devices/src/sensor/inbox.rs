@@ -95,17 +95,12 @@ impl Inbox {
                     return Ok(f);
                 }
                 if let Some(reason) = &s.closed {
-                    return Err(SensorError::Closed {
-                        reason: reason.clone(),
-                    });
+                    return Err(SensorError::Closed { reason: reason.clone() });
                 }
             }
             // notify_one stores a permit, so a frame queued between the check
             // above and this wait is not missed.
-            if tokio::time::timeout_at(deadline, self.notify.notified())
-                .await
-                .is_err()
-            {
+            if tokio::time::timeout_at(deadline, self.notify.notified()).await.is_err() {
                 return Err(SensorError::Timeout { waited: timeout });
             }
         }

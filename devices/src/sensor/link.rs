@@ -75,11 +75,7 @@ pub fn crc32(data: &[u8]) -> u32 {
             let mut c = i as u32;
             let mut k = 0;
             while k < 8 {
-                c = if c & 1 != 0 {
-                    0xEDB8_8320 ^ (c >> 1)
-                } else {
-                    c >> 1
-                };
+                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
                 k += 1;
             }
             t[i] = c;
@@ -143,42 +139,21 @@ pub enum LinkError {
     #[error("skipped {skipped} bytes without a sync pattern at stream offset {at}")]
     Garbage { at: u64, skipped: usize },
     #[error("header checksum at offset {at}: computed {computed:#010x}, received {received:#010x}")]
-    HeaderChecksum {
-        at: u64,
-        computed: u32,
-        received: u32,
-    },
-    #[error(
-        "payload checksum at offset {at}: computed {computed:#010x}, received {received:#010x}"
-    )]
-    Checksum {
-        at: u64,
-        computed: u32,
-        received: u32,
-    },
+    HeaderChecksum { at: u64, computed: u32, received: u32 },
+    #[error("payload checksum at offset {at}: computed {computed:#010x}, received {received:#010x}")]
+    Checksum { at: u64, computed: u32, received: u32 },
     #[error("message at offset {at} has version {version}; this decoder speaks {VERSION}")]
     Version { at: u64, version: u8 },
     #[error("message at offset {at} claims {len} payload bytes, over the limit {MAX_PAYLOAD}")]
     TooLong { at: u64, len: usize },
     #[error("message at offset {at} has unknown kind {kind:#04x}")]
     UnknownKind { at: u64, kind: u8 },
-    #[error(
-        "message at offset {at}, kind {kind:#04x}: payload of {got} bytes, expected {expected}"
-    )]
-    Length {
-        at: u64,
-        kind: u8,
-        expected: usize,
-        got: usize,
-    },
+    #[error("message at offset {at}, kind {kind:#04x}: payload of {got} bytes, expected {expected}")]
+    Length { at: u64, kind: u8, expected: usize, got: usize },
     #[error("datagram of {len} bytes holds no complete message ({what})")]
     Datagram { len: usize, what: &'static str },
     #[error("frame at offset {at}: {field} of marker {marker} is not finite")]
-    NotFinite {
-        at: u64,
-        field: &'static str,
-        marker: usize,
-    },
+    NotFinite { at: u64, field: &'static str, marker: usize },
 }
 
 impl LinkError {
@@ -189,9 +164,7 @@ impl LinkError {
             LinkError::Checksum { .. } => BadReason::Checksum,
             LinkError::Version { .. } => BadReason::Version,
             LinkError::UnknownKind { .. } => BadReason::UnknownKind,
-            LinkError::TooLong { .. } | LinkError::Length { .. } | LinkError::Datagram { .. } => {
-                BadReason::Length
-            }
+            LinkError::TooLong { .. } | LinkError::Length { .. } | LinkError::Datagram { .. } => BadReason::Length,
             LinkError::NotFinite { .. } => BadReason::NotFinite,
         }
     }
@@ -206,10 +179,7 @@ impl DeviceFault for LinkError {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LinkEncodeError {
     #[error("frame has {positions} positions but {displacements} displacements")]
-    MarkerMismatch {
-        positions: usize,
-        displacements: usize,
-    },
+    MarkerMismatch { positions: usize, displacements: usize },
     #[error("frame has {0} markers; the protocol carries at most {MAX_MARKERS}")]
     TooManyMarkers(usize),
     #[error("{field} of marker {marker} is not finite as f32")]
@@ -225,11 +195,7 @@ pub fn encode_raw(kind: u8, payload: &[u8]) -> Result<Vec<u8>, LinkEncodeError> 
 }
 
 /// [`encode_raw`] with an explicit version byte (for tests of version handling).
-pub fn encode_raw_version(
-    version: u8,
-    kind: u8,
-    payload: &[u8],
-) -> Result<Vec<u8>, LinkEncodeError> {
+pub fn encode_raw_version(version: u8, kind: u8, payload: &[u8]) -> Result<Vec<u8>, LinkEncodeError> {
     if payload.len() > MAX_PAYLOAD {
         return Err(LinkEncodeError::TooLong(payload.len()));
     }
@@ -248,10 +214,7 @@ pub fn encode_raw_version(
 fn frame_payload(f: &SensorFrame) -> Result<Vec<u8>, LinkEncodeError> {
     let n = f.positions.len();
     if f.displacements.len() != n {
-        return Err(LinkEncodeError::MarkerMismatch {
-            positions: n,
-            displacements: f.displacements.len(),
-        });
+        return Err(LinkEncodeError::MarkerMismatch { positions: n, displacements: f.displacements.len() });
     }
     if n > MAX_MARKERS {
         return Err(LinkEncodeError::TooManyMarkers(n));
@@ -260,10 +223,7 @@ fn frame_payload(f: &SensorFrame) -> Result<Vec<u8>, LinkEncodeError> {
     p.extend_from_slice(&f.index.to_le_bytes());
     p.extend_from_slice(&f.t_s.to_le_bytes());
     p.extend_from_slice(&(n as u32).to_le_bytes());
-    for (field, rows) in [
-        ("position", &f.positions),
-        ("displacement", &f.displacements),
-    ] {
+    for (field, rows) in [("position", &f.positions), ("displacement", &f.displacements)] {
         for (marker, row) in rows.iter().enumerate() {
             for &x in row {
                 let x = x as f32;
@@ -302,12 +262,7 @@ fn u64_at(b: &[u8], i: usize) -> u64 {
 
 /// Parse a payload whose checksums already passed.
 fn parse_payload(at: u64, k: u8, p: &[u8]) -> Result<LinkMessage, LinkError> {
-    let len_err = |expected: usize| LinkError::Length {
-        at,
-        kind: k,
-        expected,
-        got: p.len(),
-    };
+    let len_err = |expected: usize| LinkError::Length { at, kind: k, expected, got: p.len() };
     match k {
         kind::FRAME => {
             if p.len() < FRAME_FIXED {
@@ -320,19 +275,13 @@ fn parse_payload(at: u64, k: u8, p: &[u8]) -> Result<LinkMessage, LinkError> {
                 a
             });
             let n = u32_at(p, 16) as usize;
-            let expected = n
-                .checked_mul(FRAME_PER_MARKER)
-                .and_then(|x| x.checked_add(FRAME_FIXED))
-                .unwrap_or(usize::MAX);
+            let expected =
+                n.checked_mul(FRAME_PER_MARKER).and_then(|x| x.checked_add(FRAME_FIXED)).unwrap_or(usize::MAX);
             if p.len() != expected {
                 return Err(len_err(expected));
             }
             if !t_s.is_finite() {
-                return Err(LinkError::NotFinite {
-                    at,
-                    field: "timestamp",
-                    marker: 0,
-                });
+                return Err(LinkError::NotFinite { at, field: "timestamp", marker: 0 });
             }
             let read = |base: usize, field: &'static str| -> Result<Vec<[f64; 3]>, LinkError> {
                 (0..n)
@@ -342,39 +291,26 @@ fn parse_payload(at: u64, k: u8, p: &[u8]) -> Result<LinkMessage, LinkError> {
                         if v.iter().all(|x| x.is_finite()) {
                             Ok(v.map(f64::from))
                         } else {
-                            Err(LinkError::NotFinite {
-                                at,
-                                field,
-                                marker: m,
-                            })
+                            Err(LinkError::NotFinite { at, field, marker: m })
                         }
                     })
                     .collect()
             };
             let positions = read(FRAME_FIXED, "position")?;
             let displacements = read(FRAME_FIXED + 12 * n, "displacement")?;
-            Ok(LinkMessage::Frame(SensorFrame {
-                index,
-                t_s,
-                positions,
-                displacements,
-            }))
+            Ok(LinkMessage::Frame(SensorFrame { index, t_s, positions, displacements }))
         }
         kind::START | kind::STOP | kind::TARE => {
             if !p.is_empty() {
                 return Err(len_err(0));
             }
-            Ok(LinkMessage::Command(
-                Command::from_kind(k).ok_or(LinkError::UnknownKind { at, kind: k })?,
-            ))
+            Ok(LinkMessage::Command(Command::from_kind(k).ok_or(LinkError::UnknownKind { at, kind: k })?))
         }
         kind::ACK => {
             if p.len() != 1 {
                 return Err(len_err(1));
             }
-            Command::from_kind(p[0])
-                .map(LinkMessage::Ack)
-                .ok_or(LinkError::UnknownKind { at, kind: p[0] })
+            Command::from_kind(p[0]).map(LinkMessage::Ack).ok_or(LinkError::UnknownKind { at, kind: p[0] })
         }
         other => Err(LinkError::UnknownKind { at, kind: other }),
     }
@@ -391,17 +327,9 @@ fn parse_header(at: u64, h: &[u8]) -> Result<Header, LinkError> {
     let computed = crc32(&h[..8]);
     let received = u32_at(h, 8);
     if computed != received {
-        return Err(LinkError::HeaderChecksum {
-            at,
-            computed,
-            received,
-        });
+        return Err(LinkError::HeaderChecksum { at, computed, received });
     }
-    Ok(Header {
-        version: h[2],
-        kind: h[3],
-        len: u32_at(h, 4) as usize,
-    })
+    Ok(Header { version: h[2], kind: h[3], len: u32_at(h, 4) as usize })
 }
 
 /// Decode a datagram holding exactly one message.
@@ -411,10 +339,7 @@ pub fn decode_datagram(d: &[u8]) -> Result<LinkMessage, LinkError> {
         return Err(short("shorter than header and checksum"));
     }
     if d[..2] != SYNC {
-        return Err(LinkError::Garbage {
-            at: 0,
-            skipped: d.len(),
-        });
+        return Err(LinkError::Garbage { at: 0, skipped: d.len() });
     }
     let h = parse_header(0, &d[..HEADER_LEN])?;
     if h.len > MAX_PAYLOAD {
@@ -427,17 +352,10 @@ pub fn decode_datagram(d: &[u8]) -> Result<LinkMessage, LinkError> {
     let computed = crc32(payload);
     let received = u32_at(d, HEADER_LEN + h.len);
     if computed != received {
-        return Err(LinkError::Checksum {
-            at: 0,
-            computed,
-            received,
-        });
+        return Err(LinkError::Checksum { at: 0, computed, received });
     }
     if h.version != VERSION {
-        return Err(LinkError::Version {
-            at: 0,
-            version: h.version,
-        });
+        return Err(LinkError::Version { at: 0, version: h.version });
     }
     parse_payload(0, h.kind, payload)
 }
@@ -482,10 +400,7 @@ impl LinkDecoder {
         self.start += n;
         let end = self.base + self.start as u64;
         let loud = end.saturating_sub(self.quiet_until.max(at));
-        (loud > 0).then_some(LinkError::Garbage {
-            at: self.quiet_until.max(at),
-            skipped: loud as usize,
-        })
+        (loud > 0).then_some(LinkError::Garbage { at: self.quiet_until.max(at), skipped: loud as usize })
     }
 
     pub fn next_message(&mut self) -> Option<Result<LinkMessage, LinkError>> {
@@ -545,17 +460,10 @@ impl LinkDecoder {
                 // there: skip only the header and rescan the rest quietly.
                 self.quiet_until = at + total as u64;
                 self.start += HEADER_LEN;
-                return Some(Err(LinkError::Checksum {
-                    at,
-                    computed,
-                    received,
-                }));
+                return Some(Err(LinkError::Checksum { at, computed, received }));
             }
             let result = if h.version != VERSION {
-                Err(LinkError::Version {
-                    at,
-                    version: h.version,
-                })
+                Err(LinkError::Version { at, version: h.version })
             } else {
                 parse_payload(at, h.kind, payload)
             };
@@ -578,11 +486,7 @@ pub struct LinkConfig {
 
 impl Default for LinkConfig {
     fn default() -> Self {
-        Self {
-            queue_capacity: 8,
-            ack_timeout: Duration::from_millis(500),
-            attempts: 3,
-        }
+        Self { queue_capacity: 8, ack_timeout: Duration::from_millis(500), attempts: 3 }
     }
 }
 
@@ -632,11 +536,7 @@ fn dispatch(msg: Result<LinkMessage, LinkError>, inbox: &Inbox, acks: &mpsc::Sen
     }
 }
 
-async fn stream_loop<R: AsyncRead + Unpin>(
-    mut rd: R,
-    inbox: Arc<Inbox>,
-    acks: mpsc::Sender<Command>,
-) {
+async fn stream_loop<R: AsyncRead + Unpin>(mut rd: R, inbox: Arc<Inbox>, acks: mpsc::Sender<Command>) {
     let mut dec = LinkDecoder::new();
     let mut buf = vec![0u8; 16384];
     loop {
@@ -658,12 +558,7 @@ async fn stream_loop<R: AsyncRead + Unpin>(
     }
 }
 
-async fn udp_loop(
-    socket: Arc<UdpSocket>,
-    device: SocketAddr,
-    inbox: Arc<Inbox>,
-    acks: mpsc::Sender<Command>,
-) {
+async fn udp_loop(socket: Arc<UdpSocket>, device: SocketAddr, inbox: Arc<Inbox>, acks: mpsc::Sender<Command>) {
     let mut buf = vec![0u8; 65536];
     loop {
         match socket.recv_from(&mut buf).await {
@@ -689,13 +584,7 @@ impl LinkReceiver {
         let inbox = Arc::new(Inbox::new(cfg.queue_capacity));
         let (tx, acks) = mpsc::channel(16);
         let task = tokio::spawn(stream_loop(rd, inbox.clone(), tx));
-        Self {
-            writer: Writer::Stream(Box::new(wr)),
-            inbox,
-            acks,
-            cfg,
-            task,
-        }
+        Self { writer: Writer::Stream(Box::new(wr)), inbox, acks, cfg, task }
     }
 
     /// Open a serial device (or a pty's slave path) at `baud`.
@@ -703,51 +592,30 @@ impl LinkReceiver {
         use tokio_serial::SerialPortBuilderExt;
         let port = tokio_serial::new(path, baud)
             .open_native_async()
-            .map_err(|e| SensorError::Io {
-                what: "open serial port",
-                source: e.into(),
-            })?;
+            .map_err(|e| SensorError::Io { what: "open serial port", source: e.into() })?;
         Ok(Self::new(port, cfg))
     }
 
     /// Over UDP: commands go to `device`, and only datagrams from `device`
     /// are read.
-    pub async fn udp(
-        bind: SocketAddr,
-        device: SocketAddr,
-        cfg: LinkConfig,
-    ) -> Result<Self, SensorError> {
-        let socket = Arc::new(
-            UdpSocket::bind(bind)
-                .await
-                .map_err(io_err("bind UDP socket"))?,
-        );
+    pub async fn udp(bind: SocketAddr, device: SocketAddr, cfg: LinkConfig) -> Result<Self, SensorError> {
+        let socket = Arc::new(UdpSocket::bind(bind).await.map_err(io_err("bind UDP socket"))?);
         let inbox = Arc::new(Inbox::new(cfg.queue_capacity));
         let (tx, acks) = mpsc::channel(16);
         let task = tokio::spawn(udp_loop(socket.clone(), device, inbox.clone(), tx));
-        Ok(Self {
-            writer: Writer::Udp(socket, device),
-            inbox,
-            acks,
-            cfg,
-            task,
-        })
+        Ok(Self { writer: Writer::Udp(socket, device), inbox, acks, cfg, task })
     }
 
     async fn send(&mut self, cmd: Command) -> Result<(), SensorError> {
-        let bytes = encode_raw(cmd.kind(), &[]).map_err(|e| SensorError::Io {
-            what: "encode command",
-            source: std::io::Error::other(e),
-        })?;
+        let bytes = encode_raw(cmd.kind(), &[])
+            .map_err(|e| SensorError::Io { what: "encode command", source: std::io::Error::other(e) })?;
         match &mut self.writer {
             Writer::Stream(w) => {
                 w.write_all(&bytes).await.map_err(io_err("write command"))?;
                 w.flush().await.map_err(io_err("flush command"))?;
             }
             Writer::Udp(s, to) => {
-                s.send_to(&bytes, *to)
-                    .await
-                    .map_err(io_err("send command"))?;
+                s.send_to(&bytes, *to).await.map_err(io_err("send command"))?;
             }
         }
         Ok(())
@@ -766,18 +634,13 @@ impl LinkReceiver {
                     Ok(Some(c)) if c == cmd => return Ok(()),
                     Ok(Some(_other)) => continue,
                     Ok(None) => {
-                        return Err(SensorError::Closed {
-                            reason: "receive task ended".into(),
-                        });
+                        return Err(SensorError::Closed { reason: "receive task ended".into() });
                     }
                     Err(_) => break,
                 }
             }
         }
-        Err(SensorError::NoAck {
-            command: cmd.name(),
-            waited: self.cfg.ack_timeout * attempts,
-        })
+        Err(SensorError::NoAck { command: cmd.name(), waited: self.cfg.ack_timeout * attempts })
     }
 }
 

@@ -173,21 +173,13 @@ mod tests {
     fn gaps_count_as_dropped_and_rate_comes_from_sensor_time() {
         let mut t = FrameTracker::new();
         for (i, idx) in [100u64, 101, 102, 105, 106].iter().enumerate() {
-            assert_eq!(
-                t.frame(*idx, *idx as f64 / 30.0),
-                Verdict::Accept,
-                "frame {i}"
-            );
+            assert_eq!(t.frame(*idx, *idx as f64 / 30.0), Verdict::Accept, "frame {i}");
         }
         let s = t.stats();
         assert_eq!(s.frames, 5);
         assert_eq!(s.dropped, 2);
         // 5 frames spanning indices 100..106 at 30 Hz sensor time: 4 intervals over 6/30 s.
-        assert!(
-            (s.rate_hz - 4.0 / (6.0 / 30.0)).abs() < 1e-9,
-            "{}",
-            s.rate_hz
-        );
+        assert!((s.rate_hz - 4.0 / (6.0 / 30.0)).abs() < 1e-9, "{}", s.rate_hz);
     }
 
     #[test]

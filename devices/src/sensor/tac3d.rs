@@ -52,11 +52,7 @@ pub const INITIALIZE_PROGRESS: &str = "InitializeProgress";
 #[derive(Debug, Clone, PartialEq)]
 pub enum Tac3dValue {
     /// `type: mat, dtype: f64`: `rows` x `cols`, row-major.
-    Mat {
-        rows: usize,
-        cols: usize,
-        data: Vec<f64>,
-    },
+    Mat { rows: usize, cols: usize, data: Vec<f64> },
     /// `type: f64`.
     F64(f64),
     /// `type: i32`.
@@ -120,14 +116,8 @@ impl Tac3dFrame {
             timestamp: frame.t_s,
             msg: Some(String::new()),
             items: vec![
-                Tac3dItem {
-                    name: POSITIONS.into(),
-                    value: mat(&frame.positions),
-                },
-                Tac3dItem {
-                    name: DISPLACEMENTS.into(),
-                    value: mat(&frame.displacements),
-                },
+                Tac3dItem { name: POSITIONS.into(), value: mat(&frame.positions) },
+                Tac3dItem { name: DISPLACEMENTS.into(), value: mat(&frame.displacements) },
             ],
         }
     }
@@ -139,9 +129,7 @@ impl Tac3dFrame {
     /// An `n x 3` matrix item as rows, checked finite.
     fn rows3(&self, name: &'static str) -> Result<Vec<[f64; 3]>, Tac3dError> {
         let Some(v) = self.item(name) else {
-            return Err(Tac3dError::MissingField {
-                field: name.to_string(),
-            });
+            return Err(Tac3dError::MissingField { field: name.to_string() });
         };
         let Tac3dValue::Mat { rows, cols, data } = v else {
             return Err(Tac3dError::BadField {
@@ -156,10 +144,7 @@ impl Tac3dFrame {
             });
         }
         if let Some(at) = data.iter().position(|x| !x.is_finite()) {
-            return Err(Tac3dError::NotFinite {
-                item: name.to_string(),
-                at,
-            });
+            return Err(Tac3dError::NotFinite { item: name.to_string(), at });
         }
         Ok(data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     }
@@ -168,29 +153,17 @@ impl Tac3dFrame {
     /// same `n`, finite) and a finite timestamp.
     pub fn to_sensor_frame(&self) -> Result<SensorFrame, Tac3dError> {
         if !self.timestamp.is_finite() {
-            return Err(Tac3dError::NotFinite {
-                item: "timestamp".into(),
-                at: 0,
-            });
+            return Err(Tac3dError::NotFinite { item: "timestamp".into(), at: 0 });
         }
         let positions = self.rows3(POSITIONS)?;
         let displacements = self.rows3(DISPLACEMENTS)?;
         if positions.len() != displacements.len() {
             return Err(Tac3dError::Shape {
                 item: DISPLACEMENTS.into(),
-                what: format!(
-                    "{} rows but {POSITIONS} has {}",
-                    displacements.len(),
-                    positions.len()
-                ),
+                what: format!("{} rows but {POSITIONS} has {}", displacements.len(), positions.len()),
             });
         }
-        Ok(SensorFrame {
-            index: self.index,
-            t_s: self.timestamp,
-            positions,
-            displacements,
-        })
+        Ok(SensorFrame { index: self.index, t_s: self.timestamp, positions, displacements })
     }
 }
 
@@ -201,14 +174,8 @@ pub enum Tac3dError {
     ShortDatagram { len: usize },
     #[error("frame serial {serial}: packet {index} beyond last packet {last}")]
     PacketIndex { serial: u32, index: u16, last: u16 },
-    #[error(
-        "frame serial {serial}: packet says last packet {got}, earlier packets said {expected}"
-    )]
-    PacketCount {
-        serial: u32,
-        expected: u16,
-        got: u16,
-    },
+    #[error("frame serial {serial}: packet says last packet {got}, earlier packets said {expected}")]
+    PacketCount { serial: u32, expected: u16, got: u16 },
     #[error("frame serial {serial}: {last} packets per frame exceeds the limit {limit}")]
     TooManyPackets { serial: u32, last: u16, limit: u16 },
     #[error("frame serial {serial}: packet {index} received twice")]
@@ -235,14 +202,12 @@ impl Tac3dError {
     pub fn reason(&self) -> BadReason {
         match self {
             Tac3dError::ShortDatagram { .. } => BadReason::ShortDatagram,
-            Tac3dError::PacketIndex { .. }
-            | Tac3dError::PacketCount { .. }
-            | Tac3dError::TooManyPackets { .. } => BadReason::PacketIndex,
+            Tac3dError::PacketIndex { .. } | Tac3dError::PacketCount { .. } | Tac3dError::TooManyPackets { .. } => {
+                BadReason::PacketIndex
+            }
             Tac3dError::DuplicatePacket { .. } => BadReason::DuplicatePacket,
             Tac3dError::NotAscii { .. } | Tac3dError::Yaml { .. } => BadReason::Yaml,
-            Tac3dError::MissingField { .. } | Tac3dError::BadField { .. } => {
-                BadReason::MissingField
-            }
+            Tac3dError::MissingField { .. } | Tac3dError::BadField { .. } => BadReason::MissingField,
             Tac3dError::Length { .. } | Tac3dError::Shape { .. } => BadReason::Length,
             Tac3dError::NotFinite { .. } => BadReason::NotFinite,
             Tac3dError::Initializing { .. } => BadReason::Initializing,
@@ -264,12 +229,7 @@ pub enum Tac3dEncodeError {
     #[error("frame needs {packets} packets; the header allows 65536")]
     TooManyPackets { packets: usize },
     #[error("item `{item}`: {rows} x {cols} matrix with {len} values")]
-    MatShape {
-        item: String,
-        rows: usize,
-        cols: usize,
-        len: usize,
-    },
+    MatShape { item: String, rows: usize, cols: usize, len: usize },
     #[error("timestamp {0} is not finite")]
     Timestamp(f64),
 }
@@ -278,8 +238,7 @@ pub enum Tac3dEncodeError {
 /// the same string, single-quoted otherwise.
 fn yaml_str(out: &mut String, s: &str) {
     let plain = !s.is_empty()
-        && s.bytes()
-            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
+        && s.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
         && s.as_bytes()[0].is_ascii_alphabetic()
         && !matches!(
             s.to_ascii_lowercase().as_str(),
@@ -351,10 +310,7 @@ pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncode
                         len: data.len(),
                     });
                 }
-                let _ = write!(
-                    head,
-                    "    dtype: f64\n    width: {cols}\n    height: {rows}\n"
-                );
+                let _ = write!(head, "    dtype: f64\n    width: {cols}\n    height: {rows}\n");
                 for x in data {
                     blob.extend_from_slice(&x.to_le_bytes());
                 }
@@ -363,11 +319,7 @@ pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncode
             Tac3dValue::I32(x) => blob.extend_from_slice(&x.to_le_bytes()),
             Tac3dValue::Img(b) => blob.extend_from_slice(b),
         }
-        let _ = writeln!(
-            head,
-            "    offset: {offset}\n    length: {}",
-            blob.len() - offset
-        );
+        let _ = writeln!(head, "    offset: {offset}\n    length: {}", blob.len() - offset);
     }
     Ok((head, blob))
 }
@@ -375,16 +327,10 @@ pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncode
 /// Split a frame into datagrams of at most `max_datagram` bytes (header
 /// included): packet 0 = YAML header, packets 1..N = blob chunks. The
 /// datagram serial is the frame index modulo 2^32.
-pub fn encode_frame(
-    frame: &Tac3dFrame,
-    max_datagram: usize,
-) -> Result<Vec<Vec<u8>>, Tac3dEncodeError> {
+pub fn encode_frame(frame: &Tac3dFrame, max_datagram: usize) -> Result<Vec<Vec<u8>>, Tac3dEncodeError> {
     let (head, blob) = encode_parts(frame)?;
     if max_datagram < HEADER_LEN + head.len() || max_datagram <= HEADER_LEN {
-        return Err(Tac3dEncodeError::DatagramTooSmall {
-            max_datagram,
-            needed: HEADER_LEN + head.len(),
-        });
+        return Err(Tac3dEncodeError::DatagramTooSmall { max_datagram, needed: HEADER_LEN + head.len() });
     }
     let chunk = max_datagram - HEADER_LEN;
     let chunks: Vec<&[u8]> = blob.chunks(chunk).collect();
@@ -423,9 +369,7 @@ pub struct PacketHeader {
 
 pub fn parse_packet_header(datagram: &[u8]) -> Result<PacketHeader, Tac3dError> {
     let Some(h) = datagram.get(..HEADER_LEN) else {
-        return Err(Tac3dError::ShortDatagram {
-            len: datagram.len(),
-        });
+        return Err(Tac3dError::ShortDatagram { len: datagram.len() });
     };
     Ok(PacketHeader {
         serial: u32::from_le_bytes([h[0], h[1], h[2], h[3]]),
@@ -435,15 +379,11 @@ pub fn parse_packet_header(datagram: &[u8]) -> Result<PacketHeader, Tac3dError> 
 }
 
 fn field<'a>(y: &'a Yaml, key: &str) -> Result<&'a Yaml, Tac3dError> {
-    y.get(key).ok_or_else(|| Tac3dError::MissingField {
-        field: key.to_string(),
-    })
+    y.get(key).ok_or_else(|| Tac3dError::MissingField { field: key.to_string() })
 }
 
 fn field_u64(y: &Yaml, key: &str, ctx: &str) -> Result<u64, Tac3dError> {
-    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField {
-        field: format!("{ctx}{key}"),
-    })?;
+    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField { field: format!("{ctx}{key}") })?;
     v.as_u64().ok_or_else(|| Tac3dError::BadField {
         field: format!("{ctx}{key}"),
         what: format!("is not an unsigned integer: {v:?}"),
@@ -451,13 +391,8 @@ fn field_u64(y: &Yaml, key: &str, ctx: &str) -> Result<u64, Tac3dError> {
 }
 
 fn field_str<'a>(y: &'a Yaml, key: &str, ctx: &str) -> Result<&'a str, Tac3dError> {
-    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField {
-        field: format!("{ctx}{key}"),
-    })?;
-    v.as_str().ok_or_else(|| Tac3dError::BadField {
-        field: format!("{ctx}{key}"),
-        what: "is not a scalar".into(),
-    })
+    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField { field: format!("{ctx}{key}") })?;
+    v.as_str().ok_or_else(|| Tac3dError::BadField { field: format!("{ctx}{key}"), what: "is not a scalar".into() })
 }
 
 /// Decode a frame from its header text bytes (packet 0's payload) and the
@@ -468,55 +403,34 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
     if let Some(at) = head.iter().position(|b| !b.is_ascii()) {
         return Err(Tac3dError::NotAscii { at });
     }
-    let text = std::str::from_utf8(head).map_err(|e| Tac3dError::NotAscii {
-        at: e.valid_up_to(),
-    })?;
-    let y = yaml::parse(text).map_err(|e| Tac3dError::Yaml {
-        line: e.line,
-        what: e.what,
-    })?;
+    let text = std::str::from_utf8(head).map_err(|e| Tac3dError::NotAscii { at: e.valid_up_to() })?;
+    let y = yaml::parse(text).map_err(|e| Tac3dError::Yaml { line: e.line, what: e.what })?;
     if !matches!(y, Yaml::Map(_)) {
-        return Err(Tac3dError::Yaml {
-            line: 1,
-            what: "header is not a mapping".into(),
-        });
+        return Err(Tac3dError::Yaml { line: 1, what: "header is not a mapping".into() });
     }
     let index = field_u64(&y, "index", "")?;
     let sn = field_str(&y, "SN", "")?.to_string();
     let ts = field(&y, "timestamp")?;
-    let timestamp = ts.as_f64().ok_or_else(|| Tac3dError::BadField {
-        field: "timestamp".into(),
-        what: format!("is not a number: {ts:?}"),
-    })?;
+    let timestamp = ts
+        .as_f64()
+        .ok_or_else(|| Tac3dError::BadField { field: "timestamp".into(), what: format!("is not a number: {ts:?}") })?;
     if !timestamp.is_finite() {
-        return Err(Tac3dError::NotFinite {
-            item: "timestamp".into(),
-            at: 0,
-        });
+        return Err(Tac3dError::NotFinite { item: "timestamp".into(), at: 0 });
     }
     let msg = match y.get("msg") {
         None => None,
         Some(m) => Some(
             m.as_str()
-                .ok_or_else(|| Tac3dError::BadField {
-                    field: "msg".into(),
-                    what: "is not a scalar".into(),
-                })?
+                .ok_or_else(|| Tac3dError::BadField { field: "msg".into(), what: "is not a scalar".into() })?
                 .to_string(),
         ),
     };
     let items_y = match field(&y, "data")? {
         Yaml::Seq(v) => v.as_slice(),
         // `data:` with nothing under it: a frame without items.
-        Yaml::Scalar {
-            text,
-            quoted: false,
-        } if text.is_empty() => &[],
+        Yaml::Scalar { text, quoted: false } if text.is_empty() => &[],
         other => {
-            return Err(Tac3dError::BadField {
-                field: "data".into(),
-                what: format!("is not a list: {other:?}"),
-            });
+            return Err(Tac3dError::BadField { field: "data".into(), what: format!("is not a list: {other:?}") });
         }
     };
     let mut items = Vec::with_capacity(items_y.len());
@@ -534,16 +448,11 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
         }
         let offset = field_u64(it, "offset", &ctx)?;
         let length = field_u64(it, "length", &ctx)?;
-        let end = offset
-            .checked_add(length)
-            .filter(|e| *e <= blob.len() as u64);
+        let end = offset.checked_add(length).filter(|e| *e <= blob.len() as u64);
         let Some(end) = end else {
             return Err(Tac3dError::Length {
                 item: name,
-                what: format!(
-                    "offset {offset} + length {length} runs past the {} B blob",
-                    blob.len()
-                ),
+                what: format!("offset {offset} + length {length} runs past the {} B blob", blob.len()),
             });
         };
         let bytes = &blob[offset as usize..end as usize];
@@ -555,20 +464,14 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
                 if want != Some(length) {
                     return Err(Tac3dError::Length {
                         item: name,
-                        what: format!(
-                            "{rows} x {cols} f64 matrix needs {want:?} B, length says {length}"
-                        ),
+                        what: format!("{rows} x {cols} f64 matrix needs {want:?} B, length says {length}"),
                     });
                 }
                 let data = bytes
                     .chunks_exact(8)
                     .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
                     .collect();
-                Tac3dValue::Mat {
-                    rows: rows as usize,
-                    cols: cols as usize,
-                    data,
-                }
+                Tac3dValue::Mat { rows: rows as usize, cols: cols as usize, data }
             }
             "f64" => match <[u8; 8]>::try_from(bytes) {
                 Ok(b) => Tac3dValue::F64(f64::from_le_bytes(b)),
@@ -602,13 +505,7 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
         }
         items.push(Tac3dItem { name, value });
     }
-    Ok(Tac3dFrame {
-        index,
-        sn,
-        timestamp,
-        msg,
-        items,
-    })
+    Ok(Tac3dFrame { index, sn, timestamp, msg, items })
 }
 
 #[derive(Debug)]
@@ -652,34 +549,17 @@ impl Tac3dReassembler {
     /// Take one datagram. `Ok(Some(frame))` when it completed a frame.
     /// Errors name the bad datagram or frame; the frame they belong to (if any)
     /// is dropped. Call [`Self::expire`] regularly to drop stale partials.
-    pub fn push(
-        &mut self,
-        datagram: &[u8],
-        now: Instant,
-    ) -> Result<Option<Tac3dFrame>, Tac3dError> {
+    pub fn push(&mut self, datagram: &[u8], now: Instant) -> Result<Option<Tac3dFrame>, Tac3dError> {
         let h = parse_packet_header(datagram)?;
         if h.last >= self.max_packets {
-            return Err(Tac3dError::TooManyPackets {
-                serial: h.serial,
-                last: h.last,
-                limit: self.max_packets,
-            });
+            return Err(Tac3dError::TooManyPackets { serial: h.serial, last: h.last, limit: self.max_packets });
         }
         if h.this > h.last {
-            return Err(Tac3dError::PacketIndex {
-                serial: h.serial,
-                index: h.this,
-                last: h.last,
-            });
+            return Err(Tac3dError::PacketIndex { serial: h.serial, index: h.this, last: h.last });
         }
         if !self.partial.contains_key(&h.serial) && self.partial.len() >= self.max_pending {
             // Make room by dropping the stalest partial; expire() would drop it soon anyway.
-            if let Some(oldest) = self
-                .partial
-                .iter()
-                .min_by_key(|(_, p)| p.touched)
-                .map(|(k, _)| *k)
-            {
+            if let Some(oldest) = self.partial.iter().min_by_key(|(_, p)| p.touched).map(|(k, _)| *k) {
                 self.partial.remove(&oldest);
             }
         }
@@ -692,18 +572,11 @@ impl Tac3dReassembler {
         if p.last != h.last {
             let expected = p.last;
             self.partial.remove(&h.serial);
-            return Err(Tac3dError::PacketCount {
-                serial: h.serial,
-                expected,
-                got: h.last,
-            });
+            return Err(Tac3dError::PacketCount { serial: h.serial, expected, got: h.last });
         }
         let slot = &mut p.parts[usize::from(h.this)];
         if slot.is_some() {
-            return Err(Tac3dError::DuplicatePacket {
-                serial: h.serial,
-                index: h.this,
-            });
+            return Err(Tac3dError::DuplicatePacket { serial: h.serial, index: h.this });
         }
         *slot = Some(datagram[HEADER_LEN..].to_vec());
         p.got += 1;
@@ -725,8 +598,7 @@ impl Tac3dReassembler {
     pub fn expire(&mut self, now: Instant) -> usize {
         let before = self.partial.len();
         let timeout = self.timeout;
-        self.partial
-            .retain(|_, p| now.saturating_duration_since(p.touched) <= timeout);
+        self.partial.retain(|_, p| now.saturating_duration_since(p.touched) <= timeout);
         before - self.partial.len()
     }
 }
@@ -782,25 +654,11 @@ impl Drop for Tac3dReceiver {
 impl Tac3dReceiver {
     /// Bind the socket and start decoding in the background.
     pub async fn bind(cfg: Tac3dReceiverConfig) -> Result<Self, SensorError> {
-        let socket = Arc::new(
-            UdpSocket::bind(cfg.bind)
-                .await
-                .map_err(io_err("bind UDP socket"))?,
-        );
+        let socket = Arc::new(UdpSocket::bind(cfg.bind).await.map_err(io_err("bind UDP socket"))?);
         let inbox = Arc::new(Inbox::new(cfg.queue_capacity));
         let peer = Arc::new(Mutex::new(Peer::default()));
-        let task = tokio::spawn(receive_loop(
-            socket.clone(),
-            inbox.clone(),
-            peer.clone(),
-            cfg,
-        ));
-        Ok(Self {
-            socket,
-            inbox,
-            peer,
-            task,
-        })
+        let task = tokio::spawn(receive_loop(socket.clone(), inbox.clone(), peer.clone(), cfg));
+        Ok(Self { socket, inbox, peer, task })
     }
 
     pub fn local_addr(&self) -> Result<SocketAddr, SensorError> {
@@ -809,38 +667,22 @@ impl Tac3dReceiver {
 
     /// Serial number of the sensor whose frame arrived last.
     pub fn sensor_serial(&self) -> Option<String> {
-        self.peer
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .sn
-            .clone()
+        self.peer.lock().unwrap_or_else(|p| p.into_inner()).sn.clone()
     }
 
     fn peer_addr(&self, command: &'static str) -> Result<SocketAddr, SensorError> {
-        self.peer
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .addr
-            .ok_or(SensorError::NoPeer { command })
+        self.peer.lock().unwrap_or_else(|p| p.into_inner()).addr.ok_or(SensorError::NoPeer { command })
     }
 
     /// Send `$Q`: the main program stops the sensor (it needs a restart there).
     pub async fn quit_sensor(&mut self) -> Result<(), SensorError> {
         let to = self.peer_addr("$Q")?;
-        self.socket
-            .send_to(CMD_QUIT, to)
-            .await
-            .map_err(io_err("send $Q"))?;
+        self.socket.send_to(CMD_QUIT, to).await.map_err(io_err("send $Q"))?;
         Ok(())
     }
 }
 
-async fn receive_loop(
-    socket: Arc<UdpSocket>,
-    inbox: Arc<Inbox>,
-    peer: Arc<Mutex<Peer>>,
-    cfg: Tac3dReceiverConfig,
-) {
+async fn receive_loop(socket: Arc<UdpSocket>, inbox: Arc<Inbox>, peer: Arc<Mutex<Peer>>, cfg: Tac3dReceiverConfig) {
     let mut re = Tac3dReassembler::new(cfg.reassembly_timeout);
     // Largest UDP payload: any datagram fits, so none is silently truncated.
     let mut buf = vec![0u8; 65536];
@@ -911,10 +753,7 @@ impl SensorLink for Tac3dReceiver {
     /// re-zero read zero displacement while the sensor stays untouched.
     async fn tare(&mut self) -> Result<(), SensorError> {
         let to = self.peer_addr("$C")?;
-        self.socket
-            .send_to(CMD_CALIBRATE, to)
-            .await
-            .map_err(io_err("send $C"))?;
+        self.socket.send_to(CMD_CALIBRATE, to).await.map_err(io_err("send $C"))?;
         Ok(())
     }
 

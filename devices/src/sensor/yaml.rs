@@ -32,10 +32,7 @@ impl fmt::Display for YamlError {
 }
 
 fn err<T>(line: usize, what: impl Into<String>) -> Result<T, YamlError> {
-    Err(YamlError {
-        line,
-        what: what.into(),
-    })
+    Err(YamlError { line, what: what.into() })
 }
 
 impl Yaml {
@@ -57,10 +54,7 @@ impl Yaml {
     /// A plain scalar read as an unsigned integer (decimal).
     pub fn as_u64(&self) -> Option<u64> {
         match self {
-            Yaml::Scalar {
-                text,
-                quoted: false,
-            } => text.strip_prefix('+').unwrap_or(text).parse().ok(),
+            Yaml::Scalar { text, quoted: false } => text.strip_prefix('+').unwrap_or(text).parse().ok(),
             _ => None,
         }
     }
@@ -69,16 +63,12 @@ impl Yaml {
     /// `.nan` and `.inf`, which the caller then rejects as not finite).
     pub fn as_f64(&self) -> Option<f64> {
         match self {
-            Yaml::Scalar {
-                text,
-                quoted: false,
-            } => match text.as_str() {
+            Yaml::Scalar { text, quoted: false } => match text.as_str() {
                 ".nan" | ".NaN" | ".NAN" => Some(f64::NAN),
                 ".inf" | ".Inf" | ".INF" | "+.inf" | "+.Inf" | "+.INF" => Some(f64::INFINITY),
                 "-.inf" | "-.Inf" | "-.INF" => Some(f64::NEG_INFINITY),
-                t if t.bytes().all(|b| {
-                    b.is_ascii_digit() || matches!(b, b'.' | b'-' | b'+' | b'e' | b'E')
-                }) && t.bytes().any(|b| b.is_ascii_digit()) =>
+                t if t.bytes().all(|b| b.is_ascii_digit() || matches!(b, b'.' | b'-' | b'+' | b'e' | b'E'))
+                    && t.bytes().any(|b| b.is_ascii_digit()) =>
                 {
                     t.parse().ok()
                 }
@@ -140,11 +130,7 @@ fn lines(text: &str) -> Result<Vec<Line<'_>>, YamlError> {
         if indent == 0 && (body == "---" || body == "..." || body.starts_with("%YAML")) {
             continue;
         }
-        out.push(Line {
-            no,
-            indent,
-            text: body,
-        });
+        out.push(Line { no, indent, text: body });
     }
     Ok(out)
 }
@@ -201,20 +187,13 @@ fn sequence(ls: &mut [Line<'_>], pos: &mut usize, indent: usize) -> Result<Yaml,
                     let ni = n.indent;
                     items.push(block(ls, pos, ni)?);
                 }
-                _ => items.push(Yaml::Scalar {
-                    text: String::new(),
-                    quoted: false,
-                }),
+                _ => items.push(Yaml::Scalar { text: String::new(), quoted: false }),
             }
             continue;
         }
         // `- key: value` opens a mapping whose keys line up with `key`.
         let col = indent + (l.text.len() - rest.len());
-        ls[*pos] = Line {
-            no: l.no,
-            indent: col,
-            text: rest,
-        };
+        ls[*pos] = Line { no: l.no, indent: col, text: rest };
         items.push(block(ls, pos, col)?);
     }
     Ok(Yaml::Seq(items))
@@ -253,10 +232,7 @@ fn mapping(ls: &mut [Line<'_>], pos: &mut usize, indent: usize) -> Result<Yaml, 
                 }
                 // YAML lets a sequence under a key sit at the key's own indentation.
                 Some(n) if n.indent == indent && is_seq_item(n.text) => sequence(ls, pos, indent)?,
-                _ => Yaml::Scalar {
-                    text: String::new(),
-                    quoted: false,
-                },
+                _ => Yaml::Scalar { text: String::new(), quoted: false },
             }
         };
         entries.push((key, val));
@@ -300,19 +276,11 @@ fn split_key(s: &str) -> Option<(&str, &str)> {
 fn value(s: &str, no: usize) -> Result<Yaml, YamlError> {
     let s = s.trim();
     if s.starts_with('{') || s.starts_with('[') {
-        let mut p = Flow {
-            b: s.as_bytes(),
-            s,
-            i: 0,
-            no,
-        };
+        let mut p = Flow { b: s.as_bytes(), s, i: 0, no };
         let v = p.node()?;
         p.ws();
         if p.i != p.b.len() {
-            return err(
-                no,
-                format!("text after flow collection at column {}", p.i + 1),
-            );
+            return err(no, format!("text after flow collection at column {}", p.i + 1));
         }
         return Ok(v);
     }
@@ -326,10 +294,7 @@ fn value(s: &str, no: usize) -> Result<Yaml, YamlError> {
     if s.starts_with(['|', '>', '&', '*', '!', '%', '@', '`']) {
         return err(no, format!("unsupported YAML construct `{s}`"));
     }
-    Ok(Yaml::Scalar {
-        text: s.to_string(),
-        quoted: false,
-    })
+    Ok(Yaml::Scalar { text: s.to_string(), quoted: false })
 }
 
 /// Read a quoted scalar at the start of `s`; returns the text and the bytes used.
@@ -353,10 +318,7 @@ fn quoted(s: &str, no: usize) -> Result<(String, usize), YamlError> {
             let Some((_, e)) = chars.next() else { break };
             let hex = |n: usize, chars: &mut dyn Iterator<Item = (usize, char)>| {
                 let h: String = chars.take(n).map(|(_, c)| c).collect();
-                u32::from_str_radix(&h, 16)
-                    .ok()
-                    .filter(|_| h.len() == n)
-                    .and_then(char::from_u32)
+                u32::from_str_radix(&h, 16).ok().filter(|_| h.len() == n).and_then(char::from_u32)
             };
             let ch = match e {
                 'n' => Some('\n'),
@@ -448,14 +410,7 @@ impl Flow<'_> {
                 Ok(())
             }
             Some(c) if *c == close => Ok(()),
-            _ => err(
-                self.no,
-                format!(
-                    "expected `,` or `{}` at column {}",
-                    close as char,
-                    self.i + 1
-                ),
-            ),
+            _ => err(self.no, format!("expected `,` or `{}` at column {}", close as char, self.i + 1)),
         }
     }
 
@@ -479,10 +434,7 @@ impl Flow<'_> {
         if text.starts_with(['{', '[', '&', '*', '!', '|', '>']) {
             return err(self.no, format!("unsupported flow scalar `{text}`"));
         }
-        Ok(Yaml::Scalar {
-            text: text.to_string(),
-            quoted: false,
-        })
+        Ok(Yaml::Scalar { text: text.to_string(), quoted: false })
     }
 }
 
@@ -491,10 +443,7 @@ mod tests {
     use super::*;
 
     fn s(t: &str) -> Yaml {
-        Yaml::Scalar {
-            text: t.into(),
-            quoted: false,
-        }
+        Yaml::Scalar { text: t.into(), quoted: false }
     }
 
     #[test]
@@ -505,9 +454,7 @@ mod tests {
         assert_eq!(y.get("SN").and_then(Yaml::as_str), Some("AD2-0065L"));
         assert_eq!(y.get("timestamp").and_then(Yaml::as_f64), Some(1.5));
         assert_eq!(y.get("msg").and_then(Yaml::as_str), Some(""));
-        let Some(Yaml::Seq(items)) = y.get("data") else {
-            panic!("data not a sequence: {y:?}")
-        };
+        let Some(Yaml::Seq(items)) = y.get("data") else { panic!("data not a sequence: {y:?}") };
         assert_eq!(items.len(), 2);
         assert_eq!(items[0].get("width"), Some(&s("3")));
         assert_eq!(items[1].get("type"), Some(&s("f64")));
@@ -519,15 +466,9 @@ mod tests {
         let b = parse("data: [{name: a, width: 3}, {name: 'b', width: 4}]").unwrap();
         let names = |y: &Yaml| -> Vec<String> {
             match y.get("data") {
-                Some(Yaml::Seq(v)) => v
-                    .iter()
-                    .map(|i| {
-                        i.get("name")
-                            .and_then(Yaml::as_str)
-                            .unwrap_or("?")
-                            .to_string()
-                    })
-                    .collect(),
+                Some(Yaml::Seq(v)) => {
+                    v.iter().map(|i| i.get("name").and_then(Yaml::as_str).unwrap_or("?").to_string()).collect()
+                }
                 _ => vec![],
             }
         };

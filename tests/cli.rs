@@ -1,0 +1,113 @@
+//! The `easycalib` binary as a user meets it: simulate a recording, fit it,
+//! read the stable JSON, and get a clear error and exit code 2 on bad input.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn easycalib(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_easycalib")).args(args).output().expect("easycalib binary runs")
+}
+
+fn simulate(dir: &Path, extra: &[&str]) -> std::path::PathBuf {
+    let path = dir.join("rec.csv");
+    let mut args = vec!["simulate", "-o", path.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    let out = easycalib(&args);
+    assert!(out.status.success(), "simulate failed: {}", String::from_utf8_lossy(&out.stderr));
+    path
+}
+
+fn fit_json(path: &Path) -> serde_json::Value {
+    let out = easycalib(&["fit", path.to_str().unwrap(), "--json"]);
+    assert!(out.status.success(), "fit failed: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("fit --json prints one JSON document")
+}
+
+#[test]
+fn simulate_then_fit_recovers_the_elastomer_through_the_documented_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = simulate(dir.path(), &["--e1-mpa", "0.25", "--nu1", "0.45", "--seed", "11"]);
+    let v = fit_json(&rec);
+
+    let e1 = v["E1_MPa"].as_f64().unwrap();
+    let nu1 = v["nu1"].as_f64().unwrap();
+    assert!((e1 / 0.25 - 1.0).abs() < 0.01, "E1 {e1}");
+    assert!((nu1 / 0.45 - 1.0).abs() < 0.02, "nu1 {nu1}");
+    for key in ["E1_MPa", "nu1"] {
+        let ci = v["ci95"][key].as_array().unwrap();
+        let (lo, hi) = (ci[0].as_f64().unwrap(), ci[1].as_f64().unwrap());
+        let best = v[key].as_f64().unwrap();
+        assert!(lo < best && best < hi, "{key} interval [{lo}, {hi}] misses {best}");
+    }
+    for key in ["H1", "H3", "E1_MPa", "nu1", "E1_MPa_rounded", "nu1_rounded"] {
+        assert!(v["paper"][key].as_f64().unwrap().is_finite(), "paper.{key}");
+    }
+    // The best estimate is the full-model fit.
+    assert_eq!(v["full"]["E1_MPa"], v["E1_MPa"]);
+    assert!(v["full"]["rms"]["normal_um"].as_f64().unwrap() > 0.0);
+    assert!(v["full"]["rms"]["torsion_deg"].as_f64().unwrap() > 0.0);
+    // Recordings written by `simulate` carry the truth; `fit` does not invent one.
+    assert!(v.get("sim_truth").is_none_or(|t| t.is_null()));
+}
+
+#[test]
+fn run_on_the_simulated_rig_reports_truth_alongside_the_fit() {
+    let out = easycalib(&["run", "--json", "--seed", "5"]);
+    assert!(out.status.success(), "run failed: {}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let truth_e1 = v["sim_truth"]["E1_MPa"].as_f64().unwrap();
+    let e1 = v["E1_MPa"].as_f64().unwrap();
+    assert!((e1 / truth_e1 - 1.0).abs() < 0.01, "E1 {e1} vs truth {truth_e1}");
+}
+
+fn expect_bad_input(path: &Path, what: &str) {
+    let out = easycalib(&["fit", path.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2), "{what}: exit code");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(what), "stderr should name `{what}`: {err}");
+}
+
+#[test]
+fn malformed_recordings_exit_2_naming_line_and_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = std::fs::read_to_string(simulate(dir.path(), &[])).unwrap();
+    let lines: Vec<&str> = good.lines().collect();
+    let header = lines.iter().position(|l| l.starts_with("t_s,")).unwrap();
+
+    // A NaN reading in the first data row.
+    let mut nan = lines.clone();
+    let row = nan[header + 1].replace("0.00000,0.00000,0,load", "nan,0.00000,0,load");
+    nan[header + 1] = &row;
+    let p = dir.path().join("nan.csv");
+    std::fs::write(&p, nan.join("\n")).unwrap();
+    expect_bad_input(&p, &format!("line {}", header + 2));
+
+    // An unknown phase.
+    let mut phase = lines.clone();
+    let row = phase[header + 1].replace("normal", "sideways");
+    phase[header + 1] = &row;
+    let p = dir.path().join("phase.csv");
+    std::fs::write(&p, phase.join("\n")).unwrap();
+    expect_bad_input(&p, "sideways");
+
+    // Missing the indenter's modulus.
+    let missing: Vec<&str> = lines.iter().copied().filter(|l| !l.starts_with("# indenter_E_MPa")).collect();
+    let p = dir.path().join("missing.csv");
+    std::fs::write(&p, missing.join("\n")).unwrap();
+    expect_bad_input(&p, "indenter_E_MPa");
+
+    // Not a recording at all, and a file that does not exist.
+    let p = dir.path().join("junk.csv");
+    std::fs::write(&p, "hello\n").unwrap();
+    expect_bad_input(&p, "line 1");
+    expect_bad_input(&dir.path().join("absent.csv"), "absent.csv");
+}
+
+#[test]
+fn impossible_parameters_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = easycalib(&["simulate", "--nu1", "0.7", "-o", dir.path().join("x.csv").to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("0.7"));
+    assert!(!dir.path().join("x.csv").exists(), "nothing is written for impossible parameters");
+}
