@@ -63,6 +63,10 @@ pub struct SafetyGuard {
     limits: SoftLimits,
     /// Mount angle the twist is measured from.
     twist_zero_deg: f64,
+    /// Stage positions where gamma1 was measured, with an upper bound on it
+    /// there, sorted by position. gamma1 only grows with the approach and by
+    /// no more than it, so each point bounds every deeper position too.
+    known: Vec<(f64, f64)>,
 }
 
 impl SafetyGuard {
@@ -80,7 +84,7 @@ impl SafetyGuard {
             mount_max_deg: if mount_travel_deg.1.is_finite() { mount_travel_deg.1 } else { f64::INFINITY },
             max_twist_deg: l.max_twist_deg,
         };
-        Self { limits, twist_zero_deg: 0.0 }
+        Self { limits, twist_zero_deg: 0.0, known: Vec::new() }
     }
 
     pub fn limits(&self) -> SoftLimits {
@@ -92,15 +96,54 @@ impl SafetyGuard {
         self.twist_zero_deg = deg;
     }
 
+    /// Remember that at stage position `mm` gamma1 is at most `gamma1_upper_mm`
+    /// (a settled reading plus its uncertainty).
+    pub fn note_gamma1(&mut self, mm: f64, gamma1_upper_mm: f64) {
+        if !(mm.is_finite() && gamma1_upper_mm.is_finite()) {
+            return;
+        }
+        let i = self.known.partition_point(|p| p.0 < mm);
+        match self.known.get_mut(i) {
+            Some(p) if p.0 == mm => p.1 = gamma1_upper_mm,
+            _ => self.known.insert(i, (mm, gamma1_upper_mm)),
+        }
+    }
+
+    /// Forget the measured points (the sensor or indenter may have been disturbed).
+    pub fn forget_gamma1(&mut self) {
+        self.known.clear();
+    }
+
     /// Whether a stage position lies inside the soft travel (used to check
     /// script positions such as the retract point once devices are known).
     pub fn stage_in_travel(&self, mm: f64) -> bool {
         mm.is_finite() && mm >= self.limits.stage_min_mm && mm <= self.limits.stage_max_mm
     }
 
-    /// May the stage go from `current_mm` (where gamma1 last read
-    /// `gamma1_mm`) to `target_mm`?
-    pub fn check_stage(&self, current_mm: f64, gamma1_mm: f64, target_mm: f64) -> Result<(), LimitViolation> {
+    /// Upper bound on gamma1 after moving from `current_mm` (where gamma1 is
+    /// at most `gamma1_bound_mm`) to `target_mm`: 0 inside the clear zone,
+    /// else the bound plus the travel past the deeper of the current position
+    /// and the clear zone's end. Unknown values count as the worst case.
+    pub fn gamma1_bound(&self, current_mm: f64, gamma1_bound_mm: f64, target_mm: f64) -> f64 {
+        let clear = self.limits.clear_until_mm;
+        if target_mm <= clear {
+            return 0.0;
+        }
+        if current_mm <= clear {
+            // Starting in the clear zone: nothing touches before its end.
+            return target_mm - clear;
+        }
+        let g = if gamma1_bound_mm.is_nan() { f64::INFINITY } else { gamma1_bound_mm.max(0.0) };
+        let from = if current_mm.is_finite() { current_mm } else { clear };
+        let from_here = g + (target_mm - from).max(0.0);
+        let n = self.known.partition_point(|p| p.0 <= target_mm);
+        let from_known = self.known[..n].iter().map(|&(p, u)| u.max(0.0) + (target_mm - p)).fold(f64::INFINITY, f64::min);
+        from_here.min(from_known)
+    }
+
+    /// May the stage go from `current_mm` (where gamma1 is at most
+    /// `gamma1_bound_mm`) to `target_mm`?
+    pub fn check_stage(&self, current_mm: f64, gamma1_bound_mm: f64, target_mm: f64) -> Result<(), LimitViolation> {
         let l = &self.limits;
         if !target_mm.is_finite() {
             return Err(LimitViolation::NotFinite { what: "stage target" });
@@ -108,14 +151,9 @@ impl SafetyGuard {
         if !self.stage_in_travel(target_mm) {
             return Err(LimitViolation::StageTravel { target_mm, min_mm: l.stage_min_mm, max_mm: l.stage_max_mm });
         }
-        if target_mm > l.clear_until_mm {
-            // Unknown current state counts as the worst case.
-            let g = if gamma1_mm.is_finite() { gamma1_mm.max(0.0) } else { f64::INFINITY };
-            let from = if current_mm.is_finite() { current_mm.max(l.clear_until_mm) } else { l.clear_until_mm };
-            let bound = if current_mm <= l.clear_until_mm { target_mm - l.clear_until_mm } else { g + (target_mm - from).max(0.0) };
-            if !(bound <= l.max_gamma1_mm) {
-                return Err(LimitViolation::Gamma1 { target_mm, bound_mm: bound, max_mm: l.max_gamma1_mm });
-            }
+        let bound = self.gamma1_bound(current_mm, gamma1_bound_mm, target_mm);
+        if !(bound <= l.max_gamma1_mm) {
+            return Err(LimitViolation::Gamma1 { target_mm, bound_mm: bound, max_mm: l.max_gamma1_mm });
         }
         Ok(())
     }
@@ -169,6 +207,23 @@ mod tests {
         assert!(g.check_stage(13.0, 3.99, 12.0).is_ok());
         assert!(g.check_stage(13.0, f64::NAN, 9.0).is_ok());
         assert!(g.check_stage(13.0, f64::NAN, 12.0).is_err(), "unknown gamma1 deeper than clear is refused");
+    }
+
+    #[test]
+    fn measured_points_bound_deeper_positions() {
+        let mut g = guard();
+        // From 10 mm with nothing known, 15 mm could mean 5 mm of gamma1.
+        assert!(g.check_stage(11.0, 0.5, 15.0).is_err());
+        g.note_gamma1(14.5, 3.0);
+        g.note_gamma1(14.9, 3.3);
+        g.note_gamma1(14.5, 3.05);
+        assert!((g.gamma1_bound(11.0, 0.5, 15.0) - 3.4).abs() < 1e-12);
+        assert!(g.check_stage(11.0, 0.5, 15.0).is_ok());
+        // A point deeper than the target says nothing about it.
+        assert!((g.gamma1_bound(11.0, 0.5, 14.0) - 3.5).abs() < 1e-12);
+        assert!(g.check_stage(11.0, 0.5, 15.7).is_err());
+        g.forget_gamma1();
+        assert!(g.check_stage(11.0, 0.5, 15.0).is_err());
     }
 
     #[test]

@@ -60,7 +60,7 @@ step_deg = 0.2
 [limits]
 stage_min_mm = 0.0
 stage_max_mm = 24.0
-max_gamma1_mm = 4.0
+max_gamma1_mm = 5.0
 max_twist_deg = 10.0
 retract_mm = 0.0
 
@@ -216,7 +216,7 @@ impl Default for TorsionSection {
 }
 impl Default for LimitsSection {
     fn default() -> Self {
-        Self { stage_min_mm: 0.0, stage_max_mm: 24.0, max_gamma1_mm: 4.0, max_twist_deg: 10.0, retract_mm: 0.0 }
+        Self { stage_min_mm: 0.0, stage_max_mm: 24.0, max_gamma1_mm: 5.0, max_twist_deg: 10.0, retract_mm: 0.0 }
     }
 }
 impl Default for SettleSection {

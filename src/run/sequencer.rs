@@ -179,8 +179,15 @@ pub struct Sequencer<S, R, G> {
     /// Last known (or commanded) stage position, NaN while unknown.
     stage_mm: f64,
     mount_deg: f64,
-    /// Latest gamma1 reading (NaN while unknown): the guard's bound starts here.
+    /// Latest gamma1 reading, mm (NaN while unknown).
     gamma1_mm: f64,
+    /// Upper bound on the true gamma1 at the current stage position (NaN:
+    /// unknown): grows by every inward move, tightened by readings. The
+    /// guard's gamma1 limit is checked against it.
+    g1_bound: f64,
+    /// Inward travel of the last stage move: a reading right after a move may
+    /// still lag behind the elastomer by up to this much.
+    last_inward_mm: f64,
     noise_gamma1: f64,
     noise_theta1: f64,
     t0: Option<f64>,
@@ -280,6 +287,8 @@ where
             stage_mm: f64::NAN,
             mount_deg: f64::NAN,
             gamma1_mm: f64::NAN,
+            g1_bound: f64::NAN,
+            last_inward_mm: 0.0,
             noise_gamma1: 0.0,
             noise_theta1: 0.0,
             t0: None,
@@ -472,6 +481,8 @@ where
         LinearStage::home(&mut self.stage, t).await.map_err(|e| self.stage_fault("homing", e))?;
         self.stage_homed = true;
         self.stage_mm = self.stage.position_mm().await.map_err(|e| self.stage_fault("position", e))?;
+        // Inside the declared clear zone nothing touches the sensor.
+        self.g1_bound = if self.stage_mm <= self.guard.limits().clear_until_mm { 0.0 } else { f64::NAN };
         RotationMount::home(&mut self.mount, t).await.map_err(|e| self.mount_fault("homing", e))?;
         self.mount_deg = self.mount.position_deg().await.map_err(|e| self.mount_fault("position", e))?;
         self.log(LogLevel::Info, format!("homed: stage {:.3} mm, mount {:.3} deg", self.stage_mm, self.mount_deg));
@@ -558,7 +569,7 @@ where
         loop {
             let pos = start + k as f64 * n.step_mm;
             let beta_now = path.last().map(|p| p.1).unwrap_or(0.0);
-            if let Err(v) = self.guard.check_stage(self.stage_mm, self.gamma1_mm, pos) {
+            if let Err(v) = self.guard.check_stage(self.stage_mm, self.g1_bound, pos) {
                 return Err(self.safety(
                     &format!("normal sweep {} stopped at beta {beta_now:.4} before the target {}", rep + 1, n.target_beta),
                     v,
@@ -650,11 +661,14 @@ where
     /// The only way the stage moves during a run: checkpoint, guard, move, wait.
     async fn move_stage(&mut self, target: f64, context: &str) -> Step<f64> {
         self.checkpoint().await?;
-        if let Err(v) = self.guard.check_stage(self.stage_mm, self.gamma1_mm, target) {
+        let from = self.stage_mm;
+        if let Err(v) = self.guard.check_stage(from, self.g1_bound, target) {
             return Err(self.safety(context, v));
         }
+        // From here on the stage may be anywhere up to the target.
+        self.g1_bound = self.guard.gamma1_bound(from, self.g1_bound, target);
+        self.last_inward_mm = if from.is_finite() { (target - from).max(0.0) } else { 0.0 };
         self.stage.start_move_to_mm(target).await.map_err(|e| self.stage_fault(&format!("{context}: move to {target:.4} mm"), e))?;
-        // Until the move reports its end, the stage may be anywhere up to the target.
         self.stage_mm = target;
         let timeout = self.script.move_timeout();
         let res = {
@@ -768,6 +782,7 @@ where
                     let t0 = *self.t0.get_or_insert(r.t_s);
                     self.t_last = (r.t_s - t0).max(self.t_last);
                     self.gamma1_mm = r.gamma1_mm;
+                    self.g1_bound = self.g1_bound.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
                     return Ok(r);
                 }
                 Err(GaugeError::Timeout { .. }) => {
@@ -820,6 +835,11 @@ where
                 let last = mean(&buf[buf.len() - n..]);
                 let prev = mean(&buf[buf.len() - 2 * n..buf.len() - n]);
                 if (last.gamma1_mm - prev.gamma1_mm).abs() <= tol_g && (last.theta1_deg - prev.theta1_deg).abs() <= tol_t {
+                    // Settled: the mean is within the tolerance of where the elastomer is.
+                    let upper = last.gamma1_mm + tol_g + self.reading_margin() / (n as f64).sqrt();
+                    self.g1_bound = self.g1_bound.min(upper);
+                    self.guard.note_gamma1(self.stage_mm, upper);
+                    self.last_inward_mm = 0.0;
                     return Ok(last);
                 }
                 if r.t_s - t_first >= s.timeout_s {
@@ -836,6 +856,11 @@ where
                 }
             }
         }
+    }
+
+    /// How far one reading may lie below the truth by noise alone.
+    fn reading_margin(&self) -> f64 {
+        (4.0 * self.noise_gamma1).max(self.script.approach.contact_min_mm)
     }
 
     // ---- recording and reporting -------------------------------------------
