@@ -69,7 +69,7 @@ retract_mm = 0.0
 # tol_gamma1_mm / tol_theta1_deg (each raised to 3 noise standard errors when
 # the measured noise is larger), or until timeout_s of sensor time has passed.
 [settle]
-readings = 3
+readings = 2
 tol_gamma1_mm = 0.001
 tol_theta1_deg = 0.01
 timeout_s = 5.0
@@ -221,7 +221,7 @@ impl Default for LimitsSection {
 }
 impl Default for SettleSection {
     fn default() -> Self {
-        Self { readings: 3, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0 }
+        Self { readings: 2, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0 }
     }
 }
 impl Default for TimeoutsSection {

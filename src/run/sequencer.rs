@@ -815,8 +815,12 @@ where
         }
     }
 
-    /// Read until the reading is stable: the mean of the last n readings is
-    /// within tolerance of the mean of the n before (never a fixed wait).
+    /// Read until the reading is stable, never a fixed wait. The readings
+    /// are taken in windows of n; with three consecutive window means
+    /// m1, m2, m3 the reading is settled when the last drift |m3 - m2| is
+    /// within tolerance and, if the drifts shrink geometrically in one
+    /// direction (an elastomer relaxing), the relaxation still to come,
+    /// |d2| r / (1 - r) with r = d2 / d1, is within tolerance too.
     async fn settle(&mut self) -> Step<GaugeReading> {
         let s = self.script.settle;
         let n = s.readings;
@@ -831,28 +835,32 @@ where
             let r = self.read().await?;
             let t_first = *t_start.get_or_insert(r.t_s);
             buf.push(r);
-            if buf.len() >= 2 * n {
-                let last = mean(&buf[buf.len() - n..]);
-                let prev = mean(&buf[buf.len() - 2 * n..buf.len() - n]);
-                if (last.gamma1_mm - prev.gamma1_mm).abs() <= tol_g && (last.theta1_deg - prev.theta1_deg).abs() <= tol_t {
+            if buf.len() >= 3 * n {
+                let k = buf.len();
+                let m3 = mean(&buf[k - n..]);
+                let m2 = mean(&buf[k - 2 * n..k - n]);
+                let m1 = mean(&buf[k - 3 * n..k - 2 * n]);
+                let g = remaining_relaxation(m1.gamma1_mm, m2.gamma1_mm, m3.gamma1_mm);
+                let t = remaining_relaxation(m1.theta1_deg, m2.theta1_deg, m3.theta1_deg);
+                if g <= tol_g && t <= tol_t {
                     // Settled: the mean is within the tolerance of where the elastomer is.
-                    let upper = last.gamma1_mm + tol_g + self.reading_margin() / (n as f64).sqrt();
+                    let upper = m3.gamma1_mm + tol_g + self.reading_margin() / (n as f64).sqrt();
                     self.g1_bound = self.g1_bound.min(upper);
                     self.guard.note_gamma1(self.stage_mm, upper);
                     self.last_inward_mm = 0.0;
-                    return Ok(last);
+                    return Ok(m3);
                 }
                 if r.t_s - t_first >= s.timeout_s {
                     self.log(
                         LogLevel::Warn,
                         format!(
-                            "not settled after {:.1} s (gamma1 drift {:.2} um, theta1 drift {:.4} deg): recording the latest mean",
+                            "not settled after {:.1} s (gamma1 still moving {:.2} um, theta1 {:.4} deg): recording the latest mean",
                             r.t_s - t_first,
-                            (last.gamma1_mm - prev.gamma1_mm).abs() * 1e3,
-                            (last.theta1_deg - prev.theta1_deg).abs()
+                            g * 1e3,
+                            t
                         ),
                     );
-                    return Ok(last);
+                    return Ok(m3);
                 }
             }
         }
@@ -1004,6 +1012,22 @@ where
     }
 }
 
+/// How far a reading may still move, from three consecutive window means:
+/// the last drift, or for a geometric (exponential) approach the whole tail
+/// d2 r / (1 - r), r = d2 / d1.
+fn remaining_relaxation(m1: f64, m2: f64, m3: f64) -> f64 {
+    let (d1, d2) = (m2 - m1, m3 - m2);
+    if d1 * d2 > 0.0 && d2.abs() < d1.abs() {
+        let r = d2 / d1;
+        d2.abs() * r / (1.0 - r)
+    } else if d1 * d2 > 0.0 {
+        // Not slowing down: still moving at least this fast.
+        d2.abs().max(d1.abs()) * 2.0
+    } else {
+        d2.abs()
+    }
+}
+
 fn unreachable_path<T>() -> Step<T> {
     Err(Halt { culprit: Culprit::Procedure, message: "normal sweep recorded no load point".into() })
 }
@@ -1043,6 +1067,16 @@ mod tests {
         assert!((c - 12.05).abs() < 1e-9, "{c}");
         assert_eq!(contact_from_line(&pts[..2], 0.01), None);
         assert_eq!(contact_from_line(&[(1.0, 0.5), (2.0, 0.2)], 0.01), None, "falling gamma1 is no contact line");
+    }
+
+    #[test]
+    fn relaxation_tail_is_extrapolated() {
+        // Exponential approach to 1.0 with ratio 0.5 per window: 0.5, 0.75, 0.875 -> tail 0.125.
+        assert!((remaining_relaxation(0.5, 0.75, 0.875) - 0.125).abs() < 1e-12);
+        // Noise without a trend: just the last drift.
+        assert!((remaining_relaxation(1.0, 1.002, 1.001) - 0.001).abs() < 1e-12);
+        // Still speeding up: at least twice the larger drift.
+        assert!((remaining_relaxation(0.0, 0.1, 0.3) - 0.4).abs() < 1e-12);
     }
 
     #[test]
