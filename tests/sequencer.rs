@@ -308,7 +308,8 @@ async fn faulted(faults: SimFaults) -> (RunOutcome, SimRig, Recording) {
 #[tokio::test]
 async fn stage_cable_cut_mid_sweep_is_reported_and_recording_kept() {
     // Move 80: inside the normal sweep (approach takes ~45 moves).
-    let (out, rig, rec) = faulted(SimFaults { stage_move: Some((80, FaultKind::Disconnected)), ..Default::default() }).await;
+    let (out, rig, rec) =
+        faulted(SimFaults { stage_move: Some((80, FaultKind::Disconnected)), ..Default::default() }).await;
     let RunStatus::Aborted(info) = &out.status else { panic!() };
     assert_eq!(info.culprit, Culprit::Stage);
     let msg = info.to_string();
@@ -322,7 +323,8 @@ async fn stage_cable_cut_mid_sweep_is_reported_and_recording_kept() {
 
 #[tokio::test]
 async fn stage_device_error_stops_and_backs_off() {
-    let (out, rig, rec) = faulted(SimFaults { stage_move: Some((80, FaultKind::DeviceReported)), ..Default::default() }).await;
+    let (out, rig, rec) =
+        faulted(SimFaults { stage_move: Some((80, FaultKind::DeviceReported)), ..Default::default() }).await;
     let RunStatus::Aborted(info) = &out.status else { panic!() };
     assert_eq!(info.culprit, Culprit::Stage);
     assert!(info.message.contains("device reported an error"), "{info}");
@@ -335,7 +337,8 @@ async fn stage_device_error_stops_and_backs_off() {
 
 #[tokio::test]
 async fn mount_fault_in_the_torsion_sweep_backs_the_stage_off() {
-    let (out, rig, rec) = faulted(SimFaults { mount_move: Some((10, FaultKind::DeviceReported)), ..Default::default() }).await;
+    let (out, rig, rec) =
+        faulted(SimFaults { mount_move: Some((10, FaultKind::DeviceReported)), ..Default::default() }).await;
     let RunStatus::Aborted(info) = &out.status else { panic!() };
     assert_eq!(info.culprit, Culprit::Mount);
     assert!(info.message.contains("rotation mount SIM-MOUNT"), "{info}");
@@ -464,7 +467,11 @@ mod mocks {
         m.expect_home().returning(move |_| {
             l.lock().unwrap().push("stage.home".into());
             if fail_home {
-                return Err(SimFault { device: "mock stage", kind: FaultKind::Timeout, message: "home timed out".into() });
+                return Err(SimFault {
+                    device: "mock stage",
+                    kind: FaultKind::Timeout,
+                    message: "home timed out".into(),
+                });
             }
             *p.lock().unwrap() = 0.0;
             Ok(())
@@ -475,7 +482,11 @@ mod mocks {
             *n += 1;
             l.lock().unwrap().push(format!("stage.move {t:.3}"));
             if Some(*n) == fail_move {
-                return Err(SimFault { device: "mock stage", kind: FaultKind::DeviceReported, message: "APT error".into() });
+                return Err(SimFault {
+                    device: "mock stage",
+                    kind: FaultKind::DeviceReported,
+                    message: "APT error".into(),
+                });
             }
             *p.lock().unwrap() = t;
             Ok(())
@@ -557,8 +568,14 @@ async fn mock_order_home_before_any_move_and_retract_after_the_failure() {
     // The sensor never reports contact: the approach runs to the stage limit and aborts.
     let mut script = Script::default();
     script.limits.stage_max_mm = 11.0;
-    let mut seq = Sequencer::new(script, mocks::stage(&log, false, None), mocks::mount(&log), mocks::sensor(), dir.path().join("r.csv"))
-        .unwrap();
+    let mut seq = Sequencer::new(
+        script,
+        mocks::stage(&log, false, None),
+        mocks::mount(&log),
+        mocks::sensor(),
+        dir.path().join("r.csv"),
+    )
+    .unwrap();
     let out = seq.run().await;
     let RunStatus::Aborted(info) = &out.status else { panic!("{:?}", out.status) };
     assert_eq!(info.culprit, Culprit::Procedure);
@@ -578,9 +595,14 @@ async fn mock_order_home_before_any_move_and_retract_after_the_failure() {
 async fn mock_order_device_error_stops_both_axes_then_backs_off() {
     let log = mocks::new_log();
     let dir = tempfile::tempdir().unwrap();
-    let mut seq =
-        Sequencer::new(Script::default(), mocks::stage(&log, false, Some(3)), mocks::mount(&log), mocks::sensor(), dir.path().join("r.csv"))
-            .unwrap();
+    let mut seq = Sequencer::new(
+        Script::default(),
+        mocks::stage(&log, false, Some(3)),
+        mocks::mount(&log),
+        mocks::sensor(),
+        dir.path().join("r.csv"),
+    )
+    .unwrap();
     let out = seq.run().await;
     let RunStatus::Aborted(info) = &out.status else { panic!("{:?}", out.status) };
     assert_eq!(info.culprit, Culprit::Stage);
@@ -598,9 +620,15 @@ async fn mock_order_abort_before_start_never_moves_and_failed_home_leaves_stage(
     let dir = tempfile::tempdir().unwrap();
     let (ctl_tx, ctl_rx) = unbounded_channel();
     ctl_tx.send(RunControl::Abort).unwrap();
-    let mut seq = Sequencer::new(Script::default(), mocks::stage(&log, false, None), mocks::mount(&log), mocks::sensor(), dir.path().join("a.csv"))
-        .unwrap()
-        .with_controls(ctl_rx);
+    let mut seq = Sequencer::new(
+        Script::default(),
+        mocks::stage(&log, false, None),
+        mocks::mount(&log),
+        mocks::sensor(),
+        dir.path().join("a.csv"),
+    )
+    .unwrap()
+    .with_controls(ctl_rx);
     let out = seq.run().await;
     let RunStatus::Aborted(info) = &out.status else { panic!() };
     assert_eq!(info.culprit, Culprit::Operator);
@@ -609,8 +637,14 @@ async fn mock_order_abort_before_start_never_moves_and_failed_home_leaves_stage(
 
     // Homing fails: the position is unknown, so the stage is stopped and not moved.
     let log = mocks::new_log();
-    let mut seq = Sequencer::new(Script::default(), mocks::stage(&log, true, None), mocks::mount(&log), mocks::sensor(), dir.path().join("b.csv"))
-        .unwrap();
+    let mut seq = Sequencer::new(
+        Script::default(),
+        mocks::stage(&log, true, None),
+        mocks::mount(&log),
+        mocks::sensor(),
+        dir.path().join("b.csv"),
+    )
+    .unwrap();
     let out = seq.run().await;
     let RunStatus::Aborted(info) = &out.status else { panic!() };
     assert_eq!(info.culprit, Culprit::Stage);

@@ -36,10 +36,9 @@ pub enum LimitViolation {
 impl fmt::Display for LimitViolation {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            LimitViolation::StageTravel { target_mm, min_mm, max_mm } => write!(
-                f,
-                "stage target {target_mm:.4} mm lies outside the soft travel [{min_mm:.4}, {max_mm:.4}] mm"
-            ),
+            LimitViolation::StageTravel { target_mm, min_mm, max_mm } => {
+                write!(f, "stage target {target_mm:.4} mm lies outside the soft travel [{min_mm:.4}, {max_mm:.4}] mm")
+            }
             LimitViolation::Gamma1 { target_mm, bound_mm, max_mm } => write!(
                 f,
                 "stage target {target_mm:.4} mm could deform the elastomer by up to {bound_mm:.4} mm, more than max gamma1 {max_mm:.4} mm"
@@ -137,7 +136,8 @@ impl SafetyGuard {
         let from = if current_mm.is_finite() { current_mm } else { clear };
         let from_here = g + (target_mm - from).max(0.0);
         let n = self.known.partition_point(|p| p.0 <= target_mm);
-        let from_known = self.known[..n].iter().map(|&(p, u)| u.max(0.0) + (target_mm - p)).fold(f64::INFINITY, f64::min);
+        let from_known =
+            self.known[..n].iter().map(|&(p, u)| u.max(0.0) + (target_mm - p)).fold(f64::INFINITY, f64::min);
         from_here.min(from_known)
     }
 
@@ -152,7 +152,7 @@ impl SafetyGuard {
             return Err(LimitViolation::StageTravel { target_mm, min_mm: l.stage_min_mm, max_mm: l.stage_max_mm });
         }
         let bound = self.gamma1_bound(current_mm, gamma1_bound_mm, target_mm);
-        if !(bound <= l.max_gamma1_mm) {
+        if bound.is_nan() || bound > l.max_gamma1_mm {
             return Err(LimitViolation::Gamma1 { target_mm, bound_mm: bound, max_mm: l.max_gamma1_mm });
         }
         Ok(())
@@ -179,8 +179,10 @@ mod tests {
     use super::*;
 
     fn guard() -> SafetyGuard {
-        // Script window 0..24 narrowed by a 0..20 mm device; clear until 10 mm.
-        SafetyGuard::new(&Script::default(), (0.0, 20.0), (-170.0, 170.0))
+        // Script window 0..24 narrowed by a 0..20 mm device; clear until 10 mm; gamma1 up to 4 mm.
+        let mut s = Script::default();
+        s.limits.max_gamma1_mm = 4.0;
+        SafetyGuard::new(&s, (0.0, 20.0), (-170.0, 170.0))
     }
 
     #[test]

@@ -317,18 +317,30 @@ impl Script {
         positive("limits.max_gamma1_mm", l.max_gamma1_mm)?;
         positive("limits.max_twist_deg", l.max_twist_deg)?;
         if l.stage_min_mm >= l.stage_max_mm {
-            return Err(invalid("limits.stage_max_mm", format!("{} must exceed stage_min_mm {}", l.stage_max_mm, l.stage_min_mm)));
+            return Err(invalid(
+                "limits.stage_max_mm",
+                format!("{} must exceed stage_min_mm {}", l.stage_max_mm, l.stage_min_mm),
+            ));
         }
         for (field, x) in [("limits.retract_mm", l.retract_mm), ("approach.start_mm", a.start_mm)] {
             if !(l.stage_min_mm..=l.stage_max_mm).contains(&x) {
-                return Err(invalid(field, format!("{x} mm lies outside the stage window [{}, {}] mm", l.stage_min_mm, l.stage_max_mm)));
+                return Err(invalid(
+                    field,
+                    format!("{x} mm lies outside the stage window [{}, {}] mm", l.stage_min_mm, l.stage_max_mm),
+                ));
             }
         }
         if l.retract_mm > a.start_mm {
-            return Err(invalid("limits.retract_mm", format!("{} mm is deeper than the clear approach start {} mm", l.retract_mm, a.start_mm)));
+            return Err(invalid(
+                "limits.retract_mm",
+                format!("{} mm is deeper than the clear approach start {} mm", l.retract_mm, a.start_mm),
+            ));
         }
         if t.amplitude_deg > l.max_twist_deg {
-            return Err(invalid("torsion.amplitude_deg", format!("{} exceeds limits.max_twist_deg {}", t.amplitude_deg, l.max_twist_deg)));
+            return Err(invalid(
+                "torsion.amplitude_deg",
+                format!("{} exceeds limits.max_twist_deg {}", t.amplitude_deg, l.max_twist_deg),
+            ));
         }
         let s = &self.settle;
         if !(1..=100).contains(&s.readings) {

@@ -242,7 +242,12 @@ async fn next_control(ctl: &mut Option<UnboundedReceiver<RunControl>>) -> RunCon
 
 fn mean(xs: &[GaugeReading]) -> GaugeReading {
     let n = xs.len().max(1) as f64;
-    let mut m = GaugeReading { t_s: xs.last().map(|r| r.t_s).unwrap_or(0.0), gamma1_mm: 0.0, theta1_deg: 0.0, contact_radius_mm: 0.0 };
+    let mut m = GaugeReading {
+        t_s: xs.last().map(|r| r.t_s).unwrap_or(0.0),
+        gamma1_mm: 0.0,
+        theta1_deg: 0.0,
+        contact_radius_mm: 0.0,
+    };
     for r in xs {
         m.gamma1_mm += r.gamma1_mm / n;
         m.theta1_deg += r.theta1_deg / n;
@@ -268,7 +273,13 @@ where
 {
     /// A sequencer for `script` that will write its recording to `recording_path`.
     /// The soft limits are the script's, narrowed to the devices' travel.
-    pub fn new(script: Script, stage: S, mount: R, gauge: G, recording_path: impl Into<PathBuf>) -> Result<Self, ScriptError> {
+    pub fn new(
+        script: Script,
+        stage: S,
+        mount: R,
+        gauge: G,
+        recording_path: impl Into<PathBuf>,
+    ) -> Result<Self, ScriptError> {
         script.validate()?;
         let guard = SafetyGuard::new(&script, stage.travel_mm(), mount.travel_deg());
         Ok(Self {
@@ -368,7 +379,10 @@ where
     }
 
     fn sensor_fault(&self, what: &str, e: GaugeError) -> Halt {
-        Halt { culprit: Culprit::Sensor, message: format!("sensor {} {what}: {}: {e}", self.gauge.describe(), kind_str(e.kind())) }
+        Halt {
+            culprit: Culprit::Sensor,
+            message: format!("sensor {} {what}: {}: {e}", self.gauge.describe(), kind_str(e.kind())),
+        }
     }
 
     fn safety(&self, context: &str, v: LimitViolation) -> Halt {
@@ -410,7 +424,8 @@ where
         }
         let base = 3 + reps as usize;
         self.step(base, "return to torsion depth", RunPhase::Torsion);
-        let crossing = crossing.ok_or_else(|| Halt { culprit: Culprit::Procedure, message: "no normal sweep ran".into() })?;
+        let crossing =
+            crossing.ok_or_else(|| Halt { culprit: Culprit::Procedure, message: "no normal sweep ran".into() })?;
         self.torsion_depth(crossing).await?;
         self.step(base + 1, "torsion sweep", RunPhase::Torsion);
         self.torsion_sweep().await?;
@@ -418,7 +433,10 @@ where
         self.retract().await?;
         self.cursor = Cursor::Done;
         self.progress();
-        self.log(LogLevel::Info, format!("run complete: {} samples in {}", self.samples.len(), self.recording_path.display()));
+        self.log(
+            LogLevel::Info,
+            format!("run complete: {} samples in {}", self.samples.len(), self.recording_path.display()),
+        );
         Ok(())
     }
 
@@ -426,7 +444,9 @@ where
 
     async fn connect(&mut self) -> Step<()> {
         self.checkpoint().await?;
-        for (name, x) in [("limits.retract_mm", self.script.limits.retract_mm), ("approach.start_mm", self.script.approach.start_mm)] {
+        for (name, x) in
+            [("limits.retract_mm", self.script.limits.retract_mm), ("approach.start_mm", self.script.approach.start_mm)]
+        {
             if !self.guard.stage_in_travel(x) {
                 let l = self.guard.limits();
                 return Err(Halt {
@@ -458,10 +478,8 @@ where
             std::fs::create_dir_all(dir).map_err(|e| fail(e, &self.recording_path))?;
         }
         let file = File::create(&self.recording_path).map_err(|e| fail(e, &self.recording_path))?;
-        let mut extra = vec![
-            ("stage".to_string(), sanitize(&self.stage_name)),
-            ("mount".to_string(), sanitize(&self.mount_name)),
-        ];
+        let mut extra =
+            vec![("stage".to_string(), sanitize(&self.stage_name)), ("mount".to_string(), sanitize(&self.mount_name))];
         extra.extend(self.extra_meta.iter().map(|(k, v)| (sanitize(k), sanitize(v))));
         let meta = Metadata {
             sensor: Some(sanitize(self.script.sensor.name.as_deref().unwrap_or(&self.gauge.describe()))),
@@ -545,7 +563,9 @@ where
             pos = next;
             pts.push((pos, self.settle().await?.gamma1_mm));
         }
-        let contact = contact_from_line(&pts, threshold).unwrap_or(0.5 * (last_clear + pts[0].0)).clamp(last_clear - a.step_mm, pts[0].0);
+        let contact = contact_from_line(&pts, threshold)
+            .unwrap_or(0.5 * (last_clear + pts[0].0))
+            .clamp(last_clear - a.step_mm, pts[0].0);
         self.contact_mm = Some(contact);
         self.log(LogLevel::Info, format!("first contact at stage {contact:.4} mm"));
         // Back off to the normal sweep's start (the same direction of travel as loading follows).
@@ -571,7 +591,11 @@ where
             let beta_now = path.last().map(|p| p.1).unwrap_or(0.0);
             if let Err(v) = self.guard.check_stage(self.stage_mm, self.g1_bound, pos) {
                 return Err(self.safety(
-                    &format!("normal sweep {} stopped at beta {beta_now:.4} before the target {}", rep + 1, n.target_beta),
+                    &format!(
+                        "normal sweep {} stopped at beta {beta_now:.4} before the target {}",
+                        rep + 1,
+                        n.target_beta
+                    ),
                     v,
                 ));
             }
@@ -589,7 +613,15 @@ where
         if rep == 0 {
             self.loads_rep0 = Some(path.len());
         }
-        self.log(LogLevel::Info, format!("normal sweep {}: beta {:.4} reached at stage {:.4} mm", rep + 1, path.last().map(|p| p.1).unwrap_or(0.0), path.last().map(|p| p.0).unwrap_or(0.0)));
+        self.log(
+            LogLevel::Info,
+            format!(
+                "normal sweep {}: beta {:.4} reached at stage {:.4} mm",
+                rep + 1,
+                path.last().map(|p| p.1).unwrap_or(0.0),
+                path.last().map(|p| p.0).unwrap_or(0.0)
+            ),
+        );
         let crossing = match path.as_slice() {
             [.., a, b] => (*a, *b),
             [b] => ((start, 0.0), *b),
@@ -668,7 +700,10 @@ where
         // From here on the stage may be anywhere up to the target.
         self.g1_bound = self.guard.gamma1_bound(from, self.g1_bound, target);
         self.last_inward_mm = if from.is_finite() { (target - from).max(0.0) } else { 0.0 };
-        self.stage.start_move_to_mm(target).await.map_err(|e| self.stage_fault(&format!("{context}: move to {target:.4} mm"), e))?;
+        self.stage
+            .start_move_to_mm(target)
+            .await
+            .map_err(|e| self.stage_fault(&format!("{context}: move to {target:.4} mm"), e))?;
         self.stage_mm = target;
         let timeout = self.script.move_timeout();
         let res = {
@@ -702,7 +737,10 @@ where
         if let Err(v) = self.guard.check_mount(target) {
             return Err(self.safety(context, v));
         }
-        self.mount.start_move_to_deg(target).await.map_err(|e| self.mount_fault(&format!("{context}: move to {target:.3} deg"), e))?;
+        self.mount
+            .start_move_to_deg(target)
+            .await
+            .map_err(|e| self.mount_fault(&format!("{context}: move to {target:.3} deg"), e))?;
         self.mount_deg = target;
         let timeout = self.script.move_timeout();
         let res = {
@@ -873,7 +911,14 @@ where
 
     // ---- recording and reporting -------------------------------------------
 
-    fn record(&mut self, phase: Phase, stage_abs: f64, r: GaugeReading, rep: Option<u32>, dir: Option<Direction>) -> Step<()> {
+    fn record(
+        &mut self,
+        phase: Phase,
+        stage_abs: f64,
+        r: GaugeReading,
+        rep: Option<u32>,
+        dir: Option<Direction>,
+    ) -> Step<()> {
         let contact = self.contact_mm.unwrap_or(0.0);
         let t0 = self.t0.unwrap_or(r.t_s);
         let t_s = (r.t_s - t0).max(self.samples.last().map(|s| s.t_s).unwrap_or(0.0));
@@ -915,7 +960,11 @@ where
     }
 
     fn progress_fraction(&self, step_fraction: f64) {
-        self.emit(RunEvent::Progress(Progress { step_fraction: step_fraction.clamp(0.0, 1.0), elapsed_s: self.t_last, eta_s: self.eta() }));
+        self.emit(RunEvent::Progress(Progress {
+            step_fraction: step_fraction.clamp(0.0, 1.0),
+            elapsed_s: self.t_last,
+            eta_s: self.eta(),
+        }));
     }
 
     fn progress(&self) {
@@ -1049,7 +1098,7 @@ fn contact_from_line(pts: &[(f64, f64)], threshold: f64) -> Option<f64> {
         return None;
     }
     let slope = sxy / sxx;
-    if !(slope > 0.0) {
+    if slope.is_nan() || slope <= 0.0 {
         return None;
     }
     let x0 = mx - my / slope;
@@ -1088,8 +1137,15 @@ mod tests {
 
     #[test]
     fn abort_message_says_what_and_where_the_stage_went() {
-        let a = AbortInfo { culprit: Culprit::Stage, message: "stage KDC101 SN 1: disconnected: pty closed".into(), backoff: Backoff::To(0.0) };
-        assert_eq!(a.to_string(), "stage KDC101 SN 1: disconnected: pty closed; motion stopped; stage backed off to 0.000 mm");
+        let a = AbortInfo {
+            culprit: Culprit::Stage,
+            message: "stage KDC101 SN 1: disconnected: pty closed".into(),
+            backoff: Backoff::To(0.0),
+        };
+        assert_eq!(
+            a.to_string(),
+            "stage KDC101 SN 1: disconnected: pty closed; motion stopped; stage backed off to 0.000 mm"
+        );
         let b = AbortInfo { backoff: Backoff::Failed("gone".into()), ..a };
         assert!(b.to_string().contains("COULD NOT back the stage off: gone"));
     }

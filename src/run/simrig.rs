@@ -407,7 +407,9 @@ impl Gauge for SimGauge {
         st.reads += 1;
         let n = st.reads;
         if st.cfg.faults.sensor_closed_at.is_some_and(|k| n >= k) {
-            return Err(GaugeError::Link(devices::sensor::SensorError::Closed { reason: "sim sensor unplugged".into() }));
+            return Err(GaugeError::Link(devices::sensor::SensorError::Closed {
+                reason: "sim sensor unplugged".into(),
+            }));
         }
         if st.cfg.faults.sensor_silent_from.is_some_and(|k| n >= k) {
             return Err(GaugeError::Timeout { waited: timeout });
