@@ -101,6 +101,25 @@ async fn full_default_run_recovers_the_truth() {
     // Progress carried an ETA during the sweeps and reached the end.
     assert!(events.iter().any(|e| matches!(e, RunEvent::Progress(p) if p.eta_s.is_some_and(|t| t > 0.0))));
     assert!(events.iter().any(|e| matches!(e, RunEvent::DeviceStatus(d) if d.sensor.frames > 0)));
+    // Once the sweeps are under way, elapsed + ETA predicts the end within 25 %.
+    let total = out.rig_time_s;
+    let mut checked = 0;
+    for e in &events {
+        if let RunEvent::Progress(p) = e
+            && p.elapsed_s > 0.3 * total
+            && p.elapsed_s < 0.9 * total
+        {
+            let eta = p.eta_s.expect("ETA known during the sweeps");
+            assert!(
+                ((p.elapsed_s + eta) / total - 1.0).abs() < 0.25,
+                "at {} s ETA {} s, run took {total} s",
+                p.elapsed_s,
+                eta
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 100, "{checked} progress events checked");
     // The stage ended at the retract position.
     assert_eq!(rig.state().stage_mm, Script::default().limits.retract_mm);
     eprintln!(
@@ -748,4 +767,84 @@ mod limits {
             }
         }
     }
+}
+
+/// A stage whose n-th move never ends by itself (a long travel), and which
+/// presses the operator's abort key as that move starts.
+struct StuckStage {
+    inner: easycalib::run::simrig::SimStage,
+    moves: usize,
+    stuck_at: usize,
+    stuck: bool,
+    ctl: UnboundedSender<RunControl>,
+    log: Arc<Mutex<Vec<String>>>,
+}
+
+#[async_trait]
+impl devices::motion::Identify for StuckStage {
+    type Error = easycalib::run::SimFault;
+    async fn identify(&mut self) -> Result<devices::motion::DeviceInfo, Self::Error> {
+        self.inner.identify().await
+    }
+}
+
+#[async_trait]
+impl devices::motion::LinearStage for StuckStage {
+    type Error = easycalib::run::SimFault;
+    fn travel_mm(&self) -> (f64, f64) {
+        self.inner.travel_mm()
+    }
+    async fn home(&mut self, t: Duration) -> Result<(), Self::Error> {
+        self.inner.home(t).await
+    }
+    async fn start_move_to_mm(&mut self, target_mm: f64) -> Result<(), Self::Error> {
+        self.moves += 1;
+        self.log.lock().unwrap().push(format!("move {target_mm:.3}"));
+        if self.moves == self.stuck_at {
+            self.stuck = true;
+            self.ctl.send(RunControl::Abort).unwrap();
+        }
+        self.inner.start_move_to_mm(target_mm).await
+    }
+    async fn start_move_by_mm(&mut self, d: f64) -> Result<(), Self::Error> {
+        self.inner.start_move_by_mm(d).await
+    }
+    async fn wait_until_stopped(&mut self, t: Duration) -> Result<f64, Self::Error> {
+        if self.stuck {
+            self.log.lock().unwrap().push("waiting".into());
+            std::future::pending::<()>().await;
+        }
+        self.inner.wait_until_stopped(t).await
+    }
+    async fn stop(&mut self) -> Result<(), Self::Error> {
+        self.stuck = false;
+        self.log.lock().unwrap().push("stop".into());
+        self.inner.stop().await
+    }
+    async fn position_mm(&mut self) -> Result<f64, Self::Error> {
+        self.inner.position_mm().await
+    }
+    async fn status(&mut self) -> Result<devices::motion::AxisStatus, Self::Error> {
+        self.inner.status().await
+    }
+}
+
+#[tokio::test]
+async fn abort_during_a_move_stops_it_then_backs_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = SimRig::new(SimRigConfig::default()).unwrap();
+    let (ctl_tx, ctl_rx) = unbounded_channel();
+    let log = Arc::new(Mutex::new(Vec::new()));
+    let stage = StuckStage { inner: rig.stage(), moves: 0, stuck_at: 60, stuck: false, ctl: ctl_tx, log: log.clone() };
+    let mut seq = Sequencer::new(Script::default(), stage, rig.mount(), rig.gauge(), dir.path().join("m.csv"))
+        .unwrap()
+        .with_controls(ctl_rx);
+    let out = seq.run().await;
+    let RunStatus::Aborted(info) = &out.status else { panic!("{:?}", out.status) };
+    assert_eq!(info.culprit, Culprit::Operator);
+    assert!(info.message.contains("during normal sweep"), "{info}");
+    assert_eq!(info.backoff, Backoff::To(0.0));
+    let log = log.lock().unwrap().clone();
+    let n = log.len();
+    assert_eq!(&log[n - 3..], ["waiting", "stop", "move 0.000"], "{log:?}");
 }

@@ -34,3 +34,23 @@ pub fn check(path: &Path) -> Result<Script, CliError> {
         .map_err(|e| CliError::bad_input(format!("cannot read script {}: {e}", path.display())))?;
     Script::from_toml(&text).map_err(|e| CliError::bad_input(format!("{}: {e}", path.display())))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn printed_default_checks_and_bad_scripts_are_bad_input() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = dir.path().join("default.toml");
+        std::fs::write(&good, DEFAULT_SCRIPT_TOML).unwrap();
+        assert_eq!(check(&good).unwrap(), Script::default());
+        let bad = dir.path().join("bad.toml");
+        std::fs::write(&bad, "[torsion]\nstep_deg = -1\n").unwrap();
+        let e = check(&bad).unwrap_err();
+        assert_eq!(e.code, super::super::EXIT_BAD_INPUT);
+        assert!(e.message.contains("torsion.step_deg"), "{}", e.message);
+        let e = check(&dir.path().join("missing.toml")).unwrap_err();
+        assert!(e.message.contains("cannot read script"), "{}", e.message);
+    }
+}
