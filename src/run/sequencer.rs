@@ -15,7 +15,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
-use devices::motion::{DeviceFault, FaultKind, Identify, LinearStage, RotationMount};
+use devices::motion::{AxisStatus, DeviceFault, FaultKind, Identify, LinearStage, RotationMount};
 use sim::recording::{Direction, Metadata, Phase, RecordingWriter, Sample};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
@@ -140,6 +140,9 @@ struct Halt {
 
 type Step<T> = Result<T, Halt>;
 
+/// Upper bound on readings per settle, whatever the sensor's timestamps say.
+const MAX_SETTLE_READINGS: usize = 2000;
+
 fn kind_str(k: FaultKind) -> &'static str {
     match k {
         FaultKind::Timeout => "timeout",
@@ -176,6 +179,7 @@ pub struct Sequencer<S, R, G> {
     stage_name: String,
     mount_name: String,
     stage_homed: bool,
+    mount_homed: bool,
     /// Last known (or commanded) stage position, NaN while unknown.
     stage_mm: f64,
     mount_deg: f64,
@@ -295,6 +299,7 @@ where
             stage_name: "stage".into(),
             mount_name: "rotation mount".into(),
             stage_homed: false,
+            mount_homed: false,
             stage_mm: f64::NAN,
             mount_deg: f64::NAN,
             gamma1_mm: f64::NAN,
@@ -420,6 +425,7 @@ where
         let mut crossing = None;
         for rep in 0..reps {
             self.step(3 + rep as usize, format!("normal sweep {}/{}", rep + 1, reps), RunPhase::Normal);
+            self.device_status().await?;
             crossing = Some(self.normal_sweep(rep).await?);
         }
         let base = 3 + reps as usize;
@@ -428,6 +434,7 @@ where
             crossing.ok_or_else(|| Halt { culprit: Culprit::Procedure, message: "no normal sweep ran".into() })?;
         self.torsion_depth(crossing).await?;
         self.step(base + 1, "torsion sweep", RunPhase::Torsion);
+        self.device_status().await?;
         self.torsion_sweep().await?;
         self.step(base + 2, "retract", RunPhase::Retract);
         self.retract().await?;
@@ -502,6 +509,7 @@ where
         // Inside the declared clear zone nothing touches the sensor.
         self.g1_bound = if self.stage_mm <= self.guard.limits().clear_until_mm { 0.0 } else { f64::NAN };
         RotationMount::home(&mut self.mount, t).await.map_err(|e| self.mount_fault("homing", e))?;
+        self.mount_homed = true;
         self.mount_deg = self.mount.position_deg().await.map_err(|e| self.mount_fault("position", e))?;
         self.log(LogLevel::Info, format!("homed: stage {:.3} mm, mount {:.3} deg", self.stage_mm, self.mount_deg));
         self.device_status().await
@@ -888,7 +896,8 @@ where
                     self.last_inward_mm = 0.0;
                     return Ok(m3);
                 }
-                if r.t_s - t_first >= s.timeout_s {
+                // Sensor time bounds the wait; the read count guards against a sensor whose clock stands still.
+                if r.t_s - t_first >= s.timeout_s || buf.len() >= MAX_SETTLE_READINGS {
                     self.log(
                         LogLevel::Warn,
                         format!(
@@ -948,8 +957,20 @@ where
                 self.emit(RunEvent::Fit(f));
             }
         }
+        self.snapshot();
         self.progress();
         Ok(())
+    }
+
+    /// Device panel update from what the sequencer knows (no device I/O in
+    /// the sweep loop: the axes are at rest at their last reported positions).
+    fn snapshot(&self) {
+        let axis = |position: f64, homed: bool| AxisStatus { position, homed, enabled: true, ..Default::default() };
+        self.emit(RunEvent::DeviceStatus(DeviceStatus {
+            stage: axis(self.stage_mm, self.stage_homed),
+            rotation: axis(self.mount_deg, self.mount_homed),
+            sensor: self.gauge.link_stats(),
+        }));
     }
 
     async fn device_status(&mut self) -> Step<()> {
