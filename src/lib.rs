@@ -4,4 +4,5 @@ pub mod cli;
 pub mod fit;
 pub mod report;
 pub mod run;
+pub mod sensing;
 pub mod tui;

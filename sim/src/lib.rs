@@ -3,8 +3,10 @@
 //! synthetic recording generator, and emulators of the rig's hardware.
 
 pub mod clock;
+pub mod effects;
 pub mod emulator;
 pub mod generator;
 pub mod physics;
 pub mod recording;
 pub mod rng;
+pub mod sensor;

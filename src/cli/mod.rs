@@ -1,7 +1,9 @@
 //! Command-line interface: argument parsing and dispatch to the subcommands.
 
 mod calibrate;
+pub mod devices;
 mod script;
+pub mod sensor;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -25,6 +27,10 @@ pub enum Command {
     Fit(FitArgs),
     /// Write a synthetic recording of a simulated elastomer.
     Simulate(SimulateArgs),
+    /// List serial ports (USB ids, serial, product, udev links); `--probe` asks each what it is.
+    Devices(devices::DevicesArgs),
+    /// Tactile sensor link tools.
+    Sensor(sensor::SensorArgs),
     /// Print the built-in calibration script (`--default`) or check a script file.
     Script(ScriptArgs),
 }
@@ -111,6 +117,8 @@ pub fn main() -> ExitCode {
         Command::Fit(a) => calibrate::fit(a),
         Command::Simulate(a) => calibrate::simulate(a),
         Command::Run(a) => calibrate::run_simulated(a),
+        Command::Devices(a) => devices::run(a),
+        Command::Sensor(a) => sensor::run(a),
         Command::Script(a) => script::script(a),
     };
     match result {

@@ -1,1 +1,144 @@
-//! report
+//! The report of a calibration: `report.json` (the stable JSON document),
+//! `report.md` (summary with units and intervals, fit quality, figures) and
+//! one SVG figure per sweep, written into an output directory.
+
+pub mod json;
+mod markdown;
+pub mod plot;
+
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use sim::recording::{Recording, RecordingError};
+
+use crate::fit::{Calibration, FitError};
+
+pub use json::{CalibrationOutput, Truth, calibration_output};
+pub use markdown::render_markdown;
+pub use plot::{NORMAL_TEXT, PlotText, SweepPlot, TORSION_TEXT, normal_plot, render_svg, torsion_plot};
+
+pub const JSON_FILE: &str = "report.json";
+pub const MARKDOWN_FILE: &str = "report.md";
+pub const NORMAL_SVG_FILE: &str = "normal_sweep.svg";
+pub const TORSION_SVG_FILE: &str = "torsion_sweep.svg";
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    #[error("cannot read the recording {path}: {source}")]
+    Recording { path: PathBuf, source: RecordingError },
+    #[error("cannot write {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("cannot evaluate the fitted model for the figures: {0}")]
+    Model(#[from] FitError),
+    #[error("cannot draw the figure `{what}`: {message}")]
+    Plot { what: String, message: String },
+    #[error("cannot encode the JSON report: {0}")]
+    Json(#[from] serde_json::Error),
+}
+
+/// Where the report's files went.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReportFiles {
+    pub dir: PathBuf,
+    pub json: PathBuf,
+    pub markdown: PathBuf,
+    pub normal_svg: PathBuf,
+    pub torsion_svg: PathBuf,
+}
+
+fn write(path: PathBuf, text: &str) -> Result<PathBuf, ReportError> {
+    std::fs::write(&path, text).map_err(|source| ReportError::Io { path: path.clone(), source })?;
+    Ok(path)
+}
+
+/// Read the recording at `recording_path` and write the report of `cal` into
+/// `out_dir` (created if missing). `truth` is the simulated rig's elastomer.
+pub fn write_report(
+    out_dir: &Path,
+    recording_path: &Path,
+    cal: &Calibration,
+    truth: Option<Truth>,
+) -> Result<ReportFiles, ReportError> {
+    let rec = Recording::read_path(recording_path)
+        .map_err(|source| ReportError::Recording { path: recording_path.to_path_buf(), source })?;
+    write_report_for(out_dir, &rec, Some(recording_path), cal, truth)
+}
+
+/// Write the report of `cal`, fitted to `rec`, into `out_dir` (created if
+/// missing). `recording_path` is where `rec` lives, for the record.
+pub fn write_report_for(
+    out_dir: &Path,
+    rec: &Recording,
+    recording_path: Option<&Path>,
+    cal: &Calibration,
+    truth: Option<Truth>,
+) -> Result<ReportFiles, ReportError> {
+    std::fs::create_dir_all(out_dir).map_err(|source| ReportError::Io { path: out_dir.to_path_buf(), source })?;
+    // Figures first: a model that cannot be evaluated fails before any file is written.
+    let normal = render_svg(&normal_plot(rec, cal)?, &NORMAL_TEXT)?;
+    let torsion = render_svg(&torsion_plot(rec, cal)?, &TORSION_TEXT)?;
+    let out = calibration_output(rec, cal, recording_path, truth);
+    let json = serde_json::to_string_pretty(&out)?;
+    let md = render_markdown(&out, rec, NORMAL_SVG_FILE, TORSION_SVG_FILE);
+    Ok(ReportFiles {
+        dir: out_dir.to_path_buf(),
+        normal_svg: write(out_dir.join(NORMAL_SVG_FILE), &normal)?,
+        torsion_svg: write(out_dir.join(TORSION_SVG_FILE), &torsion)?,
+        json: write(out_dir.join(JSON_FILE), &(json + "\n"))?,
+        markdown: write(out_dir.join(MARKDOWN_FILE), &md)?,
+    })
+}
+
+/// Civil date (year, month, day) of a day count since 1970-01-01
+/// (H. Hinnant's days-to-civil algorithm, proleptic Gregorian).
+fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    (y, m, d)
+}
+
+/// UTC broken down: (year, month, day, hour, minute, second). Times before
+/// 1970 count back from the epoch.
+pub fn utc_fields(t: SystemTime) -> (i64, u32, u32, u32, u32, u32) {
+    let secs = match t.duration_since(UNIX_EPOCH) {
+        Ok(d) => d.as_secs() as i64,
+        Err(e) => -(e.duration().as_secs_f64().ceil() as i64),
+    };
+    let (days, sod) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    let (y, mo, d) = civil_from_days(days);
+    (y, mo, d, (sod / 3600) as u32, (sod % 3600 / 60) as u32, (sod % 60) as u32)
+}
+
+/// `YYYYmmdd-HHMMSS` in UTC.
+pub fn utc_stamp(t: SystemTime) -> String {
+    let (y, mo, d, h, mi, s) = utc_fields(t);
+    format!("{y:04}{mo:02}{d:02}-{h:02}{mi:02}{s:02}")
+}
+
+/// RFC 3339 UTC time, e.g. `2026-11-23T11:24:40Z` (for a recording's `created`).
+pub fn rfc3339_utc(t: SystemTime) -> String {
+    let (y, mo, d, h, mi, s) = utc_fields(t);
+    format!("{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}Z")
+}
+
+/// The default output folder of a run: `<root>/<YYYYmmdd-HHMMSS>-<sensor>`
+/// (UTC). The sensor name is reduced to characters safe in a file name;
+/// without one the folder ends in `-sensor`.
+pub fn default_run_dir(root: &Path, sensor: Option<&str>, now: SystemTime) -> PathBuf {
+    let name: String = sensor
+        .unwrap_or("")
+        .trim()
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') { c } else { '_' })
+        .collect();
+    let name = name.trim_matches('.');
+    let name = if name.is_empty() { "sensor" } else { name };
+    root.join(format!("{}-{}", utc_stamp(now), name))
+}

@@ -12,6 +12,8 @@ pub struct SensorFrame {
     /// Sensor-side timestamp, s.
     pub t_s: f64,
     /// Reference (undeformed) marker positions, mm, one `[x, y, z]` per marker.
+    /// (Tac3D itself sends current positions, reference + displacement; its
+    /// codec converts both ways.)
     pub positions: Vec<[f64; 3]>,
     /// Marker displacements from the reference, mm, same order as `positions`.
     pub displacements: Vec<[f64; 3]>,

@@ -65,29 +65,85 @@ pub mod kind {
     pub const ACK: u8 = 0x20;
 }
 
+/// Slicing-by-8 tables for [`crc32`]: `CRC_TABLES[0]` is the classic
+/// byte-at-a-time table, `CRC_TABLES[k][i]` the CRC of byte `i` followed by
+/// `k` zero bytes, so eight bytes fold in with eight independent look-ups.
+const CRC_TABLES: [[u32; 256]; 8] = {
+    let mut t = [[0u32; 256]; 8];
+    let mut i = 0;
+    while i < 256 {
+        let mut c = i as u32;
+        let mut k = 0;
+        while k < 8 {
+            c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+            k += 1;
+        }
+        t[0][i] = c;
+        i += 1;
+    }
+    let mut s = 1;
+    while s < 8 {
+        let mut i = 0;
+        while i < 256 {
+            let prev = t[s - 1][i];
+            t[s][i] = (prev >> 8) ^ t[0][(prev & 0xFF) as usize];
+            i += 1;
+        }
+        s += 1;
+    }
+    t
+};
+
 /// CRC-32/ISO-HDLC (the zlib / Ethernet CRC): reflected polynomial
 /// 0xEDB88320, init 0xFFFFFFFF, final xor 0xFFFFFFFF; check("123456789") = 0xCBF43926.
 pub fn crc32(data: &[u8]) -> u32 {
-    const TABLE: [u32; 256] = {
-        let mut t = [0u32; 256];
-        let mut i = 0;
-        while i < 256 {
-            let mut c = i as u32;
-            let mut k = 0;
-            while k < 8 {
-                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
-                k += 1;
-            }
-            t[i] = c;
-            i += 1;
-        }
-        t
-    };
+    let t = &CRC_TABLES;
     let mut c = 0xFFFF_FFFFu32;
-    for &b in data {
-        c = TABLE[((c ^ u32::from(b)) & 0xFF) as usize] ^ (c >> 8);
+    let mut chunks = data.chunks_exact(8);
+    for b in &mut chunks {
+        let lo = c ^ u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        c = t[7][(lo & 0xFF) as usize]
+            ^ t[6][((lo >> 8) & 0xFF) as usize]
+            ^ t[5][((lo >> 16) & 0xFF) as usize]
+            ^ t[4][(lo >> 24) as usize]
+            ^ t[3][b[4] as usize]
+            ^ t[2][b[5] as usize]
+            ^ t[1][b[6] as usize]
+            ^ t[0][b[7] as usize];
+    }
+    for &b in chunks.remainder() {
+        c = t[0][((c ^ u32::from(b)) & 0xFF) as usize] ^ (c >> 8);
     }
     c ^ 0xFFFF_FFFF
+}
+
+#[cfg(test)]
+mod crc_tests {
+    use super::*;
+
+    /// Bit-at-a-time reference, straight from the definition.
+    fn crc32_bitwise(data: &[u8]) -> u32 {
+        let mut c = 0xFFFF_FFFFu32;
+        for &b in data {
+            c ^= u32::from(b);
+            for _ in 0..8 {
+                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+            }
+        }
+        !c
+    }
+
+    #[test]
+    fn sliced_crc_matches_the_definition_at_every_length_and_alignment() {
+        let data: Vec<u8> = (0..300u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8).collect();
+        for start in 0..8 {
+            for len in 0..data.len() - start {
+                let d = &data[start..start + len];
+                assert_eq!(crc32(d), crc32_bitwise(d), "start {start} len {len}");
+            }
+        }
+        assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -360,9 +416,18 @@ pub fn decode_datagram(d: &[u8]) -> Result<LinkMessage, LinkError> {
     parse_payload(0, h.kind, payload)
 }
 
+/// Longest run of garbage reported as one [`LinkError::Garbage`]: a sender on
+/// the wrong baud rate shows up in the stats without waiting for a sync.
+pub const GARBAGE_REPORT: u64 = 1024;
+
 /// Streaming decoder: feed bytes as they arrive with [`push`](Self::push),
 /// take messages and errors with [`next_message`](Self::next_message) until it
 /// says `None`. Resynchronises on the sync pattern after any error.
+///
+/// What it reports does not depend on how the bytes were chunked: a run of
+/// garbage is one error (split every [`GARBAGE_REPORT`] bytes), reported when
+/// the next message starts, and the bytes of a message already reported as
+/// bad are not counted again as garbage.
 #[derive(Debug, Default)]
 pub struct LinkDecoder {
     buf: Vec<u8>,
@@ -373,6 +438,11 @@ pub struct LinkDecoder {
     /// Stream offset before which skipped bytes are not reported as garbage:
     /// the rest of a message whose payload checksum failed.
     quiet_until: u64,
+    /// After a bad header the message's end is unknown: skipped bytes stay
+    /// quiet until the next sound header.
+    quiet_run: bool,
+    /// Garbage skipped and not reported yet: (stream offset, bytes).
+    run: Option<(u64, u64)>,
 }
 
 impl LinkDecoder {
@@ -395,36 +465,58 @@ impl LinkDecoder {
         self.buf.len() - self.start
     }
 
-    fn skip(&mut self, n: usize) -> Option<LinkError> {
+    /// Step over `n` bytes, adding the loud ones to the garbage run.
+    fn skip(&mut self, n: usize) {
         let at = self.base + self.start as u64;
         self.start += n;
         let end = self.base + self.start as u64;
-        let loud = end.saturating_sub(self.quiet_until.max(at));
-        (loud > 0).then_some(LinkError::Garbage { at: self.quiet_until.max(at), skipped: loud as usize })
+        let from = self.quiet_until.max(at);
+        if self.quiet_run || end <= from {
+            return;
+        }
+        match &mut self.run {
+            Some((_, len)) => *len += end - from,
+            None => self.run = Some((from, end - from)),
+        }
+    }
+
+    fn take_run(&mut self) -> Option<LinkError> {
+        self.run.take().map(|(at, len)| LinkError::Garbage { at, skipped: len as usize })
     }
 
     pub fn next_message(&mut self) -> Option<Result<LinkMessage, LinkError>> {
         loop {
             let avail = &self.buf[self.start..];
-            let sync_at = avail.windows(2).position(|w| w == SYNC);
-            match sync_at {
+            match avail.windows(2).position(|w| w == SYNC) {
                 Some(0) => {}
-                Some(k) => match self.skip(k) {
-                    Some(e) => return Some(Err(e)),
-                    None => continue,
-                },
+                Some(k) => {
+                    self.skip(k);
+                    continue;
+                }
                 None => {
                     // Keep a trailing first sync byte: its partner may come next.
                     let keep = usize::from(avail.last() == Some(&SYNC[0]));
-                    let n = avail.len() - keep;
+                    let mut n = avail.len() - keep;
                     if n == 0 {
                         return None;
                     }
-                    match self.skip(n) {
-                        Some(e) => return Some(Err(e)),
-                        None => return None,
+                    // Cut the run at exactly GARBAGE_REPORT bytes, however the
+                    // bytes were chunked.
+                    if let Some((_, len)) = self.run {
+                        n = n.min((GARBAGE_REPORT - len.min(GARBAGE_REPORT)).max(1) as usize);
+                    } else if !self.quiet_run {
+                        n = n.min(GARBAGE_REPORT as usize);
                     }
+                    self.skip(n);
+                    if matches!(self.run, Some((_, len)) if len >= GARBAGE_REPORT) {
+                        return self.take_run().map(Err);
+                    }
+                    continue;
                 }
+            }
+            // A message starts here: report the garbage before it first.
+            if let Some(e) = self.take_run() {
+                return Some(Err(e));
             }
             let avail = &self.buf[self.start..];
             if avail.len() < HEADER_LEN {
@@ -437,14 +529,17 @@ impl LinkDecoder {
                     // Not a real header (sync bytes inside data, or corruption):
                     // step past this sync and look again.
                     self.start += 1;
-                    if at < self.quiet_until {
+                    if at < self.quiet_until || self.quiet_run {
                         continue;
                     }
+                    self.quiet_run = true;
                     return Some(Err(e));
                 }
             };
+            self.quiet_run = false;
             if h.len > MAX_PAYLOAD {
                 self.start += SYNC.len();
+                self.quiet_run = true;
                 return Some(Err(LinkError::TooLong { at, len: h.len }));
             }
             let total = HEADER_LEN + h.len + CRC_LEN;
@@ -672,5 +767,151 @@ impl SensorLink for LinkReceiver {
 
     fn stats(&self) -> LinkStats {
         self.inbox.stats()
+    }
+}
+
+enum DeviceIo {
+    Stream {
+        rd: Box<dyn AsyncRead + Unpin + Send>,
+        wr: Box<dyn AsyncWrite + Unpin + Send>,
+    },
+    Udp {
+        socket: UdpSocket,
+        /// The host: fixed at construction or learnt from its first command.
+        host: Option<SocketAddr>,
+    },
+}
+
+impl std::fmt::Debug for DeviceIo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DeviceIo::Stream { .. } => f.write_str("DeviceIo::Stream"),
+            DeviceIo::Udp { host, .. } => write!(f, "DeviceIo::Udp({host:?})"),
+        }
+    }
+}
+
+/// The device side of the link protocol: what a bridge program, a
+/// microcontroller or an emulator runs. It sends frames and acknowledgements
+/// and reads the host's commands; malformed input is counted, never fatal.
+///
+/// [`LinkDevice::next_command`] is cancel-safe (bytes read stay in the
+/// decoder), so a device loop can `select!` between it and a frame timer.
+#[derive(Debug)]
+pub struct LinkDevice {
+    io: DeviceIo,
+    decoder: LinkDecoder,
+    rejected: u64,
+}
+
+impl LinkDevice {
+    /// Over a byte stream (serial port, pty, socket, duplex pipe).
+    pub fn new<T>(io: T) -> Self
+    where
+        T: AsyncRead + AsyncWrite + Send + 'static,
+    {
+        let (rd, wr) = tokio::io::split(io);
+        Self { io: DeviceIo::Stream { rd: Box::new(rd), wr: Box::new(wr) }, decoder: LinkDecoder::new(), rejected: 0 }
+    }
+
+    /// Over UDP, bound at `bind`. With `host = None` frames go to whoever sent
+    /// the latest command (so the host must send START first, as it does).
+    pub async fn udp(bind: SocketAddr, host: Option<SocketAddr>) -> Result<Self, SensorError> {
+        let socket = UdpSocket::bind(bind).await.map_err(io_err("bind UDP socket"))?;
+        Ok(Self { io: DeviceIo::Udp { socket, host }, decoder: LinkDecoder::new(), rejected: 0 })
+    }
+
+    /// Local address of a UDP device.
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        match &self.io {
+            DeviceIo::Udp { socket, .. } => socket.local_addr().ok(),
+            DeviceIo::Stream { .. } => None,
+        }
+    }
+
+    /// Host input that was not a valid command (counted, then skipped).
+    pub fn rejected(&self) -> u64 {
+        self.rejected
+    }
+
+    async fn write(&mut self, bytes: &[u8], what: &'static str) -> Result<(), SensorError> {
+        match &mut self.io {
+            DeviceIo::Stream { wr, .. } => {
+                wr.write_all(bytes).await.map_err(io_err(what))?;
+                wr.flush().await.map_err(io_err(what))
+            }
+            DeviceIo::Udp { socket, host } => {
+                let Some(to) = *host else {
+                    return Err(SensorError::NoPeer { command: what });
+                };
+                match socket.send_to(bytes, to).await {
+                    Ok(_) => Ok(()),
+                    // The host went away; a UDP device keeps running for the next one.
+                    Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => Ok(()),
+                    Err(e) => Err(io_err(what)(e)),
+                }
+            }
+        }
+    }
+
+    /// Send one frame (positions and displacements travel as f32).
+    pub async fn send_frame(&mut self, frame: &SensorFrame) -> Result<(), SensorError> {
+        let bytes = encode(&LinkMessage::Frame(frame.clone())).map_err(|e| SensorError::Io {
+            what: "encode link frame",
+            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, e),
+        })?;
+        self.write(&bytes, "send frame").await
+    }
+
+    /// Write bytes as they are (a bridge relaying ready-made messages, or a
+    /// test injecting noise); over UDP they form one datagram.
+    pub async fn send_raw(&mut self, bytes: &[u8]) -> Result<(), SensorError> {
+        self.write(bytes, "send raw bytes").await
+    }
+
+    /// Acknowledge a command the device carried out.
+    pub async fn ack(&mut self, cmd: Command) -> Result<(), SensorError> {
+        let out = encode(&LinkMessage::Ack(cmd)).map_err(|e| SensorError::Io {
+            what: "encode ack",
+            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, e),
+        })?;
+        self.write(&out, "send ack").await
+    }
+
+    /// Wait for the host's next valid command.
+    pub async fn next_command(&mut self) -> Result<Command, SensorError> {
+        loop {
+            while let Some(m) = self.decoder.next_message() {
+                match m {
+                    Ok(LinkMessage::Command(c)) => return Ok(c),
+                    // Frames and acks flow device -> host only.
+                    Ok(_) | Err(_) => self.rejected += 1,
+                }
+            }
+            let mut buf = [0u8; 512];
+            match &mut self.io {
+                DeviceIo::Stream { rd, .. } => {
+                    let n = rd.read(&mut buf).await.map_err(io_err("read command"))?;
+                    if n == 0 {
+                        return Err(SensorError::Closed { reason: "host closed the stream".into() });
+                    }
+                    self.decoder.push(&buf[..n]);
+                }
+                DeviceIo::Udp { socket, host } => {
+                    let (n, from) = match socket.recv_from(&mut buf).await {
+                        Ok(x) => x,
+                        Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => continue,
+                        Err(e) => return Err(io_err("receive command")(e)),
+                    };
+                    match decode_datagram(&buf[..n]) {
+                        Ok(LinkMessage::Command(c)) => {
+                            *host = Some(from);
+                            return Ok(c);
+                        }
+                        Ok(_) | Err(_) => self.rejected += 1,
+                    }
+                }
+            }
+        }
     }
 }

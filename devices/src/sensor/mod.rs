@@ -23,15 +23,25 @@ pub use frame::SensorFrame;
 pub use stats::{BadReason, FrameTracker, LinkStats, Verdict};
 
 /// A stream of sensor frames.
+///
+/// Errors: [`SensorError::NotStreaming`] from `next_frame` before `start` or
+/// after `stop`; [`SensorError::Timeout`] when no good frame came in time (the
+/// link stays usable: a sensor that drops out and comes back just resumes);
+/// [`SensorError::Closed`] once the transport is gone for good.
 #[async_trait]
 pub trait SensorLink: Send {
-    /// Begin delivering frames (asks the device to stream where the protocol can).
+    /// Begin delivering frames (asks the device to stream where the protocol
+    /// can). Frames that arrived before are not delivered.
     async fn start(&mut self) -> Result<(), SensorError>;
     /// Stop delivering frames; frames queued so far are discarded.
     async fn stop(&mut self) -> Result<(), SensorError>;
-    /// The next good frame, waiting at most `timeout` (real time).
+    /// The next good frame in arrival order, waiting at most `timeout` (real
+    /// wall-clock time). If the consumer falls behind, the oldest queued
+    /// frames are discarded and counted as [`BadReason::Overrun`].
     async fn next_frame(&mut self, timeout: Duration) -> Result<SensorFrame, SensorError>;
-    /// Take the current deformation as zero (sensor must be untouched).
+    /// Take the current deformation as zero (sensor must be untouched). Tac3D
+    /// does not acknowledge it; frames already in flight still carry the old
+    /// zero, so wait for a frame or two before relying on it.
     async fn tare(&mut self) -> Result<(), SensorError>;
     /// Counters so far.
     fn stats(&self) -> LinkStats;

@@ -74,7 +74,8 @@ impl fmt::Display for BadReason {
 /// A snapshot of a link's counters.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct LinkStats {
-    /// Frames accepted (delivered or queued for delivery).
+    /// Good frames received since the link was opened, whether or not it was
+    /// started (the counter and rate stay meaningful across start/stop).
     pub frames: u64,
     /// Frame rate from the sensor's own timestamps over the last frames, Hz
     /// (0 until two frames arrived). Sensor time, so it is the sensor's rate

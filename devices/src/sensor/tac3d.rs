@@ -9,6 +9,10 @@
 //! binary blob in order, and each `data` item points into it by `offset` and
 //! `length`. Matrices are float64, row-major, `height` rows by `width` columns.
 //!
+//! `3D_Positions` are the markers' *current* positions (reference +
+//! displacement; checked on the recordings that ship with PyTac3D), so the
+//! codec converts to and from [`SensorFrame`]'s reference positions.
+//!
 //! The codec here is pure (bytes in, frames out, time passed in explicitly);
 //! [`Tac3dReceiver`] is the I/O edge on a tokio UDP socket.
 
@@ -62,6 +66,12 @@ pub enum Tac3dValue {
 }
 
 impl Tac3dValue {
+    /// An `n x 3` matrix from rows (e.g. `3D_Forces`, `3D_Normals`, or a
+    /// `1 x 3` `3D_ResultantForce`), for senders adding items to a frame.
+    pub fn from_rows(rows: &[[f64; 3]]) -> Self {
+        Tac3dValue::Mat { rows: rows.len(), cols: 3, data: rows.iter().flatten().copied().collect() }
+    }
+
     fn type_name(&self) -> &'static str {
         match self {
             Tac3dValue::Mat { .. } => "mat",
@@ -102,22 +112,29 @@ pub struct Tac3dFrame {
 }
 
 impl Tac3dFrame {
-    /// A frame carrying a [`SensorFrame`]'s positions and displacements as
-    /// `n x 3` matrices.
+    /// A frame carrying a [`SensorFrame`] as `n x 3` matrices, as the main
+    /// program sends it: `3D_Positions` are the *current* marker positions,
+    /// reference + displacement (the example recordings shipped with PyTac3D
+    /// show `3D_Positions - 3D_Displacements` constant over a press: exactly
+    /// for HDL1 sensors, within 0.08 mm for an AD2). Markers beyond the
+    /// shorter of the two lists are left out.
     pub fn from_sensor_frame(frame: &SensorFrame, sn: &str) -> Self {
-        let mat = |rows: &[[f64; 3]]| Tac3dValue::Mat {
-            rows: rows.len(),
-            cols: 3,
-            data: rows.iter().flatten().copied().collect(),
-        };
+        let n = frame.positions.len().min(frame.displacements.len());
+        let current: Vec<f64> = frame
+            .positions
+            .iter()
+            .zip(&frame.displacements)
+            .flat_map(|(r, d)| [r[0] + d[0], r[1] + d[1], r[2] + d[2]])
+            .collect();
+        let disp: Vec<f64> = frame.displacements[..n].iter().flatten().copied().collect();
         Self {
             index: frame.index,
             sn: sn.to_string(),
             timestamp: frame.t_s,
             msg: Some(String::new()),
             items: vec![
-                Tac3dItem { name: POSITIONS.into(), value: mat(&frame.positions) },
-                Tac3dItem { name: DISPLACEMENTS.into(), value: mat(&frame.displacements) },
+                Tac3dItem { name: POSITIONS.into(), value: Tac3dValue::Mat { rows: n, cols: 3, data: current } },
+                Tac3dItem { name: DISPLACEMENTS.into(), value: Tac3dValue::Mat { rows: n, cols: 3, data: disp } },
             ],
         }
     }
@@ -149,19 +166,30 @@ impl Tac3dFrame {
         Ok(data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     }
 
-    /// The rig's view of this frame: positions and displacements (`n x 3`,
-    /// same `n`, finite) and a finite timestamp.
+    /// The rig's view of this frame: reference positions
+    /// (`3D_Positions - 3D_Displacements`, since Tac3D sends current
+    /// positions) and displacements (`n x 3`, same `n`, finite), and a finite
+    /// timestamp.
     pub fn to_sensor_frame(&self) -> Result<SensorFrame, Tac3dError> {
         if !self.timestamp.is_finite() {
             return Err(Tac3dError::NotFinite { item: "timestamp".into(), at: 0 });
         }
-        let positions = self.rows3(POSITIONS)?;
+        let current = self.rows3(POSITIONS)?;
         let displacements = self.rows3(DISPLACEMENTS)?;
-        if positions.len() != displacements.len() {
+        if current.len() != displacements.len() {
             return Err(Tac3dError::Shape {
                 item: DISPLACEMENTS.into(),
-                what: format!("{} rows but {POSITIONS} has {}", displacements.len(), positions.len()),
+                what: format!("{} rows but {POSITIONS} has {}", displacements.len(), current.len()),
             });
+        }
+        let mut positions = Vec::with_capacity(current.len());
+        for (m, (c, d)) in current.iter().zip(&displacements).enumerate() {
+            let r = [c[0] - d[0], c[1] - d[1], c[2] - d[2]];
+            // Finite inputs can still overflow when subtracted.
+            if !r.iter().all(|x| x.is_finite()) {
+                return Err(Tac3dError::NotFinite { item: POSITIONS.into(), at: 3 * m });
+            }
+            positions.push(r);
         }
         Ok(SensorFrame { index: self.index, t_s: self.timestamp, positions, displacements })
     }
@@ -235,11 +263,15 @@ pub enum Tac3dEncodeError {
 }
 
 /// Write a scalar the way a YAML emitter would: plain when that reads back as
-/// the same string, single-quoted otherwise.
+/// the same string (so `3D_Positions` and `AD2-0065L` stay plain, as the
+/// vendor writes them), single-quoted otherwise.
 fn yaml_str(out: &mut String, s: &str) {
     let plain = !s.is_empty()
         && s.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
-        && s.as_bytes()[0].is_ascii_alphabetic()
+        && s.as_bytes()[0].is_ascii_alphanumeric()
+        // A letter no YAML number can contain rules out every int/float
+        // reading (hex and octal digits, exponents, `.inf` are excluded).
+        && s.bytes().any(|b| b.is_ascii_alphabetic() && !b"abcdefABCDEFxXoObB".contains(&b))
         && !matches!(
             s.to_ascii_lowercase().as_str(),
             "true" | "false" | "null" | "yes" | "no" | "on" | "off" | "y" | "n"
@@ -526,6 +558,8 @@ pub struct Tac3dReassembler {
     timeout: Duration,
     max_packets: u16,
     max_pending: usize,
+    /// Partials pushed out to make room, not yet reported by `expire`.
+    evicted: usize,
 }
 
 impl Tac3dReassembler {
@@ -538,6 +572,7 @@ impl Tac3dReassembler {
             max_packets: 4096,
             // Frames in flight at once; bounds memory against a flood of serials.
             max_pending: 32,
+            evicted: 0,
         }
     }
 
@@ -561,6 +596,7 @@ impl Tac3dReassembler {
             // Make room by dropping the stalest partial; expire() would drop it soon anyway.
             if let Some(oldest) = self.partial.iter().min_by_key(|(_, p)| p.touched).map(|(k, _)| *k) {
                 self.partial.remove(&oldest);
+                self.evicted += 1;
             }
         }
         let p = self.partial.entry(h.serial).or_insert_with(|| Partial {
@@ -589,17 +625,19 @@ impl Tac3dReassembler {
         };
         let mut parts = p.parts.into_iter().flatten();
         let head = parts.next().unwrap_or_default();
-        let blob: Vec<u8> = parts.flatten().collect();
+        let rest: Vec<Vec<u8>> = parts.collect();
+        let blob = rest.concat();
         decode_frame(&head, &blob).map(Some)
     }
 
     /// Drop partial frames whose latest packet is older than the timeout;
-    /// returns how many were dropped.
+    /// returns how many incomplete frames were dropped since the last call
+    /// (including those pushed out because too many were in flight).
     pub fn expire(&mut self, now: Instant) -> usize {
         let before = self.partial.len();
         let timeout = self.timeout;
         self.partial.retain(|_, p| now.saturating_duration_since(p.touched) <= timeout);
-        before - self.partial.len()
+        before - self.partial.len() + std::mem::take(&mut self.evicted)
     }
 }
 
@@ -759,5 +797,139 @@ impl SensorLink for Tac3dReceiver {
 
     fn stats(&self) -> LinkStats {
         self.inbox.stats()
+    }
+}
+
+/// Largest UDP payload that fits one Ethernet frame without IP fragmentation
+/// (1500 MTU - 20 IP - 8 UDP). The vendor's packet size is not documented
+/// (hardware.md C.1 [U]); any size up to 65 507 B reads back through PyTac3D,
+/// which receives with a 65 535-byte buffer. Smaller packets also exercise the
+/// reassembly path on loopback.
+pub const DEFAULT_MAX_DATAGRAM: usize = 1472;
+/// Sensor serial the emulated sensor reports by default (a Tac3D-style SN).
+pub const DEFAULT_SN: &str = "EC1-0000SIM";
+
+/// A command a Tac3D client sent back to the main program.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Tac3dCommand {
+    /// `$C`: re-zero the displacement field (the sensor must be untouched).
+    Calibrate,
+    /// `$Q`: stop the sensor.
+    Quit,
+}
+
+impl Tac3dCommand {
+    /// Parse a client datagram; `None` for anything that is not `$C` / `$Q`.
+    pub fn parse(datagram: &[u8]) -> Option<Self> {
+        match datagram {
+            CMD_CALIBRATE => Some(Tac3dCommand::Calibrate),
+            CMD_QUIT => Some(Tac3dCommand::Quit),
+            _ => None,
+        }
+    }
+}
+
+/// How a [`Tac3dSender`] frames its stream.
+#[derive(Debug, Clone)]
+pub struct Tac3dSenderConfig {
+    /// Sensor serial in every frame header (`SN`).
+    pub sn: String,
+    /// Largest datagram, 8-byte header included.
+    pub max_datagram: usize,
+}
+
+impl Default for Tac3dSenderConfig {
+    fn default() -> Self {
+        Self { sn: DEFAULT_SN.to_string(), max_datagram: DEFAULT_MAX_DATAGRAM }
+    }
+}
+
+/// The Tac3D main program's side of the link, for emulators: sends frames as
+/// the main program does (8-byte header, YAML packet 0, f64 blob packets) to a
+/// fixed client address, and hears the `$C` / `$Q` commands the client sends
+/// back to the address frames came from (this socket).
+#[derive(Debug)]
+pub struct Tac3dSender {
+    socket: UdpSocket,
+    to: SocketAddr,
+    cfg: Tac3dSenderConfig,
+    /// Datagrams from the client that were not `$C` / `$Q`.
+    unknown_commands: u64,
+}
+
+impl Tac3dSender {
+    /// Bind `bind` (port 0 for any) and send to `to` (the client's port, 9988
+    /// for PyTac3D's default).
+    pub async fn bind(bind: SocketAddr, to: SocketAddr, cfg: Tac3dSenderConfig) -> Result<Self, SensorError> {
+        let socket = UdpSocket::bind(bind).await.map_err(io_err("bind UDP socket"))?;
+        Ok(Self { socket, to, cfg, unknown_commands: 0 })
+    }
+
+    pub fn local_addr(&self) -> Result<SocketAddr, SensorError> {
+        self.socket.local_addr().map_err(io_err("local address"))
+    }
+
+    /// Where frames go.
+    pub fn destination(&self) -> SocketAddr {
+        self.to
+    }
+
+    /// Send one rig frame as `3D_Positions` and `3D_Displacements` (`n x 3`).
+    pub async fn send(&mut self, frame: &SensorFrame) -> Result<(), SensorError> {
+        self.send_tac3d(&Tac3dFrame::from_sensor_frame(frame, &self.cfg.sn)).await
+    }
+
+    /// Send a full Tac3D frame (any items, e.g. forces and normals too).
+    pub async fn send_tac3d(&mut self, frame: &Tac3dFrame) -> Result<(), SensorError> {
+        let packets = encode_frame(frame, self.cfg.max_datagram).map_err(|e| SensorError::Io {
+            what: "encode Tac3D frame",
+            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, e),
+        })?;
+        for p in &packets {
+            match self.socket.send_to(p, self.to).await {
+                Ok(_) => {}
+                // Nobody listening yet (ICMP port unreachable from an earlier
+                // datagram): the main program keeps streaming regardless.
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {}
+                Err(e) => return Err(io_err("send Tac3D datagram")(e)),
+            }
+        }
+        Ok(())
+    }
+
+    /// A command the client sent, if one is waiting (never blocks).
+    pub fn try_command(&mut self) -> Result<Option<Tac3dCommand>, SensorError> {
+        let mut buf = [0u8; 64];
+        loop {
+            match self.socket.try_recv_from(&mut buf) {
+                Ok((n, _from)) => match Tac3dCommand::parse(&buf[..n]) {
+                    Some(c) => return Ok(Some(c)),
+                    None => self.unknown_commands += 1,
+                },
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(None),
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => continue,
+                Err(e) => return Err(io_err("receive client command")(e)),
+            }
+        }
+    }
+
+    /// Wait for the client's next command.
+    pub async fn recv_command(&mut self) -> Result<Tac3dCommand, SensorError> {
+        let mut buf = [0u8; 64];
+        loop {
+            match self.socket.recv_from(&mut buf).await {
+                Ok((n, _from)) => match Tac3dCommand::parse(&buf[..n]) {
+                    Some(c) => return Ok(c),
+                    None => self.unknown_commands += 1,
+                },
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => continue,
+                Err(e) => return Err(io_err("receive client command")(e)),
+            }
+        }
+    }
+
+    /// Datagrams from the client that were neither `$C` nor `$Q`.
+    pub fn unknown_commands(&self) -> u64 {
+        self.unknown_commands
     }
 }

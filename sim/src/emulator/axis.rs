@@ -57,6 +57,11 @@ pub struct Axis {
     lag_hi: f64,
     moves_completed: u64,
     homes_completed: u64,
+    /// After homing, the axis moves this far forward of the home switch and
+    /// zeroes its counter there (the HOMEPARAMS offset distance; 0 = at the switch).
+    home_offset: f64,
+    /// The move from the switch to the home offset is under way.
+    home_offset_move: bool,
 }
 
 impl Axis {
@@ -75,6 +80,8 @@ impl Axis {
             lag_hi: 0.0,
             moves_completed: 0,
             homes_completed: 0,
+            home_offset: 0.0,
+            home_offset_move: false,
         }
     }
 
@@ -192,6 +199,14 @@ impl Axis {
     }
 
     fn finish_move(&mut self) {
+        if self.home_offset_move {
+            // Arrived at the home offset: homing is complete now.
+            self.home_offset_move = false;
+            self.mode = Mode::Idle;
+            self.homed = true;
+            self.homes_completed += 1;
+            return;
+        }
         if self.mode != Mode::Idle {
             self.moves_completed += 1;
         }
@@ -200,8 +215,15 @@ impl Axis {
 
     fn finish_home(&mut self) {
         self.mode = Mode::Idle;
+        self.counter_offset = self.motor + self.home_offset;
+        if self.home_offset != 0.0 {
+            let target = self.counter_offset.clamp(self.cfg.min_position, self.cfg.max_position);
+            self.target = target;
+            self.mode = Mode::Moving;
+            self.home_offset_move = true;
+            return;
+        }
         self.homed = true;
-        self.counter_offset = self.motor;
         self.homes_completed += 1;
     }
 
@@ -218,6 +240,7 @@ impl Axis {
         if !target.is_finite() || mech < self.cfg.min_position - 1e-9 || mech > self.cfg.max_position + 1e-9 {
             return false;
         }
+        self.home_offset_move = false;
         self.target = mech;
         self.mode = Mode::Moving;
         true
@@ -225,6 +248,7 @@ impl Axis {
 
     pub fn command_home(&mut self, t_s: f64) {
         self.advance_to(t_s);
+        self.home_offset_move = false;
         self.homed = false;
         self.mode = Mode::Homing;
     }
@@ -235,11 +259,41 @@ impl Axis {
         if self.mode == Mode::Idle {
             return;
         }
+        // Stopping the move to the home offset abandons the homing.
+        self.home_offset_move = false;
         if immediate {
             self.velocity = 0.0;
             self.finish_move();
         } else {
             self.mode = Mode::Stopping;
+        }
+    }
+
+    /// Change the velocity limit and acceleration (a controller's SET_VELPARAMS).
+    /// Non-positive or non-finite values are ignored: the axis keeps moving sanely.
+    pub fn set_motion_params(&mut self, max_velocity: f64, acceleration: f64) {
+        if max_velocity.is_finite() && max_velocity > 0.0 {
+            self.cfg.max_velocity = max_velocity;
+        }
+        if acceleration.is_finite() && acceleration > 0.0 {
+            self.cfg.acceleration = acceleration;
+        }
+    }
+
+    /// Home offset distance: after finding the switch the axis moves this far
+    /// forward and zeroes its counter there. A rotation mount homes on a
+    /// switch but turns both ways from its zero.
+    pub fn set_home_offset(&mut self, offset: f64) {
+        if offset.is_finite() {
+            self.home_offset = offset;
+        }
+    }
+
+    /// Load the position counter with `value` at the current position
+    /// (a controller's SET_POSCOUNTER); the mechanics do not move.
+    pub fn set_position_counter(&mut self, value: f64) {
+        if value.is_finite() {
+            self.counter_offset = self.motor - value;
         }
     }
 
@@ -260,7 +314,7 @@ impl Axis {
         self.mode != Mode::Idle
     }
     pub fn is_homing(&self) -> bool {
-        self.mode == Mode::Homing
+        self.mode == Mode::Homing || self.home_offset_move
     }
     pub fn is_homed(&self) -> bool {
         self.homed
@@ -338,6 +392,25 @@ mod tests {
         assert!(!ax.command_move_to(0.0, 26.0));
         assert!(!ax.command_move_to(0.0, f64::NAN));
         assert!(!ax.is_moving());
+    }
+
+    #[test]
+    fn home_offset_moves_off_the_switch_and_zeroes_there() {
+        let mut ax = Axis::new(cfg());
+        ax.set_home_offset(10.0);
+        ax.command_home(0.0);
+        ax.advance_to(3.2);
+        // Found the switch after 3 s at 1 mm/s; now on the way to the offset.
+        assert!(ax.is_homing() && !ax.is_homed());
+        assert_eq!(ax.homes_completed(), 0);
+        ax.advance_to(20.0);
+        assert!(ax.is_homed() && !ax.is_moving());
+        assert_eq!(ax.homes_completed(), 1);
+        assert_eq!(ax.moves_completed(), 0);
+        assert!(ax.position().abs() < 1e-9);
+        assert!((ax.load_position()).abs() < 1e-9);
+        assert_eq!(ax.travel(), (-10.0, 15.0));
+        assert!(ax.command_move_to(20.0, -5.0));
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! Emulators of the rig's real hardware. They speak the devices' own protocols
 //! on pseudo-terminals, so easycalib's real drivers are tested byte for byte.
 
+pub mod apt;
 pub mod axis;
+pub mod grbl;
 pub mod pty;
 pub mod rig;

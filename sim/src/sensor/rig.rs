@@ -1,0 +1,220 @@
+//! The simulated sensor coupled to the emulated rig: the stage's load position
+//! sets the approach, the normal model (Hertz-Tatara-Yoffe) turns it into
+//! gamma1 and the contact radius, and the mount angle turned while in contact
+//! becomes theta1 through the torsion model (Jäger + rod) at the current depth.
+//! Moving the emulated stage therefore changes what the sensor sees.
+
+use devices::sensor::SensorFrame;
+
+use super::field::{ContactState, MarkerGrid, NoiseConfig, SimulatedSensor};
+use crate::emulator::rig::{Rig, RigPose};
+use crate::generator::GeneratorConfig;
+use crate::physics::{ContactPair, NormalModel, NormalState, ParamError, torsion_at};
+
+/// Everything that defines the simulated sensor. Defaults are those of a real
+/// Tac3D (hardware.md C.1): 20 x 20 markers at 1 mm pitch on a 33 mm dome,
+/// 4 um marker noise, exact zeros without contact, 30 frames/s.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorSimConfig {
+    /// Elastomer (1) and indenter (2) of the simulated rig.
+    pub pair: ContactPair,
+    pub grid: MarkerGrid,
+    pub noise: NoiseConfig,
+    /// Frames per second of rig time.
+    pub frame_rate_hz: f64,
+    /// Where the indenter's axis meets the marker grid, mm.
+    pub contact_center_mm: [f64; 2],
+    /// Stage load position at which the indenter first touches the elastomer:
+    /// the approach is `stage_mm - contact_stage_mm` (positive into the sensor).
+    pub contact_stage_mm: f64,
+    /// Seed of the marker noise, outliers and lost frames.
+    pub seed: u64,
+    /// The first frame's counter (a Tac3D counts from its own start, not 0).
+    pub first_index: u64,
+}
+
+impl Default for SensorSimConfig {
+    fn default() -> Self {
+        Self {
+            pair: GeneratorConfig::default().pair,
+            grid: MarkerGrid::tac3d(),
+            noise: NoiseConfig::default(),
+            frame_rate_hz: 30.0,
+            contact_center_mm: [0.0, 0.0],
+            contact_stage_mm: 0.0,
+            seed: 1,
+            first_index: 1000,
+        }
+    }
+}
+
+/// The physical truth behind one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactTruth {
+    /// Normal contact state at the current approach.
+    pub normal: NormalState,
+    /// Torsion depth beta = gamma2 / R2.
+    pub beta: f64,
+    /// Mount rotation since the contact was made, degrees.
+    pub twist_deg: f64,
+    /// Rotation of the contact relative to the elastomer, rad.
+    pub theta1_rad: f64,
+}
+
+/// A simulated Tac3D looking at the emulated rig.
+pub struct RigSensor {
+    rig: Rig,
+    model: NormalModel,
+    cfg: SensorSimConfig,
+    sensor: SimulatedSensor,
+    /// Mount angle when the current contact was made: twist before touching
+    /// does not load the elastomer.
+    twist_origin_deg: Option<f64>,
+}
+
+impl std::fmt::Debug for RigSensor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RigSensor")
+            .field("cfg", &self.cfg)
+            .field("sensor", &self.sensor)
+            .field("twist_origin_deg", &self.twist_origin_deg)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RigSensor {
+    pub fn new(rig: Rig, cfg: SensorSimConfig) -> Result<Self, ParamError> {
+        let model = NormalModel::new(cfg.pair)?;
+        let sensor = SimulatedSensor::new(cfg.grid.clone(), cfg.noise, cfg.seed, Box::new(|_| None))
+            .with_first_index(cfg.first_index);
+        Ok(Self { rig, model, cfg, sensor, twist_origin_deg: None })
+    }
+
+    pub fn config(&self) -> &SensorSimConfig {
+        &self.cfg
+    }
+
+    pub fn rig(&self) -> &Rig {
+        &self.rig
+    }
+
+    /// Frames lost so far by the simulated dropouts.
+    pub fn dropped(&self) -> u64 {
+        self.sensor.dropped()
+    }
+
+    /// The contact behind a pose (`None`: not touching), with the twist
+    /// counted from `twist_origin_deg` (the current pose's angle if `None`).
+    pub fn truth_with_origin(&self, pose: &RigPose, twist_origin_deg: Option<f64>) -> Option<ContactTruth> {
+        let delta = pose.stage_mm - self.cfg.contact_stage_mm;
+        if delta.is_nan() || delta <= 0.0 {
+            return None;
+        }
+        // Past the model's limit the elastomer would be crushed; hold the
+        // deepest state the model describes instead of failing the stream.
+        let delta = delta.min(0.999 * self.model.max_approach_mm());
+        let normal = self.model.solve(delta).ok()?;
+        if !(normal.gamma1_mm > 0.0 && normal.contact_radius_mm > 0.0) {
+            return None;
+        }
+        let beta = normal.gamma2_mm / self.cfg.pair.indenter.r_mm;
+        let twist_deg = pose.rot_deg - twist_origin_deg.unwrap_or(pose.rot_deg);
+        let theta1_rad = torsion_at(&self.cfg.pair, beta, twist_deg.to_radians()).theta1_rad;
+        Some(ContactTruth { normal, beta, twist_deg, theta1_rad })
+    }
+
+    /// The contact behind a pose given the contact history so far.
+    pub fn truth(&self, pose: &RigPose) -> Option<ContactTruth> {
+        self.truth_with_origin(pose, self.twist_origin_deg)
+    }
+
+    /// The frame the sensor reports for `pose` (advances the frame counter,
+    /// the noise and the contact history).
+    pub fn frame_at_pose(&mut self, pose: &RigPose) -> SensorFrame {
+        let truth = self.truth(pose);
+        match truth {
+            Some(_) if self.twist_origin_deg.is_none() => self.twist_origin_deg = Some(pose.rot_deg),
+            None => self.twist_origin_deg = None,
+            Some(_) => {}
+        }
+        let state = truth.map(|t| {
+            ContactState::new(self.cfg.contact_center_mm, t.normal.gamma1_mm, t.normal.contact_radius_mm, t.theta1_rad)
+                .with_nu1(self.cfg.pair.elastomer.nu)
+        });
+        self.sensor.frame_for(state, pose.t_s)
+    }
+
+    /// The frame for the rig as it is now.
+    pub fn frame(&mut self) -> SensorFrame {
+        let pose = self.rig.pose();
+        self.frame_at_pose(&pose)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::VirtualClock;
+    use crate::emulator::axis::AxisConfig;
+
+    fn axis(lo: f64, hi: f64) -> AxisConfig {
+        AxisConfig {
+            max_velocity: 1e6,
+            acceleration: 1e9,
+            min_position: lo,
+            max_position: hi,
+            resolution: 0.0,
+            backlash: 0.0,
+            home_velocity: 1.0,
+            power_on_position: 0.0,
+        }
+    }
+
+    #[test]
+    fn stage_sets_depth_and_twist_counts_from_contact() {
+        let rig = Rig::new(VirtualClock::new(1.0), axis(-10.0, 10.0), axis(-360.0, 360.0));
+        let cfg = SensorSimConfig { noise: NoiseConfig::NONE, contact_stage_mm: 1.0, ..SensorSimConfig::default() };
+        let model = NormalModel::new(cfg.pair).unwrap();
+        let mut s = RigSensor::new(rig, cfg).unwrap();
+        let pose = |stage_mm, rot_deg| RigPose { t_s: 0.0, stage_mm, rot_deg };
+        // Twisting before touching loads nothing.
+        let f = s.frame_at_pose(&pose(0.9, 3.0));
+        assert!(f.displacements.iter().all(|d| *d == [0.0; 3]));
+        // Touch at 3 degrees, then twist by 2 degrees.
+        let f = s.frame_at_pose(&pose(3.0, 3.0));
+        let centre = f.positions.iter().position(|p| p[0] == -0.5 && p[1] == -0.5).unwrap();
+        let state = model.solve(2.0).unwrap();
+        let a = state.contact_radius_mm;
+        let expected = -state.gamma1_mm * (1.0 - 0.5 * 0.5 / (a * a));
+        assert!((f.displacements[centre][2] - expected).abs() < 1e-12);
+        let t = s.truth(&pose(3.0, 5.0)).unwrap();
+        assert!((t.twist_deg - 2.0).abs() < 1e-12);
+        let beta = state.gamma2_mm / 5.0;
+        let th = torsion_at(&s.config().pair, beta, 2f64.to_radians()).theta1_rad;
+        assert!((t.theta1_rad - th).abs() < 1e-15 && th > 0.0);
+        // Losing contact resets the twist reference.
+        s.frame_at_pose(&pose(0.5, 5.0));
+        s.frame_at_pose(&pose(3.0, 7.0));
+        assert_eq!(s.truth(&pose(3.0, 7.0)).unwrap().twist_deg, 0.0);
+        // Frame counter starts at the configured value and counts up.
+        let f2 = s.frame_at_pose(&pose(3.0, 7.0));
+        assert_eq!(f2.index, 1000 + 4);
+    }
+
+    #[test]
+    fn moving_the_emulated_stage_changes_the_frames() {
+        let clock = VirtualClock::new(1000.0);
+        let rig = Rig::new(clock, axis(-10.0, 10.0), axis(-360.0, 360.0));
+        let mut s =
+            RigSensor::new(rig.clone(), SensorSimConfig { noise: NoiseConfig::NONE, ..SensorSimConfig::default() })
+                .unwrap();
+        let before = s.frame();
+        assert!(before.displacements.iter().all(|d| *d == [0.0; 3]));
+        rig.with_stage(|ax, t| ax.command_move_to(t, 0.5));
+        // The axis is nearly instantaneous; wait a few ms of wall time for it.
+        std::thread::sleep(std::time::Duration::from_millis(5));
+        let after = s.frame();
+        let peak = after.displacements.iter().map(|d| -d[2]).fold(0.0, f64::max);
+        assert!(peak > 0.1, "peak {peak}");
+    }
+}

@@ -1,0 +1,369 @@
+//! `easycalib sensor watch`: a user's first check that the sensor link works.
+//! Per frame it shows gamma1, theta1, the contact radius, the link's frame
+//! rate and lost frames — a live line on a terminal, JSON lines otherwise.
+
+use std::future::Future;
+use std::io::{IsTerminal, Write};
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use clap::{Args, Subcommand};
+use devices::sensor::link::{LinkConfig, LinkReceiver};
+use devices::sensor::tac3d::{Tac3dReceiver, Tac3dReceiverConfig};
+use devices::sensor::{SensorError, SensorLink};
+use serde::Serialize;
+
+use super::CliError;
+use crate::sensing::{SensingConfig, SensingError, measure};
+
+#[derive(Debug, Args)]
+pub struct SensorArgs {
+    #[command(subcommand)]
+    pub command: SensorCommand,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum SensorCommand {
+    /// Show gamma1, theta1, contact radius, frame rate and lost frames live.
+    Watch(WatchArgs),
+}
+
+#[derive(Debug, Args)]
+#[command(group(clap::ArgGroup::new("source").required(true).args(["tac3d", "link"])))]
+pub struct WatchArgs {
+    /// Receive the Tac3D main program's UDP stream on this local port (it sends to 9988 by default).
+    #[arg(long, value_name = "PORT")]
+    pub tac3d: Option<u16>,
+    /// easycalib link protocol: a serial device path, or udp://HOST:PORT of the device.
+    #[arg(long, value_name = "PATH")]
+    pub link: Option<String>,
+    /// Baud rate for a serial link.
+    #[arg(long, default_value_t = 115_200)]
+    pub baud: u32,
+    /// JSON lines even on a terminal.
+    #[arg(long)]
+    pub json: bool,
+    /// Give up when no frame arrives for this long, s.
+    #[arg(long, default_value_t = 3.0)]
+    pub timeout_s: f64,
+    /// Stop after this many frames (default: until Ctrl-C).
+    #[arg(long)]
+    pub count: Option<u64>,
+}
+
+/// One printed record.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct WatchLine {
+    pub index: u64,
+    pub t_s: f64,
+    /// "ok", "no_contact" or "error".
+    pub status: &'static str,
+    pub gamma1_mm: Option<f64>,
+    pub theta1_deg: Option<f64>,
+    pub contact_radius_mm: Option<f64>,
+    pub outliers: Option<usize>,
+    pub rate_hz: f64,
+    pub dropped: u64,
+    pub bad: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+impl WatchLine {
+    /// The live terminal line.
+    pub fn human(&self) -> String {
+        let head = match self.status {
+            "ok" => format!(
+                "gamma1 {:8.4} mm  theta1 {:+8.4} deg  a {:6.3} mm",
+                self.gamma1_mm.unwrap_or(0.0),
+                self.theta1_deg.unwrap_or(0.0),
+                self.contact_radius_mm.unwrap_or(0.0)
+            ),
+            "no_contact" => format!("{:<52}", "no contact"),
+            _ => format!("{:<52}", self.error.as_deref().unwrap_or("error")),
+        };
+        format!("#{:<8} {head}  {:5.1} frames/s  dropped {}  bad {}", self.index, self.rate_hz, self.dropped, self.bad)
+    }
+}
+
+/// How a watch ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WatchSummary {
+    pub frames: u64,
+    pub dropped: u64,
+    pub bad: u64,
+}
+
+/// Read frames from `link` and write one record per frame to `out` until
+/// `stop` resolves, `count` frames were shown, or no frame arrives within
+/// `timeout` (an error naming `source`). The link must already be started.
+pub async fn watch_link<L, W>(
+    link: &mut L,
+    out: &mut W,
+    live: bool,
+    timeout: Duration,
+    count: Option<u64>,
+    source: &str,
+    stop: impl Future<Output = ()>,
+) -> Result<WatchSummary, CliError>
+where
+    L: SensorLink + ?Sized,
+    W: Write,
+{
+    let cfg = SensingConfig::default();
+    let mut frames = 0u64;
+    tokio::pin!(stop);
+    loop {
+        if count.is_some_and(|c| frames >= c) {
+            break;
+        }
+        let next = tokio::select! {
+            _ = &mut stop => break,
+            f = link.next_frame(timeout) => f,
+        };
+        let frame = match next {
+            Ok(f) => f,
+            Err(SensorError::Timeout { waited }) => {
+                if live {
+                    let _ = writeln!(out);
+                }
+                let what = if frames == 0 {
+                    format!(
+                        "no frame from {source} within {:.1} s: is the sensor streaming to this address/port?",
+                        waited.as_secs_f64()
+                    )
+                } else {
+                    format!(
+                        "frames from {source} stopped: none for {:.1} s after {frames} frames",
+                        waited.as_secs_f64()
+                    )
+                };
+                let stats = link.stats();
+                let bad = if stats.bad_total() > 0 {
+                    format!(" ({} malformed inputs rejected: {:?})", stats.bad_total(), stats.bad)
+                } else {
+                    String::new()
+                };
+                return Err(CliError::other(format!("{what}{bad}")));
+            }
+            Err(e) => return Err(CliError::other(format!("sensor link {source}: {e}"))),
+        };
+        frames += 1;
+        let stats = link.stats();
+        let mut line = WatchLine {
+            index: frame.index,
+            t_s: frame.t_s,
+            status: "ok",
+            gamma1_mm: None,
+            theta1_deg: None,
+            contact_radius_mm: None,
+            outliers: None,
+            rate_hz: stats.rate_hz,
+            dropped: stats.dropped,
+            bad: stats.bad_total(),
+            error: None,
+        };
+        match measure(&frame, &cfg) {
+            Ok(m) => {
+                line.gamma1_mm = Some(m.gamma1_mm);
+                line.theta1_deg = Some(m.theta1_deg);
+                line.contact_radius_mm = Some(m.contact_radius_mm);
+                line.outliers = Some(m.outliers);
+            }
+            Err(SensingError::NoContact { .. }) => line.status = "no_contact",
+            Err(e) => {
+                line.status = "error";
+                line.error = Some(e.to_string());
+            }
+        }
+        let written = if live {
+            write!(out, "\r{}", line.human()).and_then(|_| out.flush())
+        } else {
+            serde_json::to_string(&line)
+                .map_err(std::io::Error::other)
+                .and_then(|s| writeln!(out, "{s}"))
+                .and_then(|_| out.flush())
+        };
+        // A closed pipe (e.g. `| head`) ends the watch quietly.
+        if written.is_err() {
+            break;
+        }
+    }
+    if live {
+        let _ = writeln!(out);
+    }
+    let stats = link.stats();
+    Ok(WatchSummary { frames, dropped: stats.dropped, bad: stats.bad_total() })
+}
+
+async fn open(args: &WatchArgs) -> Result<(Box<dyn SensorLink>, String), CliError> {
+    if let Some(port) = args.tac3d {
+        let cfg =
+            Tac3dReceiverConfig { bind: SocketAddr::from(([0, 0, 0, 0], port)), ..Tac3dReceiverConfig::default() };
+        let rx = Tac3dReceiver::bind(cfg)
+            .await
+            .map_err(|e| CliError::bad_input(format!("cannot listen for Tac3D frames on UDP port {port}: {e}")))?;
+        return Ok((Box::new(rx), format!("Tac3D on udp port {port}")));
+    }
+    let Some(path) = args.link.as_deref() else {
+        return Err(CliError::bad_input("give --tac3d PORT or --link PATH"));
+    };
+    if let Some(addr) = path.strip_prefix("udp://") {
+        let device: SocketAddr =
+            addr.parse().map_err(|e| CliError::bad_input(format!("--link udp://{addr}: not HOST:PORT ({e})")))?;
+        let bind = if device.ip().is_loopback() {
+            SocketAddr::from(([127, 0, 0, 1], 0))
+        } else {
+            SocketAddr::from(([0, 0, 0, 0], 0))
+        };
+        let rx = LinkReceiver::udp(bind, device, LinkConfig::default())
+            .await
+            .map_err(|e| CliError::bad_input(format!("cannot open UDP link to {device}: {e}")))?;
+        return Ok((Box::new(rx), format!("link udp://{device}")));
+    }
+    let rx = LinkReceiver::open_serial(path, args.baud, LinkConfig::default())
+        .map_err(|e| CliError::bad_input(format!("cannot open serial link {path}: {e}")))?;
+    Ok((Box::new(rx), format!("link {path}")))
+}
+
+/// `easycalib sensor ...`
+pub fn run(args: &SensorArgs) -> Result<(), CliError> {
+    match &args.command {
+        SensorCommand::Watch(w) => watch(w),
+    }
+}
+
+fn watch(args: &WatchArgs) -> Result<(), CliError> {
+    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0) {
+        return Err(CliError::bad_input(format!("--timeout-s must be > 0, got {}", args.timeout_s)));
+    }
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::other(format!("cannot start the async runtime: {e}")))?;
+    rt.block_on(async {
+        let (mut link, source) = open(args).await?;
+        link.start().await.map_err(|e| CliError::other(format!("cannot start {source}: {e}")))?;
+        let live = !args.json && std::io::stdout().is_terminal();
+        let mut out = std::io::stdout().lock();
+        let stop = async {
+            // Without a signal handler, Ctrl-C kills the process as usual.
+            if tokio::signal::ctrl_c().await.is_err() {
+                std::future::pending::<()>().await;
+            }
+        };
+        let result = watch_link(
+            link.as_mut(),
+            &mut out,
+            live,
+            Duration::from_secs_f64(args.timeout_s),
+            args.count,
+            &source,
+            stop,
+        )
+        .await;
+        // Best effort: the device may already be gone.
+        let _ = link.stop().await;
+        let summary = result?;
+        eprintln!("{}: {} frames, {} dropped, {} malformed", source, summary.frames, summary.dropped, summary.bad);
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use async_trait::async_trait;
+    use devices::sensor::{LinkStats, SensorFrame};
+    use sim::rng::Rng;
+    use sim::sensor::field::{ContactState, MarkerGrid, NoiseConfig, no_contact_frame, synth_frame};
+    use std::collections::VecDeque;
+
+    /// A link that hands out queued frames, then times out.
+    struct Queued {
+        frames: VecDeque<SensorFrame>,
+        delivered: u64,
+    }
+
+    #[async_trait]
+    impl SensorLink for Queued {
+        async fn start(&mut self) -> Result<(), SensorError> {
+            Ok(())
+        }
+        async fn stop(&mut self) -> Result<(), SensorError> {
+            Ok(())
+        }
+        async fn next_frame(&mut self, timeout: Duration) -> Result<SensorFrame, SensorError> {
+            let f = self.frames.pop_front().ok_or(SensorError::Timeout { waited: timeout })?;
+            self.delivered += 1;
+            Ok(f)
+        }
+        async fn tare(&mut self) -> Result<(), SensorError> {
+            Ok(())
+        }
+        fn stats(&self) -> LinkStats {
+            LinkStats { frames: self.delivered, rate_hz: 30.0, dropped: 2, ..LinkStats::default() }
+        }
+    }
+
+    fn frames() -> VecDeque<SensorFrame> {
+        let grid = MarkerGrid::tac3d();
+        let mut rng = Rng::seed_from(1);
+        let state = ContactState::new([0.2, -0.1], 1.5, 3.5, 2f64.to_radians());
+        VecDeque::from(vec![
+            no_contact_frame(&grid, 100, 0.0),
+            synth_frame(&state, &grid, &NoiseConfig::NONE, &mut rng, 101, 0.033),
+        ])
+    }
+
+    #[tokio::test]
+    async fn json_lines_per_frame_then_a_clear_error_when_frames_stop() {
+        let mut link = Queued { frames: frames(), delivered: 0 };
+        let mut out = Vec::new();
+        let r = watch_link(
+            &mut link,
+            &mut out,
+            false,
+            Duration::from_millis(50),
+            None,
+            "test link",
+            std::future::pending(),
+        )
+        .await;
+        let err = r.unwrap_err();
+        assert!(err.message.contains("stopped") && err.message.contains("after 2 frames"), "{}", err.message);
+        let text = String::from_utf8(out).unwrap();
+        let lines: Vec<serde_json::Value> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        assert_eq!(lines.len(), 2);
+        assert_eq!(lines[0]["status"], "no_contact");
+        assert_eq!(lines[0]["gamma1_mm"], serde_json::Value::Null);
+        assert_eq!(lines[1]["status"], "ok");
+        assert!((lines[1]["gamma1_mm"].as_f64().unwrap() - 1.5).abs() < 1e-9);
+        assert!((lines[1]["theta1_deg"].as_f64().unwrap() - 2.0).abs() < 1e-9);
+        assert_eq!(lines[1]["dropped"], 2);
+        assert_eq!(lines[1]["rate_hz"], 30.0);
+    }
+
+    #[tokio::test]
+    async fn nothing_arriving_names_the_source_and_count_stops_cleanly() {
+        let mut empty = Queued { frames: VecDeque::new(), delivered: 0 };
+        let mut out = Vec::new();
+        let err =
+            watch_link(&mut empty, &mut out, false, Duration::from_millis(10), None, "Tac3D on udp port 9988", async {
+                std::future::pending::<()>().await
+            })
+            .await
+            .unwrap_err();
+        assert!(err.message.starts_with("no frame from Tac3D on udp port 9988 within"), "{}", err.message);
+
+        let mut link = Queued { frames: frames(), delivered: 0 };
+        let mut out = Vec::new();
+        let s = watch_link(&mut link, &mut out, true, Duration::from_millis(10), Some(1), "x", std::future::pending())
+            .await
+            .unwrap();
+        assert_eq!(s, WatchSummary { frames: 1, dropped: 2, bad: 0 });
+        let text = String::from_utf8(out).unwrap();
+        assert!(text.starts_with("\r#100") && text.contains("no contact") && text.ends_with('\n'), "{text:?}");
+    }
+}

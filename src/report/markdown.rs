@@ -1,0 +1,128 @@
+//! `report.md`: the result with units and intervals, fit quality, and the figures.
+
+use std::fmt::Write;
+
+use sim::recording::Recording;
+
+use super::json::CalibrationOutput;
+
+fn pm(ci: [f64; 2]) -> f64 {
+    0.5 * (ci[1] - ci[0])
+}
+
+fn num(x: f64, d: usize) -> String {
+    if x.is_finite() { format!("{x:.d$}") } else { "n/a".to_string() }
+}
+
+fn interval(ci: [f64; 2], d: usize) -> String {
+    format!("[{}, {}]", num(ci[0], d), num(ci[1], d))
+}
+
+/// The Markdown report. `normal_svg` and `torsion_svg` are the figures' file
+/// names relative to the report.
+pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &str, torsion_svg: &str) -> String {
+    let f = &out.full;
+    let p = &out.paper;
+    let meta = &rec.meta;
+    let mut s = String::new();
+    // Writing to a String cannot fail.
+    let _ = writeln!(s, "# Calibration report\n");
+    let _ = writeln!(s, "| | |\n| --- | --- |");
+    let _ = writeln!(s, "| sensor | {} |", meta.sensor.as_deref().unwrap_or("(not named)"));
+    if let Some(c) = &meta.created {
+        let _ = writeln!(s, "| created | {c} |");
+    }
+    let _ = writeln!(s, "| recording | `{}` |", out.recording.as_deref().unwrap_or("(not written)"));
+    let _ = writeln!(s, "| samples | {} normal, {} torsion |", out.samples.normal, out.samples.torsion);
+    let _ = writeln!(
+        s,
+        "| indenter | E2 = {} MPa, nu2 = {}, R2 = {} mm |",
+        meta.indenter.e_mpa, meta.indenter.nu, meta.indenter.r_mm
+    );
+    let r1 = if meta.elastomer_r_mm.is_infinite() { "flat".to_string() } else { format!("{} mm", meta.elastomer_r_mm) };
+    let _ = writeln!(s, "| elastomer radius R1 | {r1} |\n");
+
+    let _ = writeln!(s, "## Result\n");
+    let _ = writeln!(
+        s,
+        "Best estimate: **E1 = {} ± {} MPa**, **nu1 = {} ± {}** (full-model fit; ± is the half-width of the 95 % interval).\n",
+        num(f.e1_mpa, 4),
+        num(pm(f.ci95.e1_mpa), 4),
+        num(f.nu1, 4),
+        num(pm(f.ci95.nu1), 4)
+    );
+    let _ = writeln!(s, "| quantity | method | value | 95 % interval | unit |");
+    let _ = writeln!(s, "| --- | --- | ---: | --- | --- |");
+    let _ = writeln!(s, "| E1 | full model | {} | {} | MPa |", num(f.e1_mpa, 4), interval(f.ci95.e1_mpa, 4));
+    let _ = writeln!(s, "| nu1 | full model | {} | {} | – |", num(f.nu1, 4), interval(f.ci95.nu1, 4));
+    let _ = writeln!(
+        s,
+        "| z0 (contact offset) | full model | {} | {} | µm |",
+        num(f.contact_offset_mm * 1e3, 1),
+        interval([f.ci95.contact_offset_mm[0] * 1e3, f.ci95.contact_offset_mm[1] * 1e3], 1)
+    );
+    let _ =
+        writeln!(s, "| E1 | paper, exact inversion | {} | {} | MPa |", num(p.e1_mpa, 4), interval(p.ci95.e1_mpa, 4));
+    let _ = writeln!(s, "| nu1 | paper, exact inversion | {} | {} | – |", num(p.nu1, 4), interval(p.ci95.nu1, 4));
+    let _ = writeln!(s, "| E1 | paper, rounded constants (Eqs. 39-40) | {} | | MPa |", num(p.e1_mpa_rounded, 4));
+    let _ = writeln!(s, "| nu1 | paper, rounded constants (Eqs. 39-40) | {} | | – |", num(p.nu1_rounded, 4));
+    let _ = writeln!(s);
+
+    if let Some(t) = out.sim_truth {
+        let _ = writeln!(s, "## Simulation truth\n");
+        let _ = writeln!(s, "| | E1 (MPa) | nu1 |\n| --- | ---: | ---: |");
+        let _ = writeln!(s, "| truth | {} | {} |", num(t.e1_mpa, 4), num(t.nu1, 4));
+        let err = |est: f64, truth: f64| format!("{:+.2} %", (est / truth - 1.0) * 100.0);
+        let _ = writeln!(s, "| full model error | {} | {} |", err(f.e1_mpa, t.e1_mpa), err(f.nu1, t.nu1));
+        let _ = writeln!(s, "| paper's method error | {} | {} |\n", err(p.e1_mpa, t.e1_mpa), err(p.nu1, t.nu1));
+    }
+
+    let _ = writeln!(s, "## Fit quality\n");
+    let _ = writeln!(s, "| | normal sweep | torsion sweep |\n| --- | ---: | ---: |");
+    let _ = writeln!(
+        s,
+        "| full model: residual RMS | {} µm | {} deg |",
+        num(f.rms.normal_um, 2),
+        num(f.rms.torsion_deg, 4)
+    );
+    let _ = writeln!(
+        s,
+        "| full model: noise floor | {} µm | {} deg |",
+        num(f.noise_floor.normal_um, 2),
+        num(f.noise_floor.torsion_deg, 4)
+    );
+    let _ = writeln!(s, "| full model: R² | {} | {} |", num(f.r2.normal, 6), num(f.r2.torsion, 6));
+    let _ = writeln!(s, "| paper: R² | {} | {} |", num(p.r2_normal, 6), num(p.r2_torsion, 6));
+    let _ = writeln!(s, "| paper: samples used | {} | {} |\n", p.n_normal, p.n_torsion);
+    let _ = writeln!(
+        s,
+        "Paper's method: Eq. 22 over gamma1 {}–{} mm gives H1 = {} ± {} (H2 = {}); Eq. 38 gives H3 = {} ± {}; \
+         torsion depth beta = {}, rod factor c(beta) = {}; corr(E1, nu1) = {}.\n",
+        p.window_mm[0],
+        p.window_mm[1],
+        num(p.h1, 4),
+        num(pm(p.h1_ci95), 4),
+        num(p.h2, 4),
+        num(p.h3, 4),
+        num(pm(p.h3_ci95), 4),
+        num(p.beta, 4),
+        num(p.rod_factor, 4),
+        num(p.corr_e1_nu1, 3)
+    );
+    let _ = writeln!(
+        s,
+        "Full model: {} samples, {} iterations, {}; model beta = {}; corr(E1, nu1) = {}.\n",
+        f.samples_used,
+        f.iterations,
+        if f.converged { "converged" } else { "**stopped before converging**" },
+        num(f.beta, 4),
+        num(f.corr_e1_nu1, 3)
+    );
+
+    let _ = writeln!(s, "## Figures\n");
+    let _ = writeln!(s, "Normal sweep with the paper's fit (Eq. 22) and the full model; residuals below.\n");
+    let _ = writeln!(s, "![Normal sweep: gamma2 vs gamma1]({normal_svg})\n");
+    let _ = writeln!(s, "Torsion sweep with the paper's fit (Eq. 38) and the full model; residuals below.\n");
+    let _ = writeln!(s, "![Torsion sweep: theta2 vs theta1]({torsion_svg})");
+    s
+}

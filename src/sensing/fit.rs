@@ -1,0 +1,407 @@
+//! The two small robust fits behind a measurement: a quadratic surface around
+//! the deepest point of the normal field, and a 2-D Procrustes rotation of the
+//! stuck markers about the contact centre. Both reject outlier markers by a
+//! robust (median-based) scale and refit.
+
+use nalgebra::{Matrix2, SMatrix, SVector};
+
+/// `1.4826 * MAD` estimates a Gaussian sigma.
+const MAD_TO_SIGMA: f64 = 1.482_602_218_505_602;
+
+/// w = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2, in coordinates local to the window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Quadratic {
+    pub c: [f64; 6],
+}
+
+impl Quadratic {
+    pub fn value(&self, x: f64, y: f64) -> f64 {
+        let c = &self.c;
+        c[0] + c[1] * x + c[2] * y + c[3] * x * x + c[4] * x * y + c[5] * y * y
+    }
+
+    /// The stationary point and the value there, if the surface has a
+    /// maximum (negative definite Hessian).
+    pub fn maximum(&self) -> Option<([f64; 2], f64)> {
+        let c = &self.c;
+        let (hxx, hxy, hyy) = (2.0 * c[3], c[4], 2.0 * c[5]);
+        let det = hxx * hyy - hxy * hxy;
+        if !(hxx < 0.0 && det > 0.0) {
+            return None;
+        }
+        // H [x y]^T = -[c1 c2]^T.
+        let x = (-c[1] * hyy + c[2] * hxy) / det;
+        let y = (-c[2] * hxx + c[1] * hxy) / det;
+        Some(([x, y], self.value(x, y)))
+    }
+
+    /// Half the Hessian's trace, (w_xx + w_yy) / 2 (-gamma1 / a^2 for Hertz).
+    pub fn mean_curvature(&self) -> f64 {
+        self.c[3] + self.c[5]
+    }
+}
+
+/// Result of [`fit_quadratic`].
+#[derive(Debug, Clone)]
+pub struct QuadraticFit {
+    pub surface: Quadratic,
+    /// Per input point: kept in the final fit.
+    pub kept: Vec<bool>,
+    /// RMS residual of the kept points, mm.
+    pub rms: f64,
+}
+
+/// Least-squares quadratic surface through `(x, y, w)` with outlier
+/// rejection: the point with the largest externally studentised residual is
+/// dropped while that exceeds about `k` sigmas (and its residual `floor`),
+/// one at a time. `isotropic` fits w = c0 + c1 x + c2 y + c3 (x^2 + y^2)
+/// (the shape of an axisymmetric Hertz contact: two fewer unknowns, so
+/// outliers stand out better in a small window); otherwise the general
+/// six-term quadratic. `None` if too few points remain or they do not
+/// determine the surface.
+pub fn fit_quadratic(pts: &[[f64; 3]], isotropic: bool, k: f64, floor: f64) -> Option<QuadraticFit> {
+    if isotropic {
+        let (c, kept, rms) = fit_linear::<4>(pts, |x, y| [1.0, x, y, x * x + y * y], k, floor)?;
+        Some(QuadraticFit { surface: Quadratic { c: [c[0], c[1], c[2], c[3], 0.0, c[3]] }, kept, rms })
+    } else {
+        let (c, kept, rms) = fit_linear::<6>(pts, |x, y| [1.0, x, y, x * x, x * y, y * y], k, floor)?;
+        Some(QuadraticFit { surface: Quadratic { c }, kept, rms })
+    }
+}
+
+/// Linear least squares in `P` basis functions of (x, y), with one-at-a-time
+/// outlier removal. Returns the coefficients, the kept mask and the RMS.
+fn fit_linear<const P: usize>(
+    pts: &[[f64; 3]],
+    basis: impl Fn(f64, f64) -> [f64; P],
+    k: f64,
+    floor: f64,
+) -> Option<([f64; P], Vec<bool>, f64)> {
+    let n = pts.len();
+    let mut kept = vec![true; n];
+    let mut removed = 0;
+    loop {
+        let m = kept.iter().filter(|&&b| b).count();
+        if m < P + 1 {
+            return None;
+        }
+        let mut ata = SMatrix::<f64, P, P>::zeros();
+        let mut atb = SVector::<f64, P>::zeros();
+        for (p, _) in pts.iter().zip(&kept).filter(|(_, k)| **k) {
+            let a = SVector::<f64, P>::from(basis(p[0], p[1]));
+            ata += a * a.transpose();
+            atb += a * p[2];
+        }
+        let inv = ata.try_inverse()?;
+        let coef = inv * atb;
+        // The point whose removal lowers the squared residual sum most
+        // (by r^2 / (1 - h)) is tested against the scatter of the others:
+        // its externally studentised residual. Judging it by the scatter of
+        // all points would let an outlier hide behind its own pull on a fit
+        // with only a few spare points.
+        let mut ssr = 0.0;
+        let mut worst: Option<(usize, f64)> = None;
+        for (i, p) in pts.iter().enumerate() {
+            if !kept[i] {
+                continue;
+            }
+            let a = SVector::<f64, P>::from(basis(p[0], p[1]));
+            let r = p[2] - coef.dot(&a);
+            ssr += r * r;
+            let h = (a.transpose() * inv * a)[0].clamp(0.0, 1.0);
+            // A point the fit must pass through (h = 1) cannot be judged.
+            let drop = if h < 1.0 - 1e-9 { r * r / (1.0 - h) } else { 0.0 };
+            if worst.is_none_or(|(_, d)| drop > d) {
+                worst = Some((i, drop));
+            }
+        }
+        let rms = (ssr / m as f64).sqrt();
+        let spare = m.saturating_sub(P + 1);
+        let outlier = worst.filter(|&(_, drop)| {
+            if spare < 2 {
+                return false;
+            }
+            let dof = spare as f64;
+            let s2 = (ssr - drop).max(0.0) / dof;
+            // Few spare points give a t distribution with heavy tails.
+            let limit = k * (1.0 + 2.0 / dof);
+            drop.sqrt() > floor && drop > limit * limit * s2
+        });
+        match outlier {
+            Some((i, _)) if removed < n / 4 => {
+                kept[i] = false;
+                removed += 1;
+            }
+            _ => {
+                let mut c = [0.0; P];
+                c.copy_from_slice(coef.as_slice());
+                return Some((c, kept, rms));
+            }
+        }
+    }
+}
+
+/// Result of [`fit_rotation`].
+#[derive(Debug, Clone)]
+pub struct RotationFit {
+    /// Rotation about +z, rad.
+    pub theta: f64,
+    pub kept: Vec<bool>,
+    /// RMS tangential residual displacement of the kept markers, mm.
+    pub rms: f64,
+    /// Sum of squared distances of the kept markers from the centre, mm^2.
+    pub sum_r2: f64,
+}
+
+/// The rotation about `centre` that best maps the reference points `p` onto
+/// the displaced points `q` (orthogonal Procrustes via the SVD of the 2 x 2
+/// cross-covariance), with outlier markers rejected by the robust scale of
+/// the tangential residuals. The centre is held fixed, not fitted: with a free
+/// translation the symmetric radial contraction of a Hertz contact would leak
+/// into the angle whenever the stuck markers are not symmetric about it.
+pub fn fit_rotation(p: &[[f64; 2]], q: &[[f64; 2]], centre: [f64; 2], k: f64, floor: f64) -> Option<RotationFit> {
+    let n = p.len();
+    let mut kept = vec![true; n];
+    const ROUNDS: usize = 6;
+    for round in 0..ROUNDS {
+        let m = kept.iter().filter(|&&b| b).count();
+        if m < 2 {
+            return None;
+        }
+        let mut h = Matrix2::<f64>::zeros();
+        let mut sum_r2 = 0.0;
+        for i in (0..n).filter(|&i| kept[i]) {
+            let (px, py) = (p[i][0] - centre[0], p[i][1] - centre[1]);
+            let (qx, qy) = (q[i][0] - centre[0], q[i][1] - centre[1]);
+            h += Matrix2::new(px * qx, px * qy, py * qx, py * qy);
+            sum_r2 += px * px + py * py;
+        }
+        if sum_r2 <= 0.0 {
+            return None;
+        }
+        let svd = h.svd(true, true);
+        let (u, v_t) = (svd.u?, svd.v_t?);
+        let mut rot = v_t.transpose() * u.transpose();
+        if rot.determinant() < 0.0 {
+            // A reflection fits better than any rotation: flip the weakest axis.
+            let mut v = v_t.transpose();
+            v.set_column(1, &(-v.column(1)));
+            rot = v * u.transpose();
+        }
+        let theta = rot[(1, 0)].atan2(rot[(0, 0)]);
+        let (s, c) = theta.sin_cos();
+        // Judge markers by the tangential part of the residual only: the
+        // radial part holds the contact's non-rigid radial contraction
+        // (Hertz, nu < 0.5), which does not bear on the angle.
+        let resid: Vec<f64> = (0..n)
+            .map(|i| {
+                let (px, py) = (p[i][0] - centre[0], p[i][1] - centre[1]);
+                let (qx, qy) = (q[i][0] - centre[0], q[i][1] - centre[1]);
+                let (rx, ry) = (c * px - s * py, s * px + c * py);
+                let len = rx.hypot(ry);
+                if len > 0.0 { (rx * qy - ry * qx).abs() / len } else { 0.0 }
+            })
+            .collect();
+        let mut kept_r: Vec<f64> = (0..n).filter(|&i| kept[i]).map(|i| resid[i]).collect();
+        let rms = (kept_r.iter().map(|e| e * e).sum::<f64>() / m as f64).sqrt();
+        let sigma = MAD_TO_SIGMA * median(&mut kept_r);
+        let limit = (k * sigma).max(floor);
+        // Re-judge every marker against the current fit (one wrongly dropped
+        // in an early, pulled fit comes back).
+        let next: Vec<bool> = resid.iter().map(|&e| e <= limit).collect();
+        if round + 1 == ROUNDS || next.iter().filter(|&&b| b).count() < 2 || next == kept {
+            return Some(RotationFit { theta, kept, rms, sum_r2 });
+        }
+        kept = next;
+    }
+    None
+}
+
+/// Hertz normal displacement w(r) / w(0) at rho = r / a (Johnson 1985, Eqs. 3.41-3.42).
+pub fn hertz_shape(rho: f64) -> f64 {
+    if rho <= 1.0 {
+        1.0 - 0.5 * rho * rho
+    } else {
+        ((2.0 - rho * rho) * (1.0 / rho).asin() + (rho * rho - 1.0).sqrt()) / std::f64::consts::PI
+    }
+}
+
+/// d hertz_shape / d rho.
+pub fn hertz_slope(rho: f64) -> f64 {
+    if rho <= 1.0 {
+        -rho
+    } else {
+        std::f64::consts::FRAC_2_PI * ((rho * rho - 1.0).sqrt() / rho - rho * (1.0 / rho).asin())
+    }
+}
+
+/// Result of [`fit_hertz`].
+#[derive(Debug, Clone)]
+pub struct HertzFit {
+    pub gamma1: f64,
+    pub centre: [f64; 2],
+    pub radius: f64,
+    pub kept: Vec<bool>,
+    pub rms: f64,
+}
+
+/// Fit the Hertz normal field w = gamma1 f(|p - c| / a) to `(x, y, w)` by
+/// Levenberg-Marquardt in (gamma1, cx, cy, a), starting from `start`, then
+/// reject outliers by a robust scale and refit. Used when the contact is too
+/// small for the quadratic window to stay inside it: outside the contact the
+/// field is no paraboloid, but it still is Hertz's.
+pub fn fit_hertz(pts: &[[f64; 3]], start: (f64, [f64; 2], f64), k: f64, floor: f64) -> Option<HertzFit> {
+    let n = pts.len();
+    let mut kept = vec![true; n];
+    let mut params = [start.0, start.1[0], start.1[1], start.2];
+    const ROUNDS: usize = 4;
+    for round in 0..ROUNDS {
+        params = lm_hertz(pts, &kept, params)?;
+        let [g, cx, cy, a] = params;
+        let resid: Vec<f64> = pts.iter().map(|p| p[2] - g * hertz_shape((p[0] - cx).hypot(p[1] - cy) / a)).collect();
+        let mut kr: Vec<f64> = (0..n).filter(|&i| kept[i]).map(|i| resid[i].abs()).collect();
+        let m = kr.len();
+        let rms = (kr.iter().map(|e| e * e).sum::<f64>() / m.max(1) as f64).sqrt();
+        let limit = (k * MAD_TO_SIGMA * median(&mut kr)).max(floor);
+        let next: Vec<bool> = resid.iter().map(|e| e.abs() <= limit).collect();
+        if round + 1 == ROUNDS || next == kept || next.iter().filter(|&&b| b).count() < 5 {
+            return Some(HertzFit { gamma1: g, centre: [cx, cy], radius: a, kept, rms });
+        }
+        kept = next;
+    }
+    None
+}
+
+fn hertz_cost(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4]) -> f64 {
+    let [g, cx, cy, a] = p;
+    pts.iter()
+        .zip(kept)
+        .filter(|(_, k)| **k)
+        .map(|(q, _)| (q[2] - g * hertz_shape((q[0] - cx).hypot(q[1] - cy) / a)).powi(2))
+        .sum()
+}
+
+fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], mut p: [f64; 4]) -> Option<[f64; 4]> {
+    use nalgebra::{Matrix4, Vector4};
+    let mut lambda = 1e-3;
+    let mut cost = hertz_cost(pts, kept, p);
+    for _ in 0..500 {
+        let [g, cx, cy, a] = p;
+        let mut jtj = Matrix4::<f64>::zeros();
+        let mut jtr = Vector4::<f64>::zeros();
+        for (q, _) in pts.iter().zip(kept).filter(|(_, k)| **k) {
+            let (dx, dy) = (q[0] - cx, q[1] - cy);
+            let r = dx.hypot(dy);
+            let rho = r / a;
+            let f = hertz_shape(rho);
+            let fp = hertz_slope(rho);
+            let (dcx, dcy) = if r > 0.0 { (-g * fp * dx / (r * a), -g * fp * dy / (r * a)) } else { (0.0, 0.0) };
+            let j = Vector4::new(f, dcx, dcy, -g * fp * rho / a);
+            jtj += j * j.transpose();
+            jtr += j * (q[2] - g * f);
+        }
+        let mut improved = false;
+        for _ in 0..12 {
+            let mut damped = jtj;
+            for d in 0..4 {
+                damped[(d, d)] += lambda * jtj[(d, d)].max(1e-12);
+            }
+            let Some(step) = damped.cholesky().map(|c| c.solve(&jtr)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let trial = [p[0] + step[0], p[1] + step[1], p[2] + step[2], p[3] + step[3]];
+            if trial[3] > 0.0 && trial[0] > 0.0 {
+                let c = hertz_cost(pts, kept, trial);
+                if c <= cost {
+                    let small = step.iter().zip(&trial).all(|(s, t)| s.abs() <= 1e-12 * (1.0 + t.abs()));
+                    p = trial;
+                    let done = small || cost - c <= 1e-16 * (1.0 + cost) && c < cost;
+                    cost = c;
+                    lambda = (lambda * 0.3).max(1e-12);
+                    improved = true;
+                    if done {
+                        return Some(p);
+                    }
+                    break;
+                }
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    p.iter().all(|v| v.is_finite()).then_some(p)
+}
+
+/// Median of a non-empty slice (reorders it); 0 for an empty one.
+pub fn median(v: &mut [f64]) -> f64 {
+    let n = v.len();
+    if n == 0 {
+        return 0.0;
+    }
+    let mid = n / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    let upper = *m;
+    if n % 2 == 1 {
+        upper
+    } else {
+        let lower = v[..mid].iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        0.5 * (lower + upper)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quadratic_maximum_of_a_known_paraboloid() {
+        let q = Quadratic { c: [2.0, 0.0, 0.0, -1.0, 0.0, -1.0] };
+        assert_eq!(q.maximum(), Some(([0.0, 0.0], 2.0)));
+        // Shifted: w = 2 - (x - 0.3)^2 - (y + 0.2)^2.
+        let mut pts = Vec::new();
+        for i in -2..=2 {
+            for j in -2..=2 {
+                let (x, y) = (i as f64 * 0.5, j as f64 * 0.5);
+                pts.push([x, y, 2.0 - (x - 0.3f64).powi(2) - (y + 0.2f64).powi(2)]);
+            }
+        }
+        pts[7][2] += 0.3;
+        let fit = fit_quadratic(&pts, true, 4.0, 1e-6).unwrap();
+        assert!(!fit.kept[7] && fit.kept.iter().filter(|&&k| !k).count() == 1);
+        let (c, w) = fit.surface.maximum().unwrap();
+        assert!((c[0] - 0.3).abs() < 1e-10 && (c[1] + 0.2).abs() < 1e-10 && (w - 2.0).abs() < 1e-10);
+        // A saddle has no maximum.
+        assert!(Quadratic { c: [0.0, 0.0, 0.0, -1.0, 0.0, 1.0] }.maximum().is_none());
+    }
+
+    #[test]
+    fn procrustes_recovers_a_finite_rotation_and_drops_an_outlier() {
+        let centre = [0.4, -0.3];
+        let theta = 5f64.to_radians();
+        let (s, c) = theta.sin_cos();
+        let mut p = Vec::new();
+        let mut q = Vec::new();
+        for i in -2..=2 {
+            for j in -2..=2 {
+                let (x, y) = (i as f64, j as f64);
+                let (dx, dy) = (x - centre[0], y - centre[1]);
+                p.push([x, y]);
+                q.push([centre[0] + c * dx - s * dy, centre[1] + s * dx + c * dy]);
+            }
+        }
+        q[3][0] += 0.2;
+        let fit = fit_rotation(&p, &q, centre, 4.0, 1e-6).unwrap();
+        assert!((fit.theta - theta).abs() < 1e-12, "{}", fit.theta);
+        assert!(!fit.kept[3] && fit.kept.iter().filter(|&&k| !k).count() == 1);
+    }
+
+    #[test]
+    fn median_odd_and_even() {
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
+        assert_eq!(median(&mut []), 0.0);
+    }
+}

@@ -1,0 +1,444 @@
+//! Frame processing: from one marker frame of a Tac3D-class sensor to the two
+//! numbers the EasyCalib method uses — gamma1, the peak normal displacement
+//! of the elastomer, and theta1, the rotation of the contact region — plus the
+//! contact centre and radius.
+//!
+//! * **gamma1**: a quadratic surface is fitted to the normal displacement of
+//!   the markers around the deepest point and its maximum taken, so the peak
+//!   between markers is found (sub-marker interpolation). Inside a Hertz
+//!   contact the normal field is exactly a paraboloid, gamma1 (1 - r^2/(2a^2)),
+//!   so the fit window is shrunk to lie inside the contact once its radius is
+//!   known, and the fit is then exact for a noise-free Hertz field.
+//! * **contact radius**: from the same paraboloid, a = sqrt(gamma1 / -k) with
+//!   k the mean curvature (w_xx + w_yy)/2 = -gamma1/a^2.
+//! * **theta1**: the rigid in-plane rotation about the contact centre that
+//!   best maps the markers of the stick region (r <= `stick_fraction` a), a
+//!   2-D orthogonal Procrustes fit by SVD, with its residual.
+//! * Outlier markers are rejected in both fits by a median-based scale and the
+//!   fits repeated.
+
+pub mod fit;
+
+use devices::sensor::SensorFrame;
+use serde::Serialize;
+
+use fit::{fit_hertz, fit_quadratic, fit_rotation};
+
+/// Settings of the frame processing.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SensingConfig {
+    /// A frame is "no contact" unless the elastomer is pressed at least this
+    /// deep around its deepest marker, mm.
+    pub min_depth_mm: f64,
+    /// Radius of the first quadratic-fit window, in marker pitches (1.5
+    /// takes the 3 x 3 markers around the deepest one).
+    pub initial_window_pitches: f64,
+    /// Once the contact radius is known the window is this fraction of it
+    /// (kept inside the contact, where the Hertz field is a paraboloid), but
+    /// never smaller than the initial window.
+    pub window_fraction: f64,
+    /// Stick region for theta1, as a fraction of the contact radius. Under
+    /// full stick the whole contact turns rigidly; the edge is left out
+    /// because the field just outside it changes fast (as sqrt(r - a)).
+    pub stick_fraction: f64,
+    /// Fewest markers used for theta1; the nearest ones to the centre are
+    /// taken when the stick region holds fewer (a tiny contact).
+    pub min_stick_markers: usize,
+    /// Fit the axisymmetric paraboloid c0 + c1 x + c2 y + c3 r^2 (Hertz's
+    /// shape) instead of the general six-term quadratic surface.
+    pub isotropic: bool,
+    /// Fit Hertz's normal field (inside and outside the contact) when the
+    /// contact is too small for a quadratic window inside it.
+    pub hertz_refine: bool,
+    /// Markers farther than this many robust sigmas from a fit are outliers.
+    pub outlier_sigmas: f64,
+    /// Residuals below this are never outliers (keeps noise-free frames from
+    /// rejecting markers over rounding), mm.
+    pub outlier_floor_mm: f64,
+}
+
+impl Default for SensingConfig {
+    fn default() -> Self {
+        Self {
+            min_depth_mm: 0.002,
+            initial_window_pitches: 1.5,
+            window_fraction: 0.8,
+            stick_fraction: 0.95,
+            min_stick_markers: 5,
+            isotropic: true,
+            hertz_refine: true,
+            outlier_sigmas: 4.0,
+            outlier_floor_mm: 2e-4,
+        }
+    }
+}
+
+/// What one frame says about the contact.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Measurement {
+    /// The frame's counter.
+    pub index: u64,
+    /// The frame's sensor-side time, s.
+    pub t_s: f64,
+    /// Peak normal displacement of the elastomer (into it, > 0), mm.
+    pub gamma1_mm: f64,
+    /// Rotation of the contact region about the outward normal
+    /// (counter-clockwise seen from outside the elastomer), degrees.
+    pub theta1_deg: f64,
+    /// Where the peak is, in the frame's marker coordinates, mm.
+    pub contact_centre_mm: [f64; 2],
+    /// Contact radius from the curvature of the normal field, mm.
+    pub contact_radius_mm: f64,
+    /// RMS residual of the quadratic fit, mm.
+    pub gamma1_residual_mm: f64,
+    /// RMS tangential residual of the stick markers after the rotation, mm.
+    pub theta1_residual_mm: f64,
+    /// Standard error of theta1 implied by that residual, degrees.
+    pub theta1_std_deg: f64,
+    /// Markers in the final quadratic fit.
+    pub depth_markers: usize,
+    /// Markers in the final rotation fit.
+    pub stick_markers: usize,
+    /// Distinct markers used by either final fit.
+    pub markers_used: usize,
+    /// Distinct markers rejected as outliers by either fit.
+    pub outliers: usize,
+}
+
+/// Why a frame gave no measurement.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SensingError {
+    #[error("frame {index}: no markers")]
+    Empty { index: u64 },
+    #[error("frame {index}: {positions} marker positions but {displacements} displacements")]
+    LengthMismatch { index: u64, positions: usize, displacements: usize },
+    #[error("frame {index}: marker {marker} has a non-finite {what}")]
+    NotFinite { index: u64, marker: usize, what: &'static str },
+    #[error("frame {index}: no contact (deepest point {depth_mm:.4} mm)")]
+    NoContact { index: u64, depth_mm: f64 },
+    #[error("frame {index}: {stage} needs {needed} markers, found {found}")]
+    TooFewMarkers { index: u64, stage: &'static str, found: usize, needed: usize },
+    #[error("frame {index}: the normal field has no maximum near marker {marker} (not a press)")]
+    NoPeak { index: u64, marker: usize },
+}
+
+/// Reject frames that cannot be processed, naming the marker.
+fn validate(frame: &SensorFrame) -> Result<(), SensingError> {
+    let index = frame.index;
+    if frame.positions.len() != frame.displacements.len() {
+        return Err(SensingError::LengthMismatch {
+            index,
+            positions: frame.positions.len(),
+            displacements: frame.displacements.len(),
+        });
+    }
+    if frame.positions.is_empty() {
+        return Err(SensingError::Empty { index });
+    }
+    for (marker, (p, d)) in frame.positions.iter().zip(&frame.displacements).enumerate() {
+        if !p.iter().all(|v| v.is_finite()) {
+            return Err(SensingError::NotFinite { index, marker, what: "position" });
+        }
+        if !d.iter().all(|v| v.is_finite()) {
+            return Err(SensingError::NotFinite { index, marker, what: "displacement" });
+        }
+    }
+    Ok(())
+}
+
+fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)
+}
+
+fn xy(p: &[f64; 3]) -> [f64; 2] {
+    [p[0], p[1]]
+}
+
+/// The deepest point that is not a lone outlier: among the deepest markers,
+/// the one whose median depth with its 4 nearest neighbours is largest (a
+/// lone spike has no deep neighbours; a peak between markers has two). Returns
+/// (marker, neighbourhood median depth, local marker pitch).
+fn deepest_marker(frame: &SensorFrame) -> (usize, f64, f64) {
+    let n = frame.positions.len();
+    let depth = |i: usize| -frame.displacements[i][2];
+    let mut order: Vec<usize> = (0..n).collect();
+    let k = (n / 16).clamp(16, n.max(1)).min(n);
+    if k < n {
+        order.select_nth_unstable_by(k - 1, |&a, &b| depth(b).total_cmp(&depth(a)));
+    }
+    order[..k].sort_unstable_by(|&a, &b| depth(b).total_cmp(&depth(a)));
+    let mut best = (order[0], f64::NEG_INFINITY, 0.0);
+    let mut near: Vec<(f64, usize)> = Vec::with_capacity(n);
+    let mut around = Vec::with_capacity(5);
+    for &c in &order[..k] {
+        // Deepest first: a shallower marker can only score higher with two
+        // neighbours deeper than the best score, and those came earlier.
+        if depth(c) < best.1 {
+            break;
+        }
+        let pc = xy(&frame.positions[c]);
+        near.clear();
+        near.extend((0..n).filter(|&j| j != c).map(|j| (dist2(pc, xy(&frame.positions[j])), j)));
+        let m = near.len().min(4);
+        if m > 0 && m < near.len() {
+            near.select_nth_unstable_by(m - 1, |a, b| a.0.total_cmp(&b.0));
+        }
+        let pitch = near[..m].iter().map(|e| e.0).filter(|&d| d > 0.0).fold(f64::INFINITY, f64::min).sqrt();
+        around.clear();
+        around.push(depth(c));
+        around.extend(near[..m].iter().map(|&(_, j)| depth(j)));
+        let score = fit::median(&mut around);
+        if score > best.1 {
+            best = (c, score, pitch);
+        }
+    }
+    best
+}
+
+/// The normal field's peak as one of the fits found it.
+#[derive(Debug, Clone)]
+struct Depth {
+    gamma1: f64,
+    centre: [f64; 2],
+    radius: f64,
+    /// Markers the fit looked at, and which of them it kept.
+    selected: Vec<usize>,
+    kept: Vec<bool>,
+    rms: f64,
+    /// Radius of the final quadratic window (0 for the Hertz fit).
+    window: f64,
+}
+
+/// Quadratic fit, re-centred on its own peak with a window shrunk or grown
+/// to lie inside the contact, until the window's markers stop changing.
+fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingConfig) -> Result<Depth, SensingError> {
+    let index = frame.index;
+    let n = frame.positions.len();
+    let min_window = cfg.initial_window_pitches * pitch;
+    let mut centre = xy(&frame.positions[seed]);
+    let mut window = min_window;
+    let mut best: Option<Depth> = None;
+    for _ in 0..5 {
+        let mut sel: Vec<usize> = Vec::new();
+        let mut w = window;
+        // Grow the window until it can carry a quadratic with spare points.
+        while sel.len() < 9 && w < 10.0 * min_window.max(pitch) {
+            sel = (0..n).filter(|&i| dist2(xy(&frame.positions[i]), centre) <= w * w).collect();
+            w += 0.25 * pitch;
+        }
+        if best.as_ref().is_some_and(|b| b.selected == sel) {
+            break;
+        }
+        let pts: Vec<[f64; 3]> = sel
+            .iter()
+            .map(|&i| {
+                let p = frame.positions[i];
+                [p[0] - centre[0], p[1] - centre[1], -frame.displacements[i][2]]
+            })
+            .collect();
+        let found = pts.len();
+        let qf = fit_quadratic(&pts, cfg.isotropic, cfg.outlier_sigmas, cfg.outlier_floor_mm)
+            .ok_or(SensingError::TooFewMarkers { index, stage: "quadratic fit", found, needed: 7 })?;
+        let (peak, gamma1) = qf.surface.maximum().ok_or(SensingError::NoPeak { index, marker: seed })?;
+        // A maximum outside the window is an extrapolation, not a peak.
+        if peak[0].hypot(peak[1]) > w {
+            return Err(SensingError::NoPeak { index, marker: seed });
+        }
+        let radius = (gamma1 / -qf.surface.mean_curvature()).sqrt();
+        centre = [centre[0] + peak[0], centre[1] + peak[1]];
+        // How far from the peak the fit reached: beyond the contact radius
+        // the field is no longer a paraboloid.
+        let used_window = sel.iter().map(|&i| dist2(xy(&frame.positions[i]), centre)).fold(0.0, f64::max).sqrt();
+        window = (cfg.window_fraction * radius).max(min_window);
+        best = Some(Depth { gamma1, centre, radius, selected: sel, kept: qf.kept, rms: qf.rms, window: used_window });
+    }
+    best.ok_or(SensingError::TooFewMarkers { index, stage: "quadratic fit", found: 0, needed: 7 })
+}
+
+/// Hertz-field fit over the markers within about three contact radii.
+fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg: &SensingConfig) -> Option<Depth> {
+    let reach = (3.0 * start.2).max(3.0 * pitch);
+    let selected: Vec<usize> =
+        (0..frame.positions.len()).filter(|&i| dist2(xy(&frame.positions[i]), start.1) <= reach * reach).collect();
+    if selected.len() < 6 {
+        return None;
+    }
+    let pts: Vec<[f64; 3]> = selected
+        .iter()
+        .map(|&i| {
+            let p = frame.positions[i];
+            [p[0], p[1], -frame.displacements[i][2]]
+        })
+        .collect();
+    // Below about a pitch, gamma1 and a trade off along a long shallow
+    // valley of the cost (markers mostly see the field outside the contact,
+    // which depends on about gamma1 * a): refine the quadratic fit's estimate
+    // locally when there is one, else start from a few radii and keep the
+    // best fit. Far-apart minima can fit noisy markers equally well there.
+    let starts: &[f64] = if start.2 > 0.0 { &[start.2] } else { &[0.3, 0.55, 0.9] };
+    let hf = starts
+        .iter()
+        .map(|&a0| if start.2 > 0.0 { a0 } else { a0 * pitch })
+        .filter_map(|a0| fit_hertz(&pts, (start.0, start.1, a0), cfg.outlier_sigmas, cfg.outlier_floor_mm))
+        .min_by(|x, y| {
+            let score = |h: &fit::HertzFit| h.rms * (pts.len() as f64 / h.kept.iter().filter(|&&b| b).count() as f64);
+            score(x).total_cmp(&score(y))
+        })?;
+    // The fit must stay where it started, not wander off to another bump.
+    if dist2(hf.centre, start.1) > reach * reach || !(hf.gamma1 > 0.0 && hf.radius > 0.0) {
+        return None;
+    }
+    Some(Depth {
+        gamma1: hf.gamma1,
+        centre: hf.centre,
+        radius: hf.radius,
+        selected,
+        kept: hf.kept,
+        rms: hf.rms,
+        window: 0.0,
+    })
+}
+
+/// Measure gamma1, theta1 and the contact from one frame.
+pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, SensingError> {
+    validate(frame)?;
+    let index = frame.index;
+    let n = frame.positions.len();
+    // A real Tac3D reports exact zeros without contact (a dead band).
+    if frame.displacements.iter().all(|d| *d == [0.0; 3]) {
+        return Err(SensingError::NoContact { index, depth_mm: 0.0 });
+    }
+    let (seed, seed_depth, pitch) = deepest_marker(frame);
+    if seed_depth.is_nan() || seed_depth < cfg.min_depth_mm {
+        return Err(SensingError::NoContact { index, depth_mm: seed_depth.max(0.0) });
+    }
+    let pitch = if pitch.is_finite() && pitch > 0.0 { pitch } else { 1.0 };
+    let quad = quadratic_stage(frame, seed, pitch, cfg);
+    // The paraboloid is Hertz's field only inside the contact: when the
+    // smallest usable window reaches outside it (a contact under ~1.5
+    // pitches), or no paraboloid fits at all, fit the Hertz field itself.
+    let needs_hertz = cfg.hertz_refine
+        && match &quad {
+            Ok(d) => d.window > d.radius,
+            Err(_) => true,
+        };
+    let depth = if needs_hertz {
+        let start = match &quad {
+            Ok(d) => (d.gamma1, d.centre, d.radius.min(2.0 * pitch)),
+            // No usable paraboloid: multi-start (radius 0 asks for it).
+            Err(_) => (seed_depth, xy(&frame.positions[seed]), 0.0),
+        };
+        let h = hertz_stage(frame, start, pitch, cfg);
+        match h {
+            Some(d) => d,
+            None => quad?,
+        }
+    } else {
+        quad?
+    };
+    let Depth { gamma1, centre, radius, selected, kept: depth_kept, rms: depth_rms, .. } = depth;
+    if gamma1.is_nan() || gamma1 < cfg.min_depth_mm {
+        return Err(SensingError::NoContact { index, depth_mm: gamma1.max(0.0) });
+    }
+    if !(radius.is_finite() && radius > 0.0) {
+        return Err(SensingError::NoPeak { index, marker: seed });
+    }
+
+    // Rotation of the stick region about the contact centre.
+    let stick_r = cfg.stick_fraction * radius;
+    let mut stick: Vec<usize> =
+        (0..n).filter(|&i| dist2(xy(&frame.positions[i]), centre) <= stick_r * stick_r).collect();
+    let need = cfg.min_stick_markers.max(2);
+    if stick.len() < need {
+        let mut by_dist: Vec<usize> = (0..n).collect();
+        by_dist.sort_by(|&a, &b| {
+            dist2(xy(&frame.positions[a]), centre).total_cmp(&dist2(xy(&frame.positions[b]), centre))
+        });
+        stick = by_dist.into_iter().take(need).collect();
+    }
+    if stick.len() < 2 {
+        return Err(SensingError::TooFewMarkers { index, stage: "rotation fit", found: stick.len(), needed: 2 });
+    }
+    let p: Vec<[f64; 2]> = stick.iter().map(|&i| xy(&frame.positions[i])).collect();
+    let q: Vec<[f64; 2]> = stick
+        .iter()
+        .map(|&i| {
+            let (pp, d) = (frame.positions[i], frame.displacements[i]);
+            [pp[0] + d[0], pp[1] + d[1]]
+        })
+        .collect();
+    let rf = fit_rotation(&p, &q, centre, cfg.outlier_sigmas, cfg.outlier_floor_mm)
+        .ok_or(SensingError::TooFewMarkers { index, stage: "rotation fit", found: stick.len(), needed: 2 })?;
+
+    let mut used = vec![false; n];
+    let mut rejected = vec![false; n];
+    for (&i, &kept) in selected.iter().zip(&depth_kept) {
+        if kept {
+            used[i] = true;
+        } else {
+            rejected[i] = true;
+        }
+    }
+    for (&i, &kept) in stick.iter().zip(&rf.kept) {
+        if kept {
+            used[i] = true;
+        } else {
+            rejected[i] = true;
+        }
+    }
+    let stick_markers = rf.kept.iter().filter(|&&b| b).count();
+    let theta_std = rf.rms / rf.sum_r2.sqrt();
+    Ok(Measurement {
+        index,
+        t_s: frame.t_s,
+        gamma1_mm: gamma1,
+        theta1_deg: rf.theta.to_degrees(),
+        contact_centre_mm: centre,
+        contact_radius_mm: radius,
+        gamma1_residual_mm: depth_rms,
+        theta1_residual_mm: rf.rms,
+        theta1_std_deg: theta_std.to_degrees(),
+        depth_markers: depth_kept.iter().filter(|&&b| b).count(),
+        stick_markers,
+        markers_used: used.iter().filter(|&&b| b).count(),
+        outliers: rejected.iter().filter(|&&b| b).count(),
+    })
+}
+
+/// A software zero for links that cannot re-zero the sensor itself: the
+/// displacements of an untouched frame, subtracted from later frames.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tare {
+    offsets: Vec<[f64; 3]>,
+}
+
+impl Tare {
+    /// Take `frame` (sensor untouched) as the zero.
+    pub fn from_frame(frame: &SensorFrame) -> Result<Self, SensingError> {
+        validate(frame)?;
+        Ok(Self { offsets: frame.displacements.clone() })
+    }
+
+    /// `frame` with the zero subtracted. Markers the sensor reports as exactly
+    /// zero stay zero (its dead band: no contact must still read no contact).
+    pub fn apply(&self, frame: &SensorFrame) -> Result<SensorFrame, SensingError> {
+        validate(frame)?;
+        if frame.displacements.len() != self.offsets.len() {
+            return Err(SensingError::LengthMismatch {
+                index: frame.index,
+                positions: self.offsets.len(),
+                displacements: frame.displacements.len(),
+            });
+        }
+        let mut out = frame.clone();
+        if frame.displacements.iter().all(|d| *d == [0.0; 3]) {
+            return Ok(out);
+        }
+        for (d, o) in out.displacements.iter_mut().zip(&self.offsets) {
+            for (v, z) in d.iter_mut().zip(o) {
+                *v -= z;
+            }
+        }
+        Ok(out)
+    }
+}

@@ -1,0 +1,305 @@
+//! Frame processing against fields with a known truth: synthetic Hertz
+//! fields (sim::sensor::field) and the simulated sensor on the emulated rig.
+
+use devices::sensor::SensorFrame;
+use easycalib::sensing::{SensingConfig, SensingError, Tare, measure};
+use sim::clock::VirtualClock;
+use sim::emulator::axis::AxisConfig;
+use sim::emulator::rig::{Rig, RigPose};
+use sim::rng::Rng;
+use sim::sensor::field::{ContactState, MarkerGrid, NoiseConfig, no_contact_frame, synth_frame};
+use sim::sensor::rig::{RigSensor, SensorSimConfig};
+
+/// A random contact of torsion-phase size with an off-grid centre.
+fn random_contact(rng: &mut Rng, a_range: (f64, f64), nu: f64) -> ContactState {
+    let a = a_range.0 + (a_range.1 - a_range.0) * rng.uniform();
+    let gamma1 = 0.3 + 3.0 * rng.uniform();
+    let theta = (rng.uniform() - 0.5) * 10f64.to_radians();
+    // Never on a marker or on a grid mid-line (markers sit at +-0.5, +-1.5, ...).
+    let centre = [0.137 + 0.6 * (rng.uniform() - 0.5), -0.211 + 0.6 * (rng.uniform() - 0.5)];
+    ContactState::new(centre, gamma1, a, theta).with_nu1(nu)
+}
+
+struct Errors {
+    gamma_um: Vec<f64>,
+    theta_deg: Vec<f64>,
+}
+
+impl Errors {
+    fn max_gamma(&self) -> f64 {
+        self.gamma_um.iter().fold(0.0, |m, e| m.max(e.abs()))
+    }
+    fn max_theta(&self) -> f64 {
+        self.theta_deg.iter().fold(0.0, |m, e| m.max(e.abs()))
+    }
+    fn frac_within(&self, g_um: f64, t_deg: f64) -> f64 {
+        let ok = self.gamma_um.iter().zip(&self.theta_deg).filter(|(g, t)| g.abs() <= g_um && t.abs() <= t_deg).count();
+        ok as f64 / self.gamma_um.len() as f64
+    }
+}
+
+fn run(cases: usize, seed: u64, a_range: (f64, f64), noise: NoiseConfig) -> Errors {
+    let grid = MarkerGrid::tac3d();
+    let cfg = SensingConfig::default();
+    let mut rng = Rng::seed_from(seed);
+    let mut e = Errors { gamma_um: Vec::new(), theta_deg: Vec::new() };
+    for k in 0..cases {
+        let nu = if k % 2 == 0 { 0.5 } else { 0.39 };
+        let state = random_contact(&mut rng, a_range, nu);
+        let frame = synth_frame(&state, &grid, &noise, &mut rng, k as u64, 0.0);
+        let m = measure(&frame, &cfg).unwrap_or_else(|err| panic!("case {k} {state:?}: {err}"));
+        e.gamma_um.push((m.gamma1_mm - state.gamma1_mm) * 1e3);
+        e.theta_deg.push(m.theta1_deg - state.theta1_rad.to_degrees());
+    }
+    e
+}
+
+#[test]
+fn noise_free_field_gives_exact_gamma1_and_theta1() {
+    let e = run(60, 1, (2.0, 5.0), NoiseConfig::NONE);
+    println!("noise-free: max |gamma1 err| {:.2e} um, max |theta1 err| {:.2e} deg", e.max_gamma(), e.max_theta());
+    assert!(e.max_gamma() < 1.0, "{}", e.max_gamma());
+    assert!(e.max_theta() < 0.005, "{}", e.max_theta());
+}
+
+#[test]
+fn small_contacts_still_give_gamma1_through_the_hertz_fit() {
+    // Contacts of 0.9-2 mm: the quadratic window reaches outside the contact
+    // and the Hertz-field fit takes over.
+    let e = run(40, 2, (0.9, 2.0), NoiseConfig::NONE);
+    println!("small contacts: max |gamma1 err| {:.2e} um", e.max_gamma());
+    assert!(e.max_gamma() < 1.0, "{}", e.max_gamma());
+}
+
+#[test]
+fn five_percent_outliers_are_rejected() {
+    let e = run(100, 3, (2.0, 5.0), NoiseConfig::NONE.with_outliers(0.05));
+    let within = e.frac_within(1.0, 0.005);
+    let mut g = e.gamma_um.clone();
+    g.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
+    println!(
+        "5% outliers: {:.0}% of frames within 1 um / 0.005 deg; median |gamma1 err| {:.2e} um, max {:.1} um, max theta {:.3} deg",
+        within * 100.0,
+        g[g.len() / 2].abs(),
+        e.max_gamma(),
+        e.max_theta()
+    );
+    // Known weakness: when two or three outliers land in the ~12-marker
+    // window of a small contact, one can mask the other.
+    assert!(within >= 0.9, "{within}");
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+#[test]
+fn four_um_noise_gives_gamma1_within_5um_and_theta1_within_0_02deg() {
+    // Torsion-phase contact sizes (the default rig reaches a ~ 4.9 mm at
+    // beta 0.2), 4 um noise on dz (hardware.md C.1) and, conservatively, on
+    // dx and dy too, over 6 seeds x 20 frames.
+    let mut all = Errors { gamma_um: Vec::new(), theta_deg: Vec::new() };
+    for seed in 10..16 {
+        let e = run(20, seed, (4.0, 5.0), NoiseConfig::gaussian(0.004));
+        all.gamma_um.extend(e.gamma_um);
+        all.theta_deg.extend(e.theta_deg);
+    }
+    let within = all.frac_within(5.0, 0.02);
+    println!(
+        "4 um noise: gamma1 rms {:.2} um max {:.2} um; theta1 rms {:.4} deg max {:.4} deg; {:.1}% within 5 um / 0.02 deg",
+        rms(&all.gamma_um),
+        all.max_gamma(),
+        rms(&all.theta_deg),
+        all.max_theta(),
+        within * 100.0
+    );
+    assert!(all.max_gamma() < 5.0, "{}", all.max_gamma());
+    // With 4 um in-plane noise the stuck disc (~60 markers, sum r^2 ~ 700
+    // mm^2) bounds any estimator to ~0.0085 deg rms: 0.02 deg is ~2.3 sigma,
+    // so a few frames in a hundred exceed it whatever the method.
+    assert!(rms(&all.theta_deg) < 0.0105, "{}", rms(&all.theta_deg));
+    assert!(within >= 0.95, "{within}");
+    // With the in-plane noise at 2 um every frame is within 0.02 deg.
+    let mut xy2 = NoiseConfig::gaussian(0.004);
+    xy2.sigma_xy_mm = 0.002;
+    let e = run(60, 20, (4.0, 5.0), xy2);
+    println!("4 um dz / 2 um dx,dy: theta1 max {:.4} deg, gamma1 max {:.2} um", e.max_theta(), e.max_gamma());
+    assert!(e.max_theta() < 0.02 && e.max_gamma() < 5.0);
+}
+
+fn axis() -> AxisConfig {
+    AxisConfig {
+        max_velocity: 1.0,
+        acceleration: 1.0,
+        min_position: -10.0,
+        max_position: 10.0,
+        resolution: 0.0,
+        backlash: 0.0,
+        home_velocity: 1.0,
+        power_on_position: 0.0,
+    }
+}
+
+#[test]
+fn simulated_sensor_reproduces_the_physics_over_both_sweeps() {
+    let rig = Rig::new(VirtualClock::new(1.0), axis(), axis());
+    let mut sensor = RigSensor::new(rig, SensorSimConfig::default()).unwrap();
+    let cfg = SensingConfig::default();
+    let pose = |stage_mm, rot_deg| RigPose { t_s: 0.0, stage_mm, rot_deg };
+    // Normal sweep from first touch to beta = 0.2.
+    let mut stage = 0.0;
+    let mut worst_small = 0.0f64;
+    let mut worst = 0.0f64;
+    let mut n = 0;
+    let mut torsion_stage = None;
+    while stage < 8.0 {
+        stage += 0.05;
+        let p = pose(stage, 0.0);
+        let truth = sensor.truth(&p).unwrap();
+        let frame = sensor.frame_at_pose(&p);
+        let m = measure(&frame, &cfg).unwrap();
+        let err = (m.gamma1_mm - truth.normal.gamma1_mm).abs() * 1e3;
+        // Contacts under ~1 marker pitch are ill-determined by a 1 mm grid.
+        if truth.normal.contact_radius_mm < 1.2 {
+            worst_small = worst_small.max(err);
+        } else {
+            worst = worst.max(err);
+            n += 1;
+        }
+        if truth.beta >= 0.2 {
+            torsion_stage = Some(stage);
+            break;
+        }
+    }
+    println!(
+        "normal sweep: {n} frames with a >= 1.2 mm, max |gamma1 err| {worst:.2} um; smaller contacts {worst_small:.1} um"
+    );
+    assert!(n > 50);
+    assert!(worst < 8.0, "{worst}");
+    let stage = torsion_stage.expect("sweep reached beta 0.2");
+    // Torsion sweep out to 8 degrees of mount and back.
+    let mut errs = Vec::new();
+    let angles: Vec<f64> = (0..=40).map(|k| k as f64 * 0.2).chain((0..40).rev().map(|k| k as f64 * 0.2)).collect();
+    for rot in angles {
+        let p = pose(stage, rot);
+        let truth = sensor.truth(&p).unwrap();
+        let frame = sensor.frame_at_pose(&p);
+        let m = measure(&frame, &cfg).unwrap();
+        assert!(truth.theta1_rad.to_degrees() <= 5.1);
+        errs.push(m.theta1_deg - truth.theta1_rad.to_degrees());
+    }
+    let worst_t = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+    println!("torsion sweep: theta1 err rms {:.4} deg, max {worst_t:.4} deg over {} frames", rms(&errs), errs.len());
+    // Noise-limited (see the 4 um test): rms near the Cramér-Rao ~0.008 deg.
+    assert!(rms(&errs) < 0.0105 && worst_t < 0.03, "{} {worst_t}", rms(&errs));
+}
+
+#[test]
+fn bad_frames_are_typed_errors() {
+    let cfg = SensingConfig::default();
+    let grid = MarkerGrid::tac3d();
+    let empty = SensorFrame { index: 7, t_s: 0.0, positions: vec![], displacements: vec![] };
+    assert_eq!(measure(&empty, &cfg), Err(SensingError::Empty { index: 7 }));
+    let zero = no_contact_frame(&grid, 8, 0.0);
+    assert_eq!(measure(&zero, &cfg), Err(SensingError::NoContact { index: 8, depth_mm: 0.0 }));
+    let mut rng = Rng::seed_from(1);
+    let state = ContactState::new([0.1, 0.2], 1.0, 3.0, 0.01);
+    let mut nan = synth_frame(&state, &grid, &NoiseConfig::NONE, &mut rng, 9, 0.0);
+    nan.displacements[17][1] = f64::NAN;
+    assert_eq!(measure(&nan, &cfg), Err(SensingError::NotFinite { index: 9, marker: 17, what: "displacement" }));
+    let mut short = synth_frame(&state, &grid, &NoiseConfig::NONE, &mut rng, 10, 0.0);
+    short.displacements.pop();
+    assert!(matches!(
+        measure(&short, &cfg),
+        Err(SensingError::LengthMismatch { positions: 400, displacements: 399, .. })
+    ));
+    // A frame pulled outward is no press.
+    let mut pulled = synth_frame(&state, &grid, &NoiseConfig::NONE, &mut rng, 11, 0.0);
+    pulled.displacements.iter_mut().for_each(|d| d[2] = -d[2]);
+    assert!(matches!(measure(&pulled, &cfg), Err(SensingError::NoContact { .. })));
+}
+
+#[test]
+fn tare_removes_a_standing_offset_and_keeps_the_dead_band() {
+    let grid = MarkerGrid::tac3d();
+    let mut rng = Rng::seed_from(4);
+    let state = ContactState::new([0.1, 0.2], 1.0, 3.0, 0.02);
+    let mut offset = no_contact_frame(&grid, 0, 0.0);
+    offset.displacements.iter_mut().enumerate().for_each(|(i, d)| *d = [0.001 * (i % 7) as f64, -0.002, 0.03]);
+    let tare = Tare::from_frame(&offset).unwrap();
+    let mut frame = synth_frame(&state, &grid, &NoiseConfig::NONE, &mut rng, 1, 0.0);
+    for (d, o) in frame.displacements.iter_mut().zip(&offset.displacements) {
+        for k in 0..3 {
+            d[k] += o[k];
+        }
+    }
+    let m = measure(&tare.apply(&frame).unwrap(), &SensingConfig::default()).unwrap();
+    assert!((m.gamma1_mm - 1.0).abs() < 1e-9 && (m.theta1_deg - 0.02f64.to_degrees()).abs() < 1e-6);
+    let zero = tare.apply(&no_contact_frame(&grid, 2, 0.0)).unwrap();
+    assert!(zero.displacements.iter().all(|d| *d == [0.0; 3]));
+}
+
+/// Frames to a UDP address in the Tac3D main program's format.
+struct Tac3dUdpSink {
+    socket: tokio::net::UdpSocket,
+    to: std::net::SocketAddr,
+}
+
+impl sim::sensor::stream::FrameSink for Tac3dUdpSink {
+    async fn send(&mut self, frame: &SensorFrame) -> Result<(), sim::sensor::stream::SinkError> {
+        use devices::sensor::tac3d::{Tac3dFrame, encode_frame};
+        let tf = Tac3dFrame::from_sensor_frame(frame, "SIM-0001");
+        let datagrams = encode_frame(&tf, 8192).map_err(|e| sim::sensor::stream::SinkError::Other(e.to_string()))?;
+        for d in datagrams {
+            self.socket.send_to(&d, self.to).await?;
+        }
+        Ok(())
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn end_to_end_stage_move_reaches_gamma1_over_loopback_tac3d() {
+    use devices::sensor::SensorLink;
+    use devices::sensor::tac3d::{Tac3dReceiver, Tac3dReceiverConfig};
+    use sim::physics::NormalModel;
+    use std::time::Duration;
+
+    let fast = AxisConfig { max_velocity: 20.0, acceleration: 200.0, ..axis() };
+    let rig = Rig::new(VirtualClock::new(20.0), fast, fast);
+    let mut rx = Tac3dReceiver::bind(Tac3dReceiverConfig {
+        bind: "127.0.0.1:0".parse().unwrap(),
+        queue_capacity: 64,
+        ..Tac3dReceiverConfig::default()
+    })
+    .await
+    .unwrap();
+    rx.start().await.unwrap();
+    let socket = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    let sink = Tac3dUdpSink { socket, to: rx.local_addr().unwrap() };
+    let cfg = SensorSimConfig::default();
+    let model = NormalModel::new(cfg.pair).unwrap();
+    let stream = sim::sensor::stream::spawn_sensor_stream(rig.clone(), cfg, sink).unwrap();
+    let scfg = SensingConfig::default();
+
+    let f = rx.next_frame(Duration::from_secs(2)).await.unwrap();
+    assert!(matches!(measure(&f, &scfg), Err(SensingError::NoContact { .. })));
+
+    rig.with_stage(|ax, t| ax.command_move_to(t, 2.0));
+    while rig.with_stage(|ax, _| ax.is_moving()) {
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    let settled = rig.clock().now_s();
+    let truth = model.solve(2.0).unwrap().gamma1_mm;
+    let mut got = Vec::new();
+    while got.len() < 5 {
+        let f = rx.next_frame(Duration::from_secs(2)).await.unwrap();
+        if f.t_s > settled {
+            got.push(measure(&f, &scfg).unwrap().gamma1_mm);
+        }
+    }
+    let mean = got.iter().sum::<f64>() / got.len() as f64;
+    println!("end to end: gamma1 {mean:.4} mm vs model {truth:.4} mm");
+    assert!((mean - truth).abs() < 0.005, "{mean} vs {truth}");
+    assert_eq!(rx.sensor_serial().as_deref(), Some("SIM-0001"));
+    assert!(matches!(stream.stop().await, sim::sensor::stream::StreamEnd::Stopped { .. }));
+}
