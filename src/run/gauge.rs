@@ -66,7 +66,10 @@ pub trait Gauge: Send {
 }
 
 /// The measuring function a [`SensorGauge`] applies to each frame:
-/// `Ok((gamma1_mm, theta1_deg, contact_radius_mm))` or why it failed.
+/// `Ok((gamma1_mm, theta1_deg, contact_radius_mm))` or why it failed. A frame
+/// without contact is a valid reading, `Ok((0.0, 0.0, 0.0))`, not an error:
+/// the sequencer needs readings out of contact to find the contact, and it
+/// aborts after 50 unmeasurable frames in a row.
 pub trait Measure: Fn(&SensorFrame) -> Result<(f64, f64, f64), String> + Send + Sync {}
 impl<F: Fn(&SensorFrame) -> Result<(f64, f64, f64), String> + Send + Sync> Measure for F {}
 

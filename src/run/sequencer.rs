@@ -194,6 +194,9 @@ pub struct Sequencer<S, R, G> {
     last_inward_mm: f64,
     noise_gamma1: f64,
     noise_theta1: f64,
+    /// Reading noise learnt from settled windows in contact (a sensor may be
+    /// noisier pressed than at rest, or report exact zeros out of contact).
+    live_noise: Option<(f64, f64)>,
     t0: Option<f64>,
     t_last: f64,
     writer: Option<RecordingWriter<BufWriter<File>>>,
@@ -307,6 +310,7 @@ where
             last_inward_mm: 0.0,
             noise_gamma1: 0.0,
             noise_theta1: 0.0,
+            live_noise: None,
             t0: None,
             t_last: 0.0,
             writer: None,
@@ -872,8 +876,9 @@ where
         let n = s.readings;
         // Two means of n noisy readings differ by ~sigma sqrt(2/n): never demand less than 3 of that.
         let se = (2.0 / n as f64).sqrt();
-        let tol_g = s.tol_gamma1_mm.max(3.0 * self.noise_gamma1 * se);
-        let tol_t = s.tol_theta1_deg.max(3.0 * self.noise_theta1 * se);
+        let (live_g, live_t) = self.live_noise.unwrap_or((0.0, 0.0));
+        let tol_g = s.tol_gamma1_mm.max(3.0 * self.noise_gamma1.max(live_g) * se);
+        let tol_t = s.tol_theta1_deg.max(3.0 * self.noise_theta1.max(live_t) * se);
         let mut buf: Vec<GaugeReading> = Vec::new();
         let mut t_start = None;
         loop {
@@ -894,6 +899,7 @@ where
                     self.g1_bound = self.g1_bound.min(upper);
                     self.guard.note_gamma1(self.stage_mm, upper);
                     self.last_inward_mm = 0.0;
+                    self.learn_noise(&buf[k - 2 * n..]);
                     return Ok(m3);
                 }
                 // Sensor time bounds the wait; the read count guards against a sensor whose clock stands still.
@@ -911,6 +917,24 @@ where
                 }
             }
         }
+    }
+
+    /// Update the live noise from a settled stretch of readings: successive
+    /// differences (insensitive to what little drift is left), averaged
+    /// exponentially over the run.
+    fn learn_noise(&mut self, rs: &[GaugeReading]) {
+        if rs.len() < 3 {
+            return;
+        }
+        let sd = |f: fn(&GaugeReading) -> f64| {
+            let v = rs.windows(2).map(|w| (f(&w[1]) - f(&w[0])).powi(2)).sum::<f64>() / (rs.len() - 1) as f64;
+            (v / 2.0).sqrt()
+        };
+        let (g, t) = (sd(|r| r.gamma1_mm), sd(|r| r.theta1_deg));
+        self.live_noise = Some(match self.live_noise {
+            None => (g, t),
+            Some((g0, t0)) => ((0.9 * g0 * g0 + 0.1 * g * g).sqrt(), (0.9 * t0 * t0 + 0.1 * t * t).sqrt()),
+        });
     }
 
     /// How far one reading may lie below the truth by noise alone.

@@ -67,6 +67,9 @@ pub struct SimRigConfig {
     pub gamma1_sigma_mm: f64,
     pub theta1_sigma_deg: f64,
     pub seed: u64,
+    /// Report exact zeros out of contact, as a frame processor that finds no
+    /// contact does (the noise at rest then reads as zero).
+    pub zero_out_of_contact: bool,
     pub faults: SimFaults,
 }
 
@@ -87,6 +90,7 @@ impl Default for SimRigConfig {
             gamma1_sigma_mm: 0.002,
             theta1_sigma_deg: 0.02,
             seed: 1,
+            zero_out_of_contact: false,
             faults: SimFaults::default(),
         }
     }
@@ -421,6 +425,9 @@ impl Gauge for SimGauge {
         let noise_g = st.rng.gaussian(g1s);
         let noise_t = st.rng.gaussian(ths);
         let (_, _, a) = st.truth();
+        if st.cfg.zero_out_of_contact && st.shown_gamma1 <= 0.0 {
+            return Ok(GaugeReading { t_s: st.t_s, gamma1_mm: 0.0, theta1_deg: 0.0, contact_radius_mm: 0.0 });
+        }
         Ok(GaugeReading {
             t_s: st.t_s,
             gamma1_mm: st.shown_gamma1 - st.tare + noise_g,
