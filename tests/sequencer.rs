@@ -123,8 +123,13 @@ async fn full_default_run_recovers_the_truth() {
     // The stage ended at the retract position.
     assert_eq!(rig.state().stage_mm, Script::default().limits.retract_mm);
     eprintln!(
-        "default run: {} samples, rig time {:.1} s, wall {:.3} s, E1 {:.4} nu1 {:.4}",
-        out.samples, out.rig_time_s, out.wall_time_s, cal.full.e1_mpa, cal.full.nu1
+        "default run: {} samples, rig time {:.1} s (sweeps {:.1} s), wall {:.3} s, E1 {:.4} nu1 {:.4}",
+        out.samples,
+        out.rig_time_s,
+        rec.samples[rec.samples.len() - 1].t_s - rec.samples[0].t_s,
+        out.wall_time_s,
+        cal.full.e1_mpa,
+        cal.full.nu1
     );
     assert!(out.rig_time_s > 10.0 && out.rig_time_s < 120.0, "rig time {}", out.rig_time_s);
 }
