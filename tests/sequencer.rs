@@ -878,3 +878,15 @@ async fn abort_during_a_move_stops_it_then_backs_off() {
     let n = log.len();
     assert_eq!(&log[n - 3..], ["waiting", "stop", "move 0.000"], "{log:?}");
 }
+
+/// The caller runs the sequencer in its own task (the TUI owns the terminal):
+/// the run future must be `Send`.
+#[tokio::test]
+async fn the_run_can_be_spawned_on_a_task() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = SimRig::new(SimRigConfig::default()).unwrap();
+    let mut seq =
+        Sequencer::new(Script::default(), rig.stage(), rig.mount(), rig.gauge(), dir.path().join("s.csv")).unwrap();
+    let out = tokio::spawn(async move { seq.run().await }).await.unwrap();
+    assert!(out.completed());
+}
