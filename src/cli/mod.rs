@@ -2,6 +2,7 @@
 
 mod calibrate;
 pub mod devices;
+mod script;
 pub mod sensor;
 
 use std::path::PathBuf;
@@ -30,6 +31,18 @@ pub enum Command {
     Devices(devices::DevicesArgs),
     /// Tactile sensor link tools.
     Sensor(sensor::SensorArgs),
+    /// Print the built-in calibration script (`--default`) or check a script file.
+    Script(ScriptArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ScriptArgs {
+    /// Print the built-in default script (TOML) to stdout.
+    #[arg(long, conflicts_with = "check")]
+    pub default: bool,
+    /// Validate this script file instead.
+    #[arg(long, value_name = "SCRIPT")]
+    pub check: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -106,6 +119,7 @@ pub fn main() -> ExitCode {
         Command::Run(a) => calibrate::run_simulated(a),
         Command::Devices(a) => devices::run(a),
         Command::Sensor(a) => sensor::run(a),
+        Command::Script(a) => script::script(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

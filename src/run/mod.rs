@@ -1,3 +1,16 @@
-//! The calibration run: the events a sequencer emits and the controls it accepts.
+//! The calibration run: the script, the sequencer that executes it under the
+//! safety guard, the gauge it reads, the events it emits and the controls it
+//! accepts, and an in-process simulated rig to run it on.
 
 pub mod events;
+pub mod gauge;
+pub mod safety;
+pub mod script;
+pub mod sequencer;
+pub mod simrig;
+
+pub use gauge::{Gauge, GaugeError, GaugeReading, SensorGauge};
+pub use safety::{LimitViolation, SafetyGuard, SoftLimits};
+pub use script::{DEFAULT_SCRIPT_TOML, Script, ScriptError};
+pub use sequencer::{AbortInfo, Backoff, Culprit, RunOutcome, RunStatus, Sequencer};
+pub use simrig::{SimFault, SimFaults, SimRig, SimRigConfig};

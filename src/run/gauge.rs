@@ -1,0 +1,215 @@
+//! The deformation gauge: what the sequencer reads from the sensor. A gauge
+//! turns the sensor's frames into the two numbers the calibration needs
+//! (gamma1, theta1), so the sequencer never sees marker fields.
+//!
+//! [`SensorGauge`] builds a gauge from any [`SensorLink`] plus a measuring
+//! function (frame -> gamma1, theta1, contact radius), so this module does not
+//! depend on how frames are processed.
+
+use std::time::Duration;
+
+use async_trait::async_trait;
+use devices::motion::{DeviceFault, FaultKind};
+use devices::sensor::{SensorError, SensorFrame, SensorLink};
+
+use super::events::SensorStatus;
+
+/// One measurement of the elastomer's deformation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GaugeReading {
+    /// Sensor-side timestamp, s (monotonic within a run).
+    pub t_s: f64,
+    /// Maximum normal displacement of the elastomer, mm (positive into the elastomer).
+    pub gamma1_mm: f64,
+    /// Rotation of the contact region relative to the elastomer, degrees.
+    pub theta1_deg: f64,
+    /// Radius of the contact region, mm (0 out of contact).
+    pub contact_radius_mm: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum GaugeError {
+    /// No reading within the timeout (the sequencer counts these towards a dropout).
+    #[error("no sensor reading within {waited:?}")]
+    Timeout { waited: Duration },
+    /// A frame arrived but could not be measured (counted, the next frame is tried).
+    #[error("sensor frame {index} could not be measured: {reason}")]
+    Measure { index: u64, reason: String },
+    /// The sensor link failed.
+    #[error(transparent)]
+    Link(SensorError),
+}
+
+impl DeviceFault for GaugeError {
+    fn kind(&self) -> FaultKind {
+        match self {
+            GaugeError::Timeout { .. } => FaultKind::Timeout,
+            GaugeError::Measure { .. } => FaultKind::Protocol,
+            GaugeError::Link(e) => e.kind(),
+        }
+    }
+}
+
+/// A source of deformation readings.
+#[async_trait]
+pub trait Gauge: Send {
+    /// Start streaming (connect step).
+    async fn start(&mut self) -> Result<(), GaugeError>;
+    /// The next reading, waiting at most `timeout` (real time).
+    async fn read(&mut self, timeout: Duration) -> Result<GaugeReading, GaugeError>;
+    /// Take the current deformation as zero (elastomer untouched).
+    async fn tare(&mut self) -> Result<(), GaugeError>;
+    /// Health of the stream so far.
+    fn link_stats(&self) -> SensorStatus;
+    /// What the sensor is, for messages and the recording (e.g. a serial number).
+    fn describe(&self) -> String;
+}
+
+/// The measuring function a [`SensorGauge`] applies to each frame:
+/// `Ok((gamma1_mm, theta1_deg, contact_radius_mm))` or why it failed. A frame
+/// without contact is a valid reading, `Ok((0.0, 0.0, 0.0))`, not an error:
+/// the sequencer needs readings out of contact to find the contact, and it
+/// aborts after 50 unmeasurable frames in a row.
+pub trait Measure: Fn(&SensorFrame) -> Result<(f64, f64, f64), String> + Send + Sync {}
+impl<F: Fn(&SensorFrame) -> Result<(f64, f64, f64), String> + Send + Sync> Measure for F {}
+
+/// A gauge made of a sensor link and a frame-measuring function.
+pub struct SensorGauge<L: SensorLink, F: Measure> {
+    link: L,
+    measure: F,
+    name: String,
+    /// Frames that arrived but could not be measured; shown as dropped.
+    unmeasured: u64,
+}
+
+impl<L: SensorLink, F: Measure> SensorGauge<L, F> {
+    pub fn new(link: L, measure: F, name: impl Into<String>) -> Self {
+        Self { link, measure, name: name.into(), unmeasured: 0 }
+    }
+
+    pub fn into_link(self) -> L {
+        self.link
+    }
+}
+
+#[async_trait]
+impl<L: SensorLink, F: Measure> Gauge for SensorGauge<L, F> {
+    async fn start(&mut self) -> Result<(), GaugeError> {
+        self.link.start().await.map_err(GaugeError::Link)
+    }
+
+    async fn read(&mut self, timeout: Duration) -> Result<GaugeReading, GaugeError> {
+        let frame = self.link.next_frame(timeout).await.map_err(|e| match e {
+            SensorError::Timeout { waited } => GaugeError::Timeout { waited },
+            other => GaugeError::Link(other),
+        })?;
+        match (self.measure)(&frame) {
+            Ok((gamma1_mm, theta1_deg, contact_radius_mm))
+                if gamma1_mm.is_finite() && theta1_deg.is_finite() && contact_radius_mm.is_finite() =>
+            {
+                Ok(GaugeReading { t_s: frame.t_s, gamma1_mm, theta1_deg, contact_radius_mm })
+            }
+            Ok((g, t, a)) => {
+                self.unmeasured += 1;
+                Err(GaugeError::Measure {
+                    index: frame.index,
+                    reason: format!("non-finite result gamma1 {g}, theta1 {t}, radius {a}"),
+                })
+            }
+            Err(reason) => {
+                self.unmeasured += 1;
+                Err(GaugeError::Measure { index: frame.index, reason })
+            }
+        }
+    }
+
+    async fn tare(&mut self) -> Result<(), GaugeError> {
+        self.link.tare().await.map_err(GaugeError::Link)
+    }
+
+    fn link_stats(&self) -> SensorStatus {
+        let s = self.link.stats();
+        SensorStatus { rate_hz: s.rate_hz, frames: s.frames, dropped: s.dropped + s.bad_total() + self.unmeasured }
+    }
+
+    fn describe(&self) -> String {
+        self.name.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use devices::sensor::LinkStats;
+    use std::collections::VecDeque;
+
+    /// A link that replays a fixed queue of outcomes.
+    struct Replay {
+        queue: VecDeque<Result<SensorFrame, SensorError>>,
+        started: bool,
+        tared: bool,
+    }
+
+    #[async_trait]
+    impl SensorLink for Replay {
+        async fn start(&mut self) -> Result<(), SensorError> {
+            self.started = true;
+            Ok(())
+        }
+        async fn stop(&mut self) -> Result<(), SensorError> {
+            Ok(())
+        }
+        async fn next_frame(&mut self, timeout: Duration) -> Result<SensorFrame, SensorError> {
+            self.queue.pop_front().unwrap_or(Err(SensorError::Timeout { waited: timeout }))
+        }
+        async fn tare(&mut self) -> Result<(), SensorError> {
+            self.tared = true;
+            Ok(())
+        }
+        fn stats(&self) -> LinkStats {
+            LinkStats { frames: 7, rate_hz: 30.0, dropped: 2, ..Default::default() }
+        }
+    }
+
+    fn frame(index: u64, dz: f64) -> SensorFrame {
+        SensorFrame { index, t_s: index as f64 / 30.0, positions: vec![[0.0; 3]], displacements: vec![[0.0, 0.0, dz]] }
+    }
+
+    /// Peak inward displacement; refuses empty frames.
+    fn peak(f: &SensorFrame) -> Result<(f64, f64, f64), String> {
+        let g = f.displacements.iter().map(|d| -d[2]).fold(f64::NAN, f64::max);
+        if f.displacements.is_empty() { Err("no markers".into()) } else { Ok((g, 0.0, 0.0)) }
+    }
+
+    #[tokio::test]
+    async fn sensor_gauge_measures_frames_and_maps_errors() {
+        let empty = SensorFrame { index: 3, t_s: 0.1, positions: vec![], displacements: vec![] };
+        let link = Replay {
+            queue: VecDeque::from(vec![
+                Ok(frame(1, -0.25)),
+                Ok(empty),
+                Err(SensorError::Closed { reason: "cable".into() }),
+            ]),
+            started: false,
+            tared: false,
+        };
+        let mut g = SensorGauge::new(link, peak, "sim-sensor");
+        g.start().await.unwrap();
+        g.tare().await.unwrap();
+        let r = g.read(Duration::from_millis(5)).await.unwrap();
+        assert_eq!(r.gamma1_mm, 0.25);
+        assert!((r.t_s - 1.0 / 30.0).abs() < 1e-12);
+        let e = g.read(Duration::from_millis(5)).await.unwrap_err();
+        assert!(matches!(e, GaugeError::Measure { index: 3, .. }), "{e}");
+        assert_eq!(e.kind(), FaultKind::Protocol);
+        let e = g.read(Duration::from_millis(5)).await.unwrap_err();
+        assert_eq!(e.kind(), FaultKind::Disconnected);
+        let e = g.read(Duration::from_millis(5)).await.unwrap_err();
+        assert!(matches!(e, GaugeError::Timeout { .. }));
+        let st = g.link_stats();
+        assert_eq!((st.frames, st.dropped), (7, 3), "2 gaps + 1 unmeasured");
+        assert_eq!(g.describe(), "sim-sensor");
+        let link = g.into_link();
+        assert!(link.started && link.tared);
+    }
+}

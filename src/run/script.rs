@@ -1,0 +1,429 @@
+//! The calibration script: what the sequencer does, as TOML. Every section and
+//! key is optional (missing ones take the built-in default), unknown keys are
+//! errors so a typo cannot silently fall back to a default.
+//!
+//! Positions are absolute stage positions after homing (mm, increasing towards
+//! the sensor) and mount angles after homing (degrees).
+
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use sim::physics::Body;
+
+/// The built-in script, as `easycalib script --default` prints it.
+pub const DEFAULT_SCRIPT_TOML: &str = r#"# easycalib calibration script (TOML). Every key is optional; a missing key
+# takes the value shown here. Stage positions are absolute after homing, in mm,
+# increasing towards the sensor; mount angles are degrees after homing.
+
+# The calibration indenter (standard elastic hemisphere): E2, nu2, R2.
+[indenter]
+e_mpa = 1.1
+nu = 0.39
+r_mm = 5.0
+
+# The sensor: effective radius R1 of its elastomer (inf for flat) and an
+# optional name for the recording (the gauge's own description otherwise).
+[sensor]
+elastomer_r_mm = 33.0
+
+# Approach: travel fast to start_mm (known to be clear of the sensor), estimate
+# the gamma1 noise from noise_readings untouched readings, then step in by
+# step_mm until gamma1 rises above contact_sigmas x noise (at least
+# contact_min_mm). The contact point is refined by a line through a few
+# in-contact readings; the normal sweep starts pre_contact_mm before it.
+[approach]
+start_mm = 10.0
+step_mm = 0.05
+noise_readings = 20
+contact_sigmas = 6.0
+contact_min_mm = 0.005
+refine_steps = 3
+pre_contact_mm = 0.15
+
+# Normal sweep: step in by step_mm until the live depth
+# beta = gamma2 / R2 = (approach - gamma1) / R2 reaches target_beta, then step
+# back out through the same positions; repeated `repeats` times.
+[normal]
+step_mm = 0.05
+target_beta = 0.2
+repeats = 1
+
+# Torsion sweep at target_beta: twist out to amplitude_deg in step_deg steps and back to 0.
+[torsion]
+amplitude_deg = 8.0
+step_deg = 0.2
+
+# Soft limits, checked before every move. Inside [stage_min_mm, start_mm] the
+# indenter is clear of the sensor; deeper, a move is refused if gamma1 could
+# exceed max_gamma1_mm. Twist is limited to +-max_twist_deg from the torsion
+# start. On abort the stage backs off to retract_mm.
+[limits]
+stage_min_mm = 0.0
+stage_max_mm = 24.0
+max_gamma1_mm = 5.0
+max_twist_deg = 10.0
+retract_mm = 0.0
+
+# Adaptive settling after every move: read until the mean of the last
+# `readings` readings differs from the mean of the `readings` before by at most
+# tol_gamma1_mm / tol_theta1_deg (each raised to 3 noise standard errors when
+# the measured noise is larger), or until timeout_s of sensor time has passed.
+[settle]
+readings = 2
+tol_gamma1_mm = 0.001
+tol_theta1_deg = 0.01
+timeout_s = 5.0
+
+# Real-time limits: one sensor read, the sensor dropout (consecutive read
+# timeouts adding up to this abort the run), one move, one homing.
+[timeouts]
+read_s = 0.5
+sensor_dropout_s = 2.0
+move_s = 60.0
+home_s = 120.0
+"#;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Script {
+    pub indenter: Body,
+    pub sensor: SensorSection,
+    pub approach: ApproachSection,
+    pub normal: NormalSection,
+    pub torsion: TorsionSection,
+    pub limits: LimitsSection,
+    pub settle: SettleSection,
+    pub timeouts: TimeoutsSection,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorSection {
+    /// Effective radius R1 of the elastomer, mm (`inf` for flat).
+    #[serde(with = "radius")]
+    pub elastomer_r_mm: f64,
+    pub name: Option<String>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ApproachSection {
+    pub start_mm: f64,
+    pub step_mm: f64,
+    pub noise_readings: usize,
+    pub contact_sigmas: f64,
+    pub contact_min_mm: f64,
+    pub refine_steps: usize,
+    pub pre_contact_mm: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NormalSection {
+    pub step_mm: f64,
+    pub target_beta: f64,
+    pub repeats: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TorsionSection {
+    pub amplitude_deg: f64,
+    pub step_deg: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LimitsSection {
+    pub stage_min_mm: f64,
+    pub stage_max_mm: f64,
+    pub max_gamma1_mm: f64,
+    pub max_twist_deg: f64,
+    pub retract_mm: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SettleSection {
+    pub readings: usize,
+    pub tol_gamma1_mm: f64,
+    pub tol_theta1_deg: f64,
+    pub timeout_s: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TimeoutsSection {
+    pub read_s: f64,
+    pub sensor_dropout_s: f64,
+    pub move_s: f64,
+    pub home_s: f64,
+}
+
+/// TOML has no `inf` literal that every writer emits the same way; accept a
+/// number or the strings "inf"/"flat", write `inf` as the string "inf".
+mod radius {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(r: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if r.is_infinite() { s.serialize_str("inf") } else { s.serialize_f64(*r) }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum R {
+            Num(f64),
+            Int(i64),
+            Text(String),
+        }
+        match R::deserialize(d)? {
+            R::Num(x) => Ok(x),
+            R::Int(i) => Ok(i as f64),
+            R::Text(t) if t.eq_ignore_ascii_case("inf") || t.eq_ignore_ascii_case("flat") => Ok(f64::INFINITY),
+            R::Text(t) => Err(serde::de::Error::custom(format!("`{t}` is not a radius (a number, or \"inf\")"))),
+        }
+    }
+}
+
+impl Default for SensorSection {
+    fn default() -> Self {
+        Self { elastomer_r_mm: 33.0, name: None }
+    }
+}
+impl Default for ApproachSection {
+    fn default() -> Self {
+        Self {
+            start_mm: 10.0,
+            step_mm: 0.05,
+            noise_readings: 20,
+            contact_sigmas: 6.0,
+            contact_min_mm: 0.005,
+            refine_steps: 3,
+            pre_contact_mm: 0.15,
+        }
+    }
+}
+impl Default for NormalSection {
+    fn default() -> Self {
+        Self { step_mm: 0.05, target_beta: 0.2, repeats: 1 }
+    }
+}
+impl Default for TorsionSection {
+    fn default() -> Self {
+        Self { amplitude_deg: 8.0, step_deg: 0.2 }
+    }
+}
+impl Default for LimitsSection {
+    fn default() -> Self {
+        Self { stage_min_mm: 0.0, stage_max_mm: 24.0, max_gamma1_mm: 5.0, max_twist_deg: 10.0, retract_mm: 0.0 }
+    }
+}
+impl Default for SettleSection {
+    fn default() -> Self {
+        Self { readings: 2, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0 }
+    }
+}
+impl Default for TimeoutsSection {
+    fn default() -> Self {
+        Self { read_s: 0.5, sensor_dropout_s: 2.0, move_s: 60.0, home_s: 120.0 }
+    }
+}
+impl Default for Script {
+    fn default() -> Self {
+        Self {
+            indenter: Body::new(1.1, 0.39, 5.0),
+            sensor: SensorSection::default(),
+            approach: ApproachSection::default(),
+            normal: NormalSection::default(),
+            torsion: TorsionSection::default(),
+            limits: LimitsSection::default(),
+            settle: SettleSection::default(),
+            timeouts: TimeoutsSection::default(),
+        }
+    }
+}
+
+/// Why a script was refused; `field` is the TOML path of the offending key.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ScriptError {
+    #[error("script is not valid TOML for easycalib: {0}")]
+    Parse(String),
+    #[error("script `{field}`: {message}")]
+    Invalid { field: &'static str, message: String },
+}
+
+fn invalid(field: &'static str, message: impl Into<String>) -> ScriptError {
+    ScriptError::Invalid { field, message: message.into() }
+}
+
+fn positive(field: &'static str, x: f64) -> Result<(), ScriptError> {
+    if x.is_finite() && x > 0.0 { Ok(()) } else { Err(invalid(field, format!("must be a finite number > 0, got {x}"))) }
+}
+
+fn finite(field: &'static str, x: f64) -> Result<(), ScriptError> {
+    if x.is_finite() { Ok(()) } else { Err(invalid(field, format!("must be finite, got {x}"))) }
+}
+
+impl Script {
+    /// Parse and validate a script.
+    pub fn from_toml(text: &str) -> Result<Script, ScriptError> {
+        let s: Script = toml::from_str(text).map_err(|e| ScriptError::Parse(e.to_string()))?;
+        s.validate()?;
+        Ok(s)
+    }
+
+    pub fn to_toml(&self) -> Result<String, ScriptError> {
+        toml::to_string_pretty(self).map_err(|e| ScriptError::Parse(e.to_string()))
+    }
+
+    /// Refuse scripts that are inconsistent in themselves (device travel is
+    /// checked when the devices are connected).
+    pub fn validate(&self) -> Result<(), ScriptError> {
+        self.indenter.validate("indenter").map_err(|e| invalid("indenter", e.to_string()))?;
+        let r1 = self.sensor.elastomer_r_mm;
+        if r1.is_nan() || r1 <= 0.0 {
+            return Err(invalid("sensor.elastomer_r_mm", format!("must be > 0 (or \"inf\"), got {r1}")));
+        }
+        let a = &self.approach;
+        finite("approach.start_mm", a.start_mm)?;
+        positive("approach.step_mm", a.step_mm)?;
+        positive("approach.contact_sigmas", a.contact_sigmas)?;
+        positive("approach.contact_min_mm", a.contact_min_mm)?;
+        if a.noise_readings < 3 {
+            return Err(invalid("approach.noise_readings", format!("need at least 3, got {}", a.noise_readings)));
+        }
+        if !(a.pre_contact_mm.is_finite() && a.pre_contact_mm >= 0.0) {
+            return Err(invalid("approach.pre_contact_mm", format!("must be >= 0, got {}", a.pre_contact_mm)));
+        }
+        let n = &self.normal;
+        positive("normal.step_mm", n.step_mm)?;
+        if !(n.target_beta > 0.0 && n.target_beta <= 0.3) {
+            return Err(invalid("normal.target_beta", format!("must lie in (0, 0.3], got {}", n.target_beta)));
+        }
+        if n.repeats == 0 || n.repeats > 100 {
+            return Err(invalid("normal.repeats", format!("must be 1..=100, got {}", n.repeats)));
+        }
+        let t = &self.torsion;
+        positive("torsion.amplitude_deg", t.amplitude_deg)?;
+        positive("torsion.step_deg", t.step_deg)?;
+        if t.amplitude_deg / t.step_deg > 10_000.0 {
+            return Err(invalid("torsion.step_deg", "more than 10000 steps per half sweep"));
+        }
+        let l = &self.limits;
+        finite("limits.stage_min_mm", l.stage_min_mm)?;
+        finite("limits.stage_max_mm", l.stage_max_mm)?;
+        finite("limits.retract_mm", l.retract_mm)?;
+        positive("limits.max_gamma1_mm", l.max_gamma1_mm)?;
+        positive("limits.max_twist_deg", l.max_twist_deg)?;
+        if l.stage_min_mm >= l.stage_max_mm {
+            return Err(invalid(
+                "limits.stage_max_mm",
+                format!("{} must exceed stage_min_mm {}", l.stage_max_mm, l.stage_min_mm),
+            ));
+        }
+        for (field, x) in [("limits.retract_mm", l.retract_mm), ("approach.start_mm", a.start_mm)] {
+            if !(l.stage_min_mm..=l.stage_max_mm).contains(&x) {
+                return Err(invalid(
+                    field,
+                    format!("{x} mm lies outside the stage window [{}, {}] mm", l.stage_min_mm, l.stage_max_mm),
+                ));
+            }
+        }
+        if l.retract_mm > a.start_mm {
+            return Err(invalid(
+                "limits.retract_mm",
+                format!("{} mm is deeper than the clear approach start {} mm", l.retract_mm, a.start_mm),
+            ));
+        }
+        if t.amplitude_deg > l.max_twist_deg {
+            return Err(invalid(
+                "torsion.amplitude_deg",
+                format!("{} exceeds limits.max_twist_deg {}", t.amplitude_deg, l.max_twist_deg),
+            ));
+        }
+        let s = &self.settle;
+        if !(1..=100).contains(&s.readings) {
+            return Err(invalid("settle.readings", format!("must be 1..=100, got {}", s.readings)));
+        }
+        positive("settle.tol_gamma1_mm", s.tol_gamma1_mm)?;
+        positive("settle.tol_theta1_deg", s.tol_theta1_deg)?;
+        positive("settle.timeout_s", s.timeout_s)?;
+        let o = &self.timeouts;
+        positive("timeouts.read_s", o.read_s)?;
+        positive("timeouts.sensor_dropout_s", o.sensor_dropout_s)?;
+        positive("timeouts.move_s", o.move_s)?;
+        positive("timeouts.home_s", o.home_s)?;
+        Ok(())
+    }
+
+    pub fn read_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.timeouts.read_s)
+    }
+    pub fn move_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.timeouts.move_s)
+    }
+    pub fn home_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.timeouts.home_s)
+    }
+    /// Consecutive read timeouts that make a sensor dropout.
+    pub fn dropout_reads(&self) -> u32 {
+        (self.timeouts.sensor_dropout_s / self.timeouts.read_s).ceil().max(1.0) as u32
+    }
+    /// Twist positions of the torsion sweep relative to its start: out, then back to 0.
+    pub fn twist_angles(&self) -> Vec<f64> {
+        let n = (self.torsion.amplitude_deg / self.torsion.step_deg).round().max(1.0) as usize;
+        let step = self.torsion.amplitude_deg / n as f64;
+        (0..=n).chain((0..n).rev()).map(|i| i as f64 * step).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_text_is_the_default_script() {
+        let parsed = Script::from_toml(DEFAULT_SCRIPT_TOML).unwrap();
+        assert_eq!(parsed, Script::default());
+        // And the serializer's output reads back to the same script.
+        let again = Script::from_toml(&parsed.to_toml().unwrap()).unwrap();
+        assert_eq!(again, parsed);
+    }
+
+    #[test]
+    fn partial_scripts_take_defaults_and_typos_are_refused() {
+        let s = Script::from_toml("[normal]\nstep_mm = 0.02\n[sensor]\nelastomer_r_mm = \"inf\"\n").unwrap();
+        assert_eq!(s.normal.step_mm, 0.02);
+        assert_eq!(s.normal.target_beta, 0.2);
+        assert!(s.sensor.elastomer_r_mm.is_infinite());
+        let e = Script::from_toml("[normal]\nstep_m = 0.02\n").unwrap_err();
+        assert!(e.to_string().contains("step_m"), "{e}");
+    }
+
+    #[test]
+    fn inconsistent_scripts_name_the_field() {
+        let cases = [
+            ("[normal]\ntarget_beta = 0.5\n", "normal.target_beta"),
+            ("[normal]\nstep_mm = 0\n", "normal.step_mm"),
+            ("[limits]\nstage_min_mm = 5.0\nstage_max_mm = 4.0\n", "limits.stage_max_mm"),
+            ("[limits]\nretract_mm = 30.0\n", "limits.retract_mm"),
+            ("[torsion]\namplitude_deg = 12.0\n", "torsion.amplitude_deg"),
+            ("[indenter]\ne_mpa = 1.1\nnu = 0.7\nr_mm = 5.0\n", "indenter"),
+            ("[settle]\nreadings = 0\n", "settle.readings"),
+        ];
+        for (text, field) in cases {
+            match Script::from_toml(text) {
+                Err(ScriptError::Invalid { field: f, .. }) => assert_eq!(f, field, "{text}"),
+                other => panic!("{text}: {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn twist_angles_go_out_and_back() {
+        let s = Script { torsion: TorsionSection { amplitude_deg: 1.0, step_deg: 0.25 }, ..Default::default() };
+        assert_eq!(s.twist_angles(), vec![0.0, 0.25, 0.5, 0.75, 1.0, 0.75, 0.5, 0.25, 0.0]);
+        assert_eq!(Script::default().dropout_reads(), 4);
+    }
+}
