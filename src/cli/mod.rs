@@ -1,6 +1,7 @@
 //! Command-line interface: argument parsing and dispatch to the subcommands.
 
 mod calibrate;
+mod diagnose;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -24,6 +25,26 @@ pub enum Command {
     Fit(FitArgs),
     /// Write a synthetic recording of a simulated elastomer.
     Simulate(SimulateArgs),
+    /// Locate and explain a mismatch between the model and a recording (docs/diagnosis.md).
+    Diagnose(DiagnoseArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct DiagnoseArgs {
+    /// Recording in easycalib format v1 (CSV with `#` metadata).
+    pub recording: PathBuf,
+    /// Print the stable JSON document instead of the human report.
+    #[arg(long)]
+    pub json: bool,
+    /// Write residual plots before/after correction (SVG) into this directory.
+    #[arg(long, value_name = "DIR")]
+    pub plots: Option<PathBuf>,
+    /// Write a sim profile (TOML) with the fitted material and the effects found.
+    #[arg(long, value_name = "PROFILE.toml")]
+    pub profile_out: Option<PathBuf>,
+    /// Noise of the gamma1 readings, µm (estimated from the data if not given).
+    #[arg(long)]
+    pub noise_um: Option<f64>,
 }
 
 #[derive(Debug, Args)]
@@ -98,6 +119,7 @@ pub fn main() -> ExitCode {
         Command::Fit(a) => calibrate::fit(a),
         Command::Simulate(a) => calibrate::simulate(a),
         Command::Run(a) => calibrate::run_simulated(a),
+        Command::Diagnose(a) => diagnose::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
