@@ -15,8 +15,10 @@ use sim::rng::Rng;
 fn bench(c: &mut Criterion) {
     let cfg = GeneratorConfig::default();
     let clean = generate(&cfg).expect("default generator config is valid");
-    let profile =
-        SimProfile { stage_backlash: Some(stage_backlash::Params { b_mm: 0.008, engaged: true }), ..Default::default() };
+    let profile = SimProfile {
+        stage_backlash: Some(stage_backlash::Params { b_mm: 0.008, engaged: true }),
+        ..Default::default()
+    };
     let cmds: Vec<Command> =
         clean.samples.iter().map(|s| Command { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }).collect();
     let readings = simulate(cfg.pair, &profile, &cmds).expect("backlash profile simulates");

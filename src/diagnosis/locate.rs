@@ -53,11 +53,13 @@ impl Segment {
 /// when present, otherwise from the sign of the stage (mount) step.
 pub fn segments(rec: &Recording) -> Vec<Segment> {
     let mut out: Vec<Segment> = Vec::new();
-    let push = |phase: &'static str, q: Quantity, i: usize, out: &mut Vec<Segment>, split: bool| {
-        match out.iter_mut().rev().find(|s| s.quantity == q) {
-            Some(last) if last.phase == phase && !split && last.idx.last().is_some_and(|&j| j + 1 == i) => last.idx.push(i),
-            _ => out.push(Segment { phase, quantity: q, idx: vec![i] }),
-        }
+    let push = |phase: &'static str, q: Quantity, i: usize, out: &mut Vec<Segment>, split: bool| match out
+        .iter_mut()
+        .rev()
+        .find(|s| s.quantity == q)
+    {
+        Some(last) if last.phase == phase && !split && last.idx.last().is_some_and(|&j| j + 1 == i) => last.idx.push(i),
+        _ => out.push(Segment { phase, quantity: q, idx: vec![i] }),
     };
     let (mut prev_stage, mut prev_rot) = (None::<f64>, None::<f64>);
     let (mut load, mut out_dir) = (true, true);
@@ -255,8 +257,11 @@ fn shape_of(seg: &Segment, x: &[f64], r: &[f64], sigma: f64) -> String {
 
 /// Test one segment's residuals against the noise floor.
 pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, sigma: f64) -> Option<SegmentReport> {
-    let (xs, rs): (Vec<f64>, Vec<f64>) =
-        seg.idx.iter().filter_map(|&i| residual(rec, pred, i, seg.quantity).map(|r| (seg.axis_value(rec, i), r))).unzip();
+    let (xs, rs): (Vec<f64>, Vec<f64>) = seg
+        .idx
+        .iter()
+        .filter_map(|&i| residual(rec, pred, i, seg.quantity).map(|r| (seg.axis_value(rec, i), r)))
+        .unzip();
     let n = rs.len();
     if n < 5 {
         return None;

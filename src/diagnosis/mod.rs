@@ -20,13 +20,14 @@ use sim::effects::{Reading, SimProfile};
 use sim::recording::{Phase, Recording};
 
 use crate::fit::stats::t_quantile_975;
-use crate::fit::{FitError, FitOptions, FullOptions, ModelParams, calibrate, fit_full};
+use crate::fit::{FitError, FitOptions, FullOptions, calibrate, fit_paper};
 use locate::{Quantity, Segment, SegmentReport};
 use model::{Base, Candidate, Fitted, Model};
 
-/// Variance inflation beyond which a parameter is taken as not separable from
-/// the others with these sweeps (its multiple correlation exceeds 0.995).
-pub const VIF_DEGENERATE: f64 = 100.0;
+/// Variance inflation of an effect's parameter against E1, nu1 and z0 beyond
+/// which the effect counts as indistinguishable from a change of E1/nu1 with
+/// these sweeps (multiple correlation above 0.9995).
+pub const VIF_DEGENERATE: f64 = 1000.0;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DiagnoseOptions {
@@ -125,7 +126,8 @@ pub struct Explained {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Degenerate {
     pub effect: &'static str,
-    /// Variance inflation of its parameter against E1, nu1 and z0.
+    /// Variance inflation of its parameter against E1, nu1 and z0
+    /// (1: independent; above 1000: E1/nu1 can stand in for it).
     pub vif: f64,
     pub reason: String,
     /// The extra measurement that would separate it.
@@ -142,6 +144,8 @@ pub struct CandidateScore {
     pub delta_bic: f64,
     pub significant: bool,
     pub chi2_per_dof: f64,
+    /// Largest variance inflation of the added parameters against E1, nu1 and z0.
+    pub vif: f64,
 }
 
 /// Residuals of one sample before and after correction (reading units; None: nothing to compare).
@@ -296,13 +300,29 @@ fn explained(fit: &Fitted) -> Vec<Explained> {
         .collect()
 }
 
-/// Fit with candidates on top of `from`'s parameters.
+/// Fit with a candidate on top of `from`'s parameters: from a typical amount
+/// of the effect and from next to none, keeping the better (a typical start
+/// can stall in a local minimum; next to none starts from the baseline's cost).
 fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fitted> {
     let mut cands = from.cands.clone();
     cands.push(add);
-    let mut x = from.x.clone();
-    x.extend_from_slice(add.start());
-    model.fit(&cands, &x)
+    let mut best: Option<Fitted> = None;
+    let starts: &[&[f64]] =
+        if add.start() == add.near_neutral() { &[add.start()] } else { &[add.start(), add.near_neutral()] };
+    // A baseline pinned at a bound of nu1 (the logistic saturates) would stay there.
+    let nu_lo = (0.1f64 / 0.9).ln();
+    let nu_hi = (0.96f64 / 0.04).ln();
+    for st in starts {
+        let mut x = from.x.clone();
+        x[1] = x[1].clamp(nu_lo, nu_hi);
+        x.extend_from_slice(st);
+        if let Some(f) = model.fit(&cands, &x)
+            && best.as_ref().is_none_or(|b| f.chi2 < b.chi2)
+        {
+            best = Some(f);
+        }
+    }
+    best
 }
 
 fn score(model: &Model, fit: &Fitted, reference: &Fitted) -> CandidateScore {
@@ -315,7 +335,13 @@ fn score(model: &Model, fit: &Fitted, reference: &Fitted) -> CandidateScore {
         delta_bic: -delta + k as f64 * n.ln(),
         significant: delta > chi2_crit(k).max(k as f64 * n.ln()),
         chi2_per_dof: fit.chi2 / fit.dof as f64,
+        vif: fit.vif[reference.n_params()..].iter().copied().fold(0.0, f64::max),
     }
+}
+
+/// Whether the recording has the samples a full-model fit needs at all.
+fn full_fit_possible(rec: &Recording) -> bool {
+    rec.phase(Phase::Torsion).count() >= 3 && rec.phase(Phase::Normal).filter(|s| s.gamma1_mm != 0.0).count() >= 5
 }
 
 /// Run the whole diagnosis of one recording.
@@ -328,17 +354,37 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     // compare: the full-model fit gives the start; refit on the true-rig model with our weights.
     let sg_given = opts.noise_um.map(|u| u * 1e-3);
     let full_opts = FullOptions { gamma1_sigma_mm: sg_given, theta1_sigma_deg: None };
-    let full = match calibrate(rec, &FitOptions { full: full_opts, ..Default::default() }) {
-        Ok(c) => c.full,
-        Err(_) => fit_full(rec, &full_opts, ModelParams { e1_mpa: f64::NAN, nu1: 0.4, contact_offset_mm: 0.0 })?,
-    };
+    let fit_opts = FitOptions { full: full_opts, ..Default::default() };
+    // Starts: the full-model fit, else the paper's answer, else generic guesses
+    // (a recording far from the paper's physics can defeat both fits).
+    let mut starts = Vec::new();
+    let (mut sg0, mut st0) = (sg_given.unwrap_or(0.002), 0.02);
     let pos = |v: f64, d: f64| if v.is_finite() && v > 0.0 { v } else { d };
-    let sg0 = sg_given.unwrap_or(pos(full.noise_floor.normal_um * 1e-3, 0.002));
-    let st0 = pos(full.noise_floor.torsion_deg, 0.02);
+    match calibrate(rec, &fit_opts) {
+        Ok(c) => {
+            sg0 = sg_given.unwrap_or(pos(c.full.noise_floor.normal_um * 1e-3, sg0));
+            st0 = pos(c.full.noise_floor.torsion_deg, st0);
+            starts.push(Base { e1_mpa: c.full.e1_mpa, nu1: c.full.nu1, z0_mm: c.full.contact_offset_mm });
+        }
+        Err(first) => {
+            if let Ok(p) = fit_paper(rec, &fit_opts.paper)
+                && p.e1_mpa.is_finite()
+                && p.e1_mpa > 0.0
+            {
+                starts.push(Base { e1_mpa: p.e1_mpa, nu1: p.nu1.clamp(0.05, 0.49), z0_mm: 0.0 });
+            }
+            let e2 = rec.meta.indenter.e_mpa;
+            for f in [0.3, 1.0, 0.1, 3.0] {
+                starts.push(Base { e1_mpa: f * e2, nu1: 0.4, z0_mm: 0.0 });
+            }
+            if !full_fit_possible(rec) {
+                return Err(first.into());
+            }
+        }
+    }
     let mut model = Model::new(rec, sg0, st0);
     model.max_iterations = opts.max_iterations.max(1);
-    let start = Base { e1_mpa: full.e1_mpa, nu1: full.nu1, z0_mm: full.contact_offset_mm }.internal();
-    let base0 = model.fit(&[], &start).ok_or(DiagnoseError::Model)?;
+    let base0 = starts.iter().find_map(|b| model.fit(&[], &b.internal())).ok_or(DiagnoseError::Model)?;
 
     // locate: noise floor from the baseline residuals, then the per-branch tests.
     let segs: Vec<Segment> = locate::segments(rec);
@@ -385,30 +431,27 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         }
     }
 
-    // Degeneracy: effects whose parameters E1/nu1/z0 can stand in for.
+    // Degeneracy: effects whose parameters E1/nu1/z0 can stand in for are not picked.
     let mut degenerate = Vec::new();
     if let Some(f) = &chosen {
-        let bad: Vec<usize> = (0..f.cands.len())
-            .filter(|&k| {
-                let off = f.offset_of(k);
-                (off..off + f.cands[k].n_params()).any(|j| f.vif[j] > VIF_DEGENERATE)
-            })
-            .collect();
-        for &k in &bad {
-            let c = f.cands[k];
+        let mut any = false;
+        for (k, c) in f.cands.iter().enumerate() {
             let off = f.offset_of(k);
-            degenerate.push(Degenerate {
-                effect: c.name(),
-                vif: f.vif[off],
-                reason: format!(
-                    "{} improves the fit but its parameters trade off against E1/nu1 with these sweeps (variance inflation {:.0})",
-                    c.name(),
-                    f.vif[off]
-                ),
-                separate_by: c.info().separate_by,
-            });
+            let vif = (off..off + c.n_params()).map(|j| f.vif[j]).fold(0.0, f64::max);
+            if !(vif <= VIF_DEGENERATE) {
+                any = true;
+                degenerate.push(Degenerate {
+                    effect: c.name(),
+                    vif,
+                    reason: format!(
+                        "{} improves the fit, but with these sweeps E1/nu1 can stand in for it (variance inflation {vif:.0}), so it is not picked",
+                        c.name()
+                    ),
+                    separate_by: c.info().separate_by,
+                });
+            }
         }
-        if !bad.is_empty() {
+        if any {
             chosen = None;
         }
     }
@@ -416,7 +459,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     // Effects that by construction have no signature: probe how far E1/nu1 could absorb them.
     if let Some(v) = model.probe_vif(&last, Candidate::SensorGain) {
         let vif = v.first().copied().unwrap_or(f64::INFINITY);
-        if vif > VIF_DEGENERATE {
+        if !(vif <= VIF_DEGENERATE) {
             let c = Candidate::SensorGain;
             degenerate.push(Degenerate {
                 effect: c.name(),

@@ -106,6 +106,22 @@ impl Candidate {
         }
     }
 
+    /// A second start next to the neutral value, where the fit begins at the
+    /// baseline's cost and so can only improve on it.
+    pub fn near_neutral(self) -> &'static [f64] {
+        match self {
+            Candidate::FiniteThickness => &[0.0],
+            Candidate::Adhesion => &[0.0, 2.0],
+            Candidate::Viscoelastic => &[0.0, 1.609_437_912_434_100_3],
+            Candidate::StageBacklash => &[0.0],
+            Candidate::FrameCompliance => &[0.0],
+            Candidate::PartialSlip => &[0.01],
+            Candidate::RotationBacklash => &[0.0],
+            Candidate::ThermalDrift => &[0.0],
+            Candidate::SensorGain => &[1.0],
+        }
+    }
+
     /// Internal coordinate `j` to the reported physical value.
     pub fn physical(self, j: usize, x: f64) -> f64 {
         match (self, j) {
@@ -124,10 +140,13 @@ impl Candidate {
         let ok = |v: f64, lo: f64, hi: f64| v.is_finite() && v >= lo && v <= hi;
         match self {
             Candidate::FiniteThickness => {
-                if !ok(x[0], 1e-3, 2.0) {
+                if !ok(x[0], 0.0, 2.0) {
                     return false;
                 }
-                p.finite_thickness = Some(finite_thickness::Params { h_mm: 1.0 / x[0] });
+                // Thicker than the library's 1000 mm bound is a half-space: the layer is off.
+                if x[0] >= 1e-3 {
+                    p.finite_thickness = Some(finite_thickness::Params { h_mm: 1.0 / x[0] });
+                }
             }
             Candidate::Adhesion => {
                 if !ok(x[0], 0.0, 5.0) || !ok(x[1], 1.0, 20.0) {
@@ -211,11 +230,13 @@ pub struct Fitted {
     pub readings: Vec<Reading>,
     /// Covariance of the internal coordinates (scaled by chi²/dof), if the Jacobian is regular.
     pub cov: Option<DMatrix<f64>>,
-    /// Variance inflation factor per parameter: how much its variance grows
-    /// because the other parameters can take its place (1 = independent).
+    /// Per parameter: how much its variance grows because E1, nu1 and z0 can
+    /// take its place (1 = independent; base parameters themselves get 1).
     pub vif: Vec<f64>,
     pub dof: usize,
     pub iterations: usize,
+    /// chi²/dof, the scale of `cov`.
+    pub s2: f64,
 }
 
 impl Fitted {
@@ -228,6 +249,11 @@ impl Fitted {
     /// Standard error of internal coordinate `j`.
     pub fn se(&self, j: usize) -> f64 {
         self.cov.as_ref().map_or(f64::INFINITY, |c| c[(j, j)].max(0.0).sqrt())
+    }
+    /// Standard error of internal coordinate `j` for unit noise scale (chi²/dof = 1),
+    /// which makes fits with different misfit comparable.
+    pub fn se_unscaled(&self, j: usize) -> f64 {
+        self.se(j) / self.s2.max(1e-300).sqrt()
     }
     /// Offset of candidate `k`'s first parameter in `x`.
     pub fn offset_of(&self, k: usize) -> usize {
@@ -343,7 +369,18 @@ impl<'a> Model<'a> {
         let n = out.x.len();
         let dof = self.n_obs().saturating_sub(n).max(1);
         let (cov, vif) = self.covariance(cands, &out.x, &out.residuals, dof);
-        Some(Fitted { cands: cands.to_vec(), x: out.x, chi2: out.ssr, readings, cov, vif, dof, iterations: out.iterations })
+        let s2 = out.ssr / dof as f64;
+        Some(Fitted {
+            cands: cands.to_vec(),
+            x: out.x,
+            chi2: out.ssr,
+            readings,
+            cov,
+            vif,
+            dof,
+            iterations: out.iterations,
+            s2,
+        })
     }
 
     /// Covariance from a central-difference Jacobian, and each parameter's
@@ -360,8 +397,19 @@ impl<'a> Model<'a> {
         let Some(inv) = norm.clone().try_inverse() else {
             return (None, vec![f64::INFINITY; n]);
         };
-        let vif: Vec<f64> = (0..n).map(|j| inv[(j, j)]).collect();
-        if vif.iter().any(|v| !v.is_finite() || *v <= 0.0) {
+        // Each effect parameter against the base parameters alone (not against
+        // the other parameters of its own effect).
+        let vif: Vec<f64> = (0..n)
+            .map(|j| {
+                if j < BASE {
+                    return 1.0;
+                }
+                let idx = [0, 1, 2, j];
+                let sub = DMatrix::from_fn(4, 4, |a, b| norm[(idx[a], idx[b])]);
+                sub.try_inverse().map_or(f64::INFINITY, |m| m[(3, 3)])
+            })
+            .collect();
+        if (0..n).any(|j| !inv[(j, j)].is_finite() || inv[(j, j)] <= 0.0) {
             return (None, vec![f64::INFINITY; n]);
         }
         let cov = DMatrix::from_fn(n, n, |i, j| inv[(i, j)] / (scale[i] * scale[j]) * s2);
@@ -407,8 +455,9 @@ impl<'a> Model<'a> {
         Some(jac)
     }
 
-    /// Variance inflation factor of an extra candidate's parameters when added
-    /// at its neutral value to `fit` (no refit: a local identifiability probe).
+    /// Variance inflation of an extra candidate's parameters against E1, nu1
+    /// and z0 when added at its neutral value to `fit` (no refit: a local
+    /// identifiability probe). Infinite when the information matrix is singular.
     pub fn probe_vif(&self, fit: &Fitted, extra: Candidate) -> Option<Vec<f64>> {
         let mut cands = fit.cands.clone();
         cands.push(extra);
@@ -418,7 +467,8 @@ impl<'a> Model<'a> {
         if !self.eval(&cands, &x, &mut r0) {
             return None;
         }
-        let (_, vif) = self.covariance(&cands, &x, &r0, self.n_obs().saturating_sub(x.len()).max(1));
+        let dof = self.n_obs().saturating_sub(x.len()).max(1);
+        let (_, vif) = self.covariance(&cands, &x, &r0, dof);
         Some(vif[fit.x.len()..].to_vec())
     }
 }

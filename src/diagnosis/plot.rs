@@ -78,21 +78,14 @@ pub fn write_residual_plot(d: &Diagnosis, dir: &Path) -> Result<PathBuf, PlotErr
             .y_label_area_size(48)
             .build_cartesian_2d(x0..x1, y0..y1)
             .map_err(|e| err(e.to_string()))?;
-        chart
-            .configure_mesh()
-            .x_desc("t (s)")
-            .light_line_style(WHITE)
-            .draw()
-            .map_err(|e| err(e.to_string()))?;
+        chart.configure_mesh().x_desc("t (s)").light_line_style(WHITE).draw().map_err(|e| err(e.to_string()))?;
         for b in [-2.0 * band, 2.0 * band] {
             chart
                 .draw_series(LineSeries::new([(x0, b), (x1, b)], RGBColor(150, 150, 150).stroke_width(1)))
                 .map_err(|e| err(e.to_string()))?;
         }
         let color = if k % 2 == 0 { RED } else { BLUE };
-        chart
-            .draw_series(s[k].iter().map(|&p| Circle::new(p, 2, color.filled())))
-            .map_err(|e| err(e.to_string()))?;
+        chart.draw_series(s[k].iter().map(|&p| Circle::new(p, 2, color.filled()))).map_err(|e| err(e.to_string()))?;
     }
     root.present().map_err(|e| err(e.to_string()))?;
     drop(root);
