@@ -1,12 +1,22 @@
-//! Synthetic recordings: what a clean rig would record for a known elastomer.
+//! Synthetic recordings: what a rig would record for a known elastomer, with
+//! or without the left-out physics of [`crate::effects`].
+//!
 //! The sweep follows the rig's own procedure: step the stage in until the
 //! *measured* depth beta = (stage - gamma1) / R2 reaches the target, step back
-//! out, then re-approach to the torsion depth and twist out and back. Every
-//! reading carries seeded noise and the stage and mount are quantized to their
-//! resolution, so the fits see what they would see on a real rig.
+//! out, then re-approach to the stage where the measured depth is the target
+//! and twist out and back. Every reading comes from a [`TrueRig`] fed the
+//! commanded history (so effects with memory, like backlash and creep, see the
+//! real order of moves), carries seeded noise, and the stage and mount are
+//! quantized to their resolution. An empty [`SimProfile`] is the paper's clean
+//! model: the recording is then the clean physics plus noise, bit for bit.
+//!
+//! The recording's `stage_mm`, `rot_deg` and `t_s` are the commanded values, so
+//! feeding them back to [`crate::effects::simulate`] reproduces the noise-free
+//! readings exactly; that is how a diagnosis refits a recording.
 
 use serde::{Deserialize, Serialize};
 
+use crate::effects::{Command, EffectError, SimProfile, TrueRig};
 use crate::physics::{Body, ContactPair, NormalError, NormalModel, ParamError, torsion_at};
 use crate::recording::{Direction, Metadata, Phase, Recording, Sample};
 use crate::rng::Rng;
@@ -71,6 +81,10 @@ pub struct GeneratorConfig {
     pub noise: NoiseSpec,
     pub seed: u64,
     pub sensor: String,
+    /// Left-out physics the simulated rig has (empty: the paper's clean model).
+    /// A `material` in the profile overrides `pair.elastomer`'s E1 and nu1.
+    #[serde(default)]
+    pub profile: SimProfile,
 }
 
 impl Default for GeneratorConfig {
@@ -82,6 +96,7 @@ impl Default for GeneratorConfig {
             noise: NoiseSpec::default(),
             seed: 1,
             sensor: "sim-tac3d".to_string(),
+            profile: SimProfile::default(),
         }
     }
 }
@@ -92,6 +107,8 @@ pub enum GenerateError {
     Params(#[from] ParamError),
     #[error(transparent)]
     Model(#[from] NormalError),
+    #[error(transparent)]
+    Effect(#[from] EffectError),
     #[error("sweep plan: {0}")]
     Plan(String),
 }
@@ -127,6 +144,10 @@ impl CleanRig {
     }
 }
 
+/// Bisection bound on the torsion-depth search, mm of stage.
+const DEPTH_TOL_MM: f64 = 1e-10;
+
+/// Generate a recording of `cfg.plan` on a rig with `cfg.profile`'s effects.
 pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     let plan = cfg.plan;
     let noise = cfg.noise;
@@ -136,23 +157,30 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     if !(plan.target_beta > 0.0 && plan.target_beta <= 0.3) {
         return Err(GenerateError::Plan(format!("target beta {} outside (0, 0.3]", plan.target_beta)));
     }
-    let rig = CleanRig::new(cfg.pair)?;
-    let r2 = cfg.pair.indenter.r_mm;
+    cfg.pair.validate()?;
+    let mut rig = TrueRig::new(cfg.pair, &cfg.profile)?;
+    let pair = *rig.pair();
+    let r2 = pair.indenter.r_mm;
     let mut rng = Rng::seed_from(cfg.seed);
     let mut samples = Vec::new();
     let mut t = 0.0;
 
-    let read_gamma1 = |g: f64, rng: &mut Rng| if g > 0.0 { g + rng.gaussian(noise.gamma1_sigma_mm) } else { 0.0 };
+    // The sensor reads exactly 0 without contact (dead band, no noise).
+    let read = |rig: &mut TrueRig, rng: &mut Rng, t: f64, stage: f64, rot: f64| -> Result<(f64, f64), GenerateError> {
+        let r = rig.read(Command { t_s: t, stage_mm: stage, rot_deg: rot })?;
+        let g1 = if r.in_contact { r.gamma1_mm + rng.gaussian(noise.gamma1_sigma_mm) } else { 0.0 };
+        Ok((g1, r.theta1_deg))
+    };
 
     let max_steps = 10_000;
+    let mut top_stage: f64 = 0.0;
     for rep in 0..plan.repeats.max(1) {
         // Load until the measured depth reaches the target.
         let mut stage_path = Vec::new();
         let mut k = 0;
         loop {
             let stage = quantize(k as f64 * plan.normal_step_mm, noise.stage_resolution_mm);
-            let (g1, _) = rig.normal(stage)?;
-            let g1_read = read_gamma1(g1, &mut rng);
+            let (g1_read, _) = read(&mut rig, &mut rng, t, stage, 0.0)?;
             samples.push(Sample {
                 t_s: t,
                 phase: Phase::Normal,
@@ -165,6 +193,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
             });
             t += plan.step_time_s;
             stage_path.push(stage);
+            top_stage = top_stage.max(stage);
             let beta_measured = (stage - g1_read) / r2;
             if beta_measured >= plan.target_beta {
                 break;
@@ -176,13 +205,13 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
         }
         // Unload through the same stage positions.
         for &stage in stage_path.iter().rev().skip(1) {
-            let (g1, _) = rig.normal(stage)?;
+            let (g1_read, _) = read(&mut rig, &mut rng, t, stage, 0.0)?;
             samples.push(Sample {
                 t_s: t,
                 phase: Phase::Normal,
                 stage_mm: stage,
                 rot_deg: 0.0,
-                gamma1_mm: read_gamma1(g1, &mut rng),
+                gamma1_mm: g1_read,
                 theta1_deg: 0.0,
                 rep: Some(rep),
                 dir: Some(Direction::Unload),
@@ -191,23 +220,22 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
         }
     }
 
-    // Re-approach to the torsion depth and twist out and back.
-    let depth = rig.model().solve_for_gamma2(plan.target_beta * r2)?;
-    let stage_t = quantize(depth.delta_mm, noise.stage_resolution_mm);
-    let (g1_t, _) = rig.normal(stage_t)?;
+    // Re-approach to the stage where the rig's (noise-free) measured depth is the
+    // target, and twist out and back there.
+    let stage_t = quantize(torsion_stage(&rig, t, plan.target_beta * r2, top_stage)?, noise.stage_resolution_mm);
     let n_twist = (plan.torsion_amplitude_deg / plan.torsion_step_deg).round().max(1.0) as usize;
     let mut angles: Vec<(f64, Direction)> =
         (0..=n_twist).map(|i| (i as f64 * plan.torsion_step_deg, Direction::Load)).collect();
     angles.extend((0..n_twist).rev().map(|i| (i as f64 * plan.torsion_step_deg, Direction::Unload)));
     for (angle, dir) in angles {
         let rot = quantize(angle, noise.rotation_resolution_deg);
-        let th1 = rig.torsion_theta1_deg(stage_t, rot)?;
+        let (g1_read, th1) = read(&mut rig, &mut rng, t, stage_t, rot)?;
         samples.push(Sample {
             t_s: t,
             phase: Phase::Torsion,
             stage_mm: stage_t,
             rot_deg: rot,
-            gamma1_mm: read_gamma1(g1_t, &mut rng),
+            gamma1_mm: g1_read,
             theta1_deg: th1 + rng.gaussian(noise.theta1_sigma_deg),
             rep: None,
             dir: Some(dir),
@@ -215,20 +243,57 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
         t += plan.step_time_s;
     }
 
+    let mut extra = vec![
+        ("sim_E1_MPa".to_string(), format!("{}", pair.elastomer.e_mpa)),
+        ("sim_nu1".to_string(), format!("{}", pair.elastomer.nu)),
+        ("sim_seed".to_string(), format!("{}", cfg.seed)),
+    ];
+    let on = cfg.profile.enabled();
+    if !on.is_empty() {
+        extra.push(("sim_effects".to_string(), on.join(",")));
+    }
     Ok(Recording {
         meta: Metadata {
             sensor: Some(cfg.sensor.clone()),
-            indenter: cfg.pair.indenter,
-            elastomer_r_mm: cfg.pair.elastomer.r_mm,
+            indenter: pair.indenter,
+            elastomer_r_mm: pair.elastomer.r_mm,
             created: None,
-            extra: vec![
-                ("sim_E1_MPa".to_string(), format!("{}", cfg.pair.elastomer.e_mpa)),
-                ("sim_nu1".to_string(), format!("{}", cfg.pair.elastomer.nu)),
-                ("sim_seed".to_string(), format!("{}", cfg.seed)),
-            ],
+            extra,
         },
         samples,
     })
+}
+
+/// The commanded stage at which the rig's noise-free depth reading gives
+/// stage - gamma1 = `gamma2_target` at time `t`, found on copies of the rig so
+/// the probes leave no history. Effects that corrupt the reading (drift, gain,
+/// frame compliance, offset) therefore move the true torsion depth, as on a real rig.
+fn torsion_stage(rig: &TrueRig, t: f64, gamma2_target: f64, top_stage: f64) -> Result<f64, GenerateError> {
+    let measured = |stage: f64| -> Result<f64, GenerateError> {
+        let mut probe = rig.clone();
+        let r = probe.read(Command { t_s: t, stage_mm: stage, rot_deg: 0.0 })?;
+        Ok(stage - r.gamma1_mm - gamma2_target)
+    };
+    let mut lo = 0.0;
+    let mut hi = top_stage.max(gamma2_target) * 1.2 + 0.01;
+    let mut tries = 0;
+    while measured(hi)? < 0.0 {
+        lo = hi;
+        hi *= 1.5;
+        tries += 1;
+        if tries > 20 {
+            return Err(GenerateError::Plan("the torsion depth cannot be reached".into()));
+        }
+    }
+    while hi - lo > DEPTH_TOL_MM {
+        let mid = 0.5 * (lo + hi);
+        if measured(mid)? < 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Ok(0.5 * (lo + hi))
 }
 
 #[cfg(test)]
@@ -267,5 +332,71 @@ mod tests {
             .collect();
         let rms = (res.iter().map(|r| r * r).sum::<f64>() / res.len() as f64).sqrt();
         assert!((rms - 0.002).abs() < 0.0006, "{rms}");
+    }
+
+    /// The clean recording rebuilt independently from the paper's model and the
+    /// same noise stream: an empty profile must give it bit for bit.
+    #[test]
+    fn empty_profile_is_clean_physics_bit_for_bit() {
+        for seed in [1, 7] {
+            let cfg = GeneratorConfig { seed, ..Default::default() };
+            let rec = generate(&cfg).unwrap();
+            let model = NormalModel::new(cfg.pair).unwrap();
+            let mut rng = Rng::seed_from(seed);
+            let torsion_stage = quantize(model.solve_for_gamma2(cfg.plan.target_beta * 5.0).unwrap().delta_mm, 0.001);
+            for s in &rec.samples {
+                let g1 = model.solve(s.stage_mm).unwrap().gamma1_mm;
+                let expect = if g1 > 0.0 { g1 + rng.gaussian(cfg.noise.gamma1_sigma_mm) } else { 0.0 };
+                assert_eq!(s.gamma1_mm, expect, "t {}", s.t_s);
+                if s.phase == Phase::Torsion {
+                    assert_eq!(s.stage_mm, torsion_stage);
+                    let beta = model.solve(s.stage_mm).unwrap().gamma2_mm / 5.0;
+                    let th = torsion_at(&cfg.pair, beta, s.rot_deg.to_radians()).theta1_rad.to_degrees();
+                    let expect = th + rng.gaussian(cfg.noise.theta1_sigma_deg);
+                    assert!((s.theta1_deg - expect).abs() < 1e-12, "{} vs {expect}", s.theta1_deg);
+                }
+            }
+            assert!(!rec.meta.extra.iter().any(|(k, _)| k == "sim_effects"));
+        }
+    }
+
+    /// The recorded commands fed back through `effects::simulate` give the
+    /// noise-free readings of the generated recording (what a diagnosis refits).
+    #[test]
+    fn recording_with_effects_replays_through_simulate() {
+        use crate::effects::{self, stage_backlash, thermal_drift, viscoelastic};
+        let profile = SimProfile {
+            viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 4.0 }),
+            stage_backlash: Some(stage_backlash::Params { b_mm: 0.008, engaged: true }),
+            thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 2e-4, vdot_mm_per_s2: 0.0 }),
+            ..Default::default()
+        };
+        let noiseless = NoiseSpec { gamma1_sigma_mm: 0.0, theta1_sigma_deg: 0.0, ..NoiseSpec::default() };
+        let cfg = GeneratorConfig { profile: profile.clone(), noise: noiseless, ..Default::default() };
+        let rec = generate(&cfg).unwrap();
+        let cmds: Vec<Command> =
+            rec.samples.iter().map(|s| Command { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }).collect();
+        let replay = effects::simulate(cfg.pair, &profile, &cmds).unwrap();
+        for (s, r) in rec.samples.iter().zip(&replay) {
+            assert_eq!(s.gamma1_mm, r.gamma1_mm);
+            assert_eq!(s.theta1_deg, r.theta1_deg);
+        }
+        // The rig stops where its drifting reading says beta = 0.2, not at the true depth.
+        let first = rec.phase(Phase::Torsion).next().unwrap();
+        assert!(((first.stage_mm - first.gamma1_mm) / 5.0 - 0.2).abs() < 2e-4);
+        let i = rec.samples.iter().position(|s| s.phase == Phase::Torsion).unwrap();
+        assert!((replay[i].gamma2_mm / 5.0 - 0.2).abs() > 1e-3, "true beta {}", replay[i].gamma2_mm / 5.0);
+        let names = rec.meta.extra.iter().find(|(k, _)| k == "sim_effects").unwrap();
+        assert_eq!(names.1, "viscoelastic,stage_backlash,thermal_drift");
+        // An out-of-bound parameter is refused, naming it.
+        let bad = GeneratorConfig {
+            profile: SimProfile {
+                stage_backlash: Some(stage_backlash::Params { b_mm: -1.0, engaged: true }),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let err = generate(&bad).unwrap_err().to_string();
+        assert!(err.contains("stage_backlash.b_mm"), "{err}");
     }
 }

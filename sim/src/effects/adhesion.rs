@@ -18,7 +18,13 @@ pub const INFO: EffectInfo = EffectInfo {
     name: "adhesion",
     model: "JKR: F = 4E*a^3/(3R*) + 2E* a delta_p, G = E* delta_p^2/(2 pi a) = w (advancing), eta w (receding), pinned in between",
     params: &[
-        ParamInfo { name: "w_mJ_m2", unit: "mJ/m^2", min: 0.0, max: 500.0, typical: "40-100 clean PDMS, lower when coated or dusty" },
+        ParamInfo {
+            name: "w_mJ_m2",
+            unit: "mJ/m^2",
+            min: 0.0,
+            max: 500.0,
+            typical: "40-100 clean PDMS, lower when coated or dusty",
+        },
         ParamInfo { name: "eta", unit: "", min: 1.0, max: 20.0, typical: "1-5" },
     ],
     signature: "low gamma1: gamma2/gamma1 up, unload below load at small stage, negative gamma1 at zero stage on unload; fades with depth",

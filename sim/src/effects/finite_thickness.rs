@@ -67,7 +67,7 @@ mod tests {
     #[test]
     fn phi_reproduces_the_published_bonded_coefficients() {
         // At nu = 0.5: 1 + 1.133 chi + 1.283 chi^2 + 0.769 chi^3 + 0.0975 chi^4.
-        for chi in [0.1, 0.5, 1.0] {
+        for chi in [0.1f64, 0.5, 1.0] {
             let expect = 1.0 + 1.133 * chi + 1.283 * chi * chi + 0.769 * chi.powi(3) + 0.0975 * chi.powi(4);
             assert!((phi(chi, 0.4999999) / expect - 1.0).abs() < 2e-3, "chi {chi}: {} vs {expect}", phi(chi, 0.5));
         }

@@ -19,6 +19,11 @@ pub mod stage_backlash;
 pub mod thermal_drift;
 pub mod viscoelastic;
 
+#[cfg(test)]
+mod signatures;
+
+pub mod corpus;
+
 use serde::{Deserialize, Serialize};
 
 pub use rig::{Command, Reading, TrueRig, simulate};
@@ -95,8 +100,10 @@ pub enum EffectError {
     GrossSlip { rot_deg: f64 },
     #[error("invalid contact parameters: {0}")]
     Params(#[from] crate::physics::ParamError),
-    #[error("profile TOML: {0}")]
+    #[error("sim profile TOML: {0}")]
     Toml(String),
+    #[error("sim profile file {path}: {why}")]
+    Io { path: String, why: String },
 }
 
 /// Reject a parameter outside its declared bounds, naming it.
@@ -158,14 +165,39 @@ pub struct SimProfile {
 }
 
 impl SimProfile {
-    pub fn from_toml(text: &str) -> Result<Self, EffectError> {
+    /// Parse and validate a profile. Unknown sections or keys and parameters
+    /// outside their bounds are errors that name the effect and parameter.
+    pub fn from_toml_str(text: &str) -> Result<Self, EffectError> {
         let p: SimProfile = toml::from_str(text).map_err(|e| EffectError::Toml(e.to_string()))?;
         p.validate()?;
         Ok(p)
     }
 
-    pub fn to_toml(&self) -> Result<String, EffectError> {
+    /// The profile as TOML (one section per enabled effect).
+    pub fn to_toml_string(&self) -> Result<String, EffectError> {
         toml::to_string(self).map_err(|e| EffectError::Toml(e.to_string()))
+    }
+
+    /// Read and validate a profile file.
+    pub fn load(path: &std::path::Path) -> Result<Self, EffectError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| EffectError::Io { path: path.display().to_string(), why: e.to_string() })?;
+        Self::from_toml_str(&text).map_err(|e| match e {
+            EffectError::Toml(why) => EffectError::Toml(format!("{}: {why}", path.display())),
+            other => other,
+        })
+    }
+
+    /// Validate and write the profile to a file.
+    pub fn save(&self, path: &std::path::Path) -> Result<(), EffectError> {
+        self.validate()?;
+        let text = self.to_toml_string()?;
+        std::fs::write(path, text).map_err(|e| EffectError::Io { path: path.display().to_string(), why: e.to_string() })
+    }
+
+    /// True when no effect is enabled and no material is set: the paper's clean model.
+    pub fn is_clean(&self) -> bool {
+        self.enabled().is_empty() && self.material.is_none()
     }
 
     /// Names of the enabled effects, in library order.
@@ -229,7 +261,14 @@ impl SimProfile {
 
 /// Root of an increasing-through-zero function on [lo, hi] with f(lo) < 0 <= f(hi):
 /// Illinois false position, which keeps the bracket and converges superlinearly.
-pub(crate) fn bracketed_root(mut f: impl FnMut(f64) -> f64, mut lo: f64, mut hi: f64, mut flo: f64, mut fhi: f64, tol: f64) -> f64 {
+pub(crate) fn bracketed_root(
+    mut f: impl FnMut(f64) -> f64,
+    mut lo: f64,
+    mut hi: f64,
+    mut flo: f64,
+    mut fhi: f64,
+    tol: f64,
+) -> f64 {
     let mut side = 0i8;
     for _ in 0..200 {
         let x = if fhi != flo { (lo * fhi - hi * flo) / (fhi - flo) } else { 0.5 * (lo + hi) };
@@ -272,14 +311,14 @@ mod tests {
             partial_slip: Some(partial_slip::Params { mu: 1.2 }),
             ..Default::default()
         };
-        let text = p.to_toml().unwrap();
+        let text = p.to_toml_string().unwrap();
         assert!(text.contains("[finite_thickness]") && text.contains("h_mm = 5.0"), "{text}");
-        assert_eq!(SimProfile::from_toml(&text).unwrap(), p);
+        assert_eq!(SimProfile::from_toml_str(&text).unwrap(), p);
         assert_eq!(p.enabled(), vec!["finite_thickness", "stage_backlash", "partial_slip"]);
-        let bad = SimProfile::from_toml("[finite_thickness]\nh_mm = -1.0\n").unwrap_err();
+        let bad = SimProfile::from_toml_str("[finite_thickness]\nh_mm = -1.0\n").unwrap_err();
         assert!(bad.to_string().contains("finite_thickness.h_mm"), "{bad}");
-        assert!(SimProfile::from_toml("[no_such_effect]\nx = 1\n").is_err());
-        assert!(SimProfile::from_toml("").unwrap().enabled().is_empty());
+        assert!(SimProfile::from_toml_str("[no_such_effect]\nx = 1\n").is_err());
+        assert!(SimProfile::from_toml_str("").unwrap().enabled().is_empty());
     }
 
     #[test]

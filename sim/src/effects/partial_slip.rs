@@ -24,8 +24,14 @@ use super::{EffectError, EffectInfo, Identifiability, ParamInfo, check};
 pub const INFO: EffectInfo = EffectInfo {
     name: "partial_slip",
     model: "Coulomb friction mu with Hertz pressure: slip annulus (Jäger/Lubkin), marker-fit theta1, Masing reversal",
-    params: &[ParamInfo { name: "mu", unit: "", min: 0.05, max: 100.0, typical: "0.3-2 (silicone on silicone usually > 1)" }],
-    signature: "torsion: theta1 linear at small twist then concave; return branch above the outgoing one (Masing loop); normal sweep unaffected",
+    params: &[ParamInfo {
+        name: "mu",
+        unit: "",
+        min: 0.05,
+        max: 100.0,
+        typical: "0.3-2 (silicone on silicone usually > 1)",
+    }],
+    signature: "torsion: theta1 linear at small twist then concave; the return starts with the stick slope and runs below the outgoing branch in theta1 (above it in theta2), a Masing loop ending at a negative theta1; H3 biased up; normal sweep unaffected",
     identifiability: Identifiability::Good,
     sentence: "the indenter starts to slip at the edge of the contact under twist, so the sensor's rotation stops tracking the mount",
     explanation: "The paper assumes the indenter grips the gel perfectly while it twists. With real friction the outer ring of \
@@ -96,7 +102,6 @@ fn disc_marker_rotation(sigma: f64) -> f64 {
 
 /// Dimensionless virgin curves on a kappa grid from 1 (no slip) down to KMIN.
 struct Tables {
-    kappa: Vec<f64>,
     /// (8/3) int_kappa^1 u^2 E(1-u^2) du.
     torque: Vec<f64>,
     /// int_kappa^1 E(1-u^2)/u du.
@@ -126,7 +131,7 @@ fn tables() -> &'static Tables {
             rel[j] = rel[j - 1] + em * ln;
             marker[j] = marker[j - 1] + 0.5 * (e[j - 1] * d[j - 1] + e[j] * d[j]) * ln;
         }
-        Tables { kappa, torque, rel, marker }
+        Tables { torque, rel, marker }
     })
 }
 
@@ -241,7 +246,11 @@ mod tests {
         assert!((elliptic_e(0.5) - 1.350_643_881_047_675_5).abs() < 1e-12);
         assert!((elliptic_e(1.0) - 1.0).abs() < 1e-14);
         // Lubkin: M_max = 3 pi mu F a / 16 <=> (8/3) int_0^1 u^2 E(1-u^2) du = pi^2/8.
-        assert!((torque_integral_at_gross_slip() / (PI * PI / 8.0) - 1.0).abs() < 2e-3, "{}", torque_integral_at_gross_slip());
+        assert!(
+            (torque_integral_at_gross_slip() / (PI * PI / 8.0) - 1.0).abs() < 2e-3,
+            "{}",
+            torque_integral_at_gross_slip()
+        );
         assert!((disc_marker_rotation(1.0) - 1.0).abs() < 1e-12);
         assert!(disc_marker_rotation(0.5) > 0.0625 && disc_marker_rotation(0.5) < 1.0);
     }
@@ -259,11 +268,23 @@ mod tests {
         }
         // Concave: the secant slope falls.
         assert!(out[19] / 0.1 < stick * 0.99);
+        // Masing: the return from the turn (0.1 rad) is the virgin curve doubled in
+        // both axes, q = q_r - 2 q_virgin(d/2). It starts with the stick slope,
+        // so in theta1 against mount angle it runs below the (concave) outgoing
+        // branch; the indenter twist theta2 = mount - theta1 runs above it, which
+        // is what biases the through-origin H3 upward.
+        let mut virgin = SlipState::new(1.0, 6.0, 3.6, c1, c2, crod);
+        let v_half = virgin.theta1(0.025).unwrap();
         let back = s.theta1(0.05).unwrap();
-        // Return branch lies above the outgoing one (Masing).
-        assert!(back > out[9], "{back} vs {}", out[9]);
+        assert!((back - (out[19] - 2.0 * v_half)).abs() < 1e-9 * out[19], "{back} vs Masing");
+        assert!(back < out[9], "{back} vs {}", out[9]);
+        assert!(0.05 - back > 0.05 - out[9]);
         // Back at zero twist the loop leaves a residual rotation.
         let zero = s.theta1(0.0).unwrap();
-        assert!(zero > 0.0);
+        assert!(zero < -1e-6, "{zero}");
+        // Out again past the turn: Madelung memory rejoins the virgin curve.
+        s.theta1(0.05).unwrap();
+        let again = s.theta1(0.1).unwrap();
+        assert!((again - out[19]).abs() < 1e-9 * out[19], "{again} vs {}", out[19]);
     }
 }

@@ -159,7 +159,8 @@ impl TrueRig {
     }
 
     fn es_at(&self, a: f64) -> f64 {
-        let phi = self.profile.finite_thickness.map_or(1.0, |p| finite_thickness::phi(a / p.h_mm, self.pair.elastomer.nu));
+        let phi =
+            self.profile.finite_thickness.map_or(1.0, |p| finite_thickness::phi(a / p.h_mm, self.pair.elastomer.nu));
         1.0 / (1.0 / (self.e1s * phi) + 1.0 / self.e2s)
     }
 
@@ -180,7 +181,10 @@ impl TrueRig {
             f_lo = fhi;
             hi *= 1.5;
             if hi > amax {
-                return Err(EffectError::NoSolution { stage_mm: s, why: "contact radius beyond the model's range".into() });
+                return Err(EffectError::NoSolution {
+                    stage_mm: s,
+                    why: "contact radius beyond the model's range".into(),
+                });
             }
             fhi = f(hi);
         }
@@ -201,6 +205,19 @@ impl TrueRig {
         let Some(adh) = self.profile.adhesion else {
             if s <= 0.0 {
                 return Ok(Contact::default());
+            }
+            if self.profile.finite_thickness.is_none() && self.profile.frame_compliance.is_none() {
+                // The contact itself is the paper's: use its own solver, so a rig
+                // whose effects all act outside the contact reads the clean model exactly.
+                let st =
+                    self.clean.solve(s).map_err(|e| EffectError::NoSolution { stage_mm: s, why: e.to_string() })?;
+                return Ok(Contact {
+                    gamma1: st.gamma1_mm,
+                    gamma2: st.gamma2_mm,
+                    force: st.force_n,
+                    a: st.contact_radius_mm,
+                    delta: s,
+                });
             }
             return self.solve_rising(s, Punch::None, 0.0, guess);
         };
@@ -428,7 +445,8 @@ mod tests {
     }
 
     fn sweep() -> Vec<Command> {
-        let mut v: Vec<Command> = (0..=60).map(|i| Command { t_s: i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }).collect();
+        let mut v: Vec<Command> =
+            (0..=60).map(|i| Command { t_s: i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }).collect();
         v.extend((0..60).rev().map(|i| Command { t_s: 120.0 - i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }));
         v
     }
@@ -440,7 +458,7 @@ mod tests {
         let r = simulate(p, &SimProfile::default(), &sweep()).unwrap();
         for (c, r) in sweep().iter().zip(&r) {
             let s = m.solve(c.stage_mm).unwrap();
-            assert!((r.gamma1_mm - s.gamma1_mm).abs() < 1e-11, "{} vs {}", r.gamma1_mm, s.gamma1_mm);
+            assert_eq!(r.gamma1_mm, s.gamma1_mm);
         }
         let mut rig = TrueRig::new(p, &SimProfile::default()).unwrap();
         let st = m.solve_for_gamma2(1.0).unwrap();
@@ -475,26 +493,39 @@ mod tests {
         let clean = simulate(p, &SimProfile::default(), &sweep()).unwrap();
         let run = |prof: SimProfile| simulate(p, &prof, &sweep()).unwrap();
         // Layer: gamma1 below the half-space, more so at depth, load = unload.
-        let l = run(SimProfile { finite_thickness: Some(finite_thickness::Params { h_mm: 5.0 }), ..Default::default() });
+        let l =
+            run(SimProfile { finite_thickness: Some(finite_thickness::Params { h_mm: 5.0 }), ..Default::default() });
         assert!(l[60].gamma1_mm < clean[60].gamma1_mm - 0.05);
         assert!((l[60].gamma1_mm - clean[60].gamma1_mm).abs() > (l[10].gamma1_mm - clean[10].gamma1_mm).abs());
         assert!((l[50].gamma1_mm - l[70].gamma1_mm).abs() < 1e-9);
         // Stage backlash: unload deeper by the play, load untouched.
-        let b = run(SimProfile { stage_backlash: Some(stage_backlash::Params { b_mm: 0.01, engaged: true }), ..Default::default() });
+        let b = run(SimProfile {
+            stage_backlash: Some(stage_backlash::Params { b_mm: 0.01, engaged: true }),
+            ..Default::default()
+        });
         assert_eq!(b[30].gamma1_mm, clean[30].gamma1_mm);
         assert!(b[90].gamma1_mm > clean[90].gamma1_mm + 0.003);
         // Viscoelastic: unload above load at the same stage.
-        let v = run(SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() });
+        let v = run(SimProfile {
+            viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }),
+            ..Default::default()
+        });
         assert!(v[90].gamma1_mm > v[30].gamma1_mm + 0.003, "{} {}", v[90].gamma1_mm, v[30].gamma1_mm);
         // Adhesion: contact still held (negative depth) back at stage 0.
         let a = run(SimProfile { adhesion: Some(adhesion::Params { w_mj_m2: 80.0, eta: 3.0 }), ..Default::default() });
         assert!(a[120].in_contact && a[120].gamma1_mm < 0.0, "{:?}", a[120]);
         assert!(a[110].gamma1_mm < a[10].gamma1_mm);
         // Frame compliance: less depth at high force.
-        let f = run(SimProfile { frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.01 }), ..Default::default() });
+        let f = run(SimProfile {
+            frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.01 }),
+            ..Default::default()
+        });
         assert!(f[60].gamma1_mm < clean[60].gamma1_mm - 0.01);
         // Drift and gain act on the reading only.
-        let d = run(SimProfile { thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 1e-4, vdot_mm_per_s2: 0.0 }), ..Default::default() });
+        let d = run(SimProfile {
+            thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 1e-4, vdot_mm_per_s2: 0.0 }),
+            ..Default::default()
+        });
         assert!((d[60].gamma1_mm - clean[60].gamma1_mm - 60.0e-4).abs() < 1e-12);
         assert_eq!(d[0].gamma1_mm, 0.0);
         let g = run(SimProfile { sensor_gain: Some(sensor_gain::Params { g: 1.02 }), ..Default::default() });
@@ -505,7 +536,10 @@ mod tests {
     fn rotation_backlash_offsets_the_return() {
         let p = pair();
         let st = NormalModel::new(p).unwrap().solve_for_gamma2(1.0).unwrap();
-        let prof = SimProfile { rotation_backlash: Some(rotation_backlash::Params { b_deg: 0.3, engaged: true }), ..Default::default() };
+        let prof = SimProfile {
+            rotation_backlash: Some(rotation_backlash::Params { b_deg: 0.3, engaged: true }),
+            ..Default::default()
+        };
         let cmds: Vec<Command> = [0.0, 4.0, 8.0, 7.8, 4.0, 0.0]
             .iter()
             .enumerate()
