@@ -3,18 +3,18 @@
 //! clean controls name nothing; physics outside the library is `unexplained`;
 //! sensor_gain is reported as degenerate.
 //!
-//! Recordings are made here with `sim::effects::TrueRig` following the
-//! generator's sweep procedure (load until the *measured* beta reaches 0.2,
-//! unload, re-approach, twist out and back), seeded noise on every reading.
+//! Recordings come from `sim::generator` with a sim profile (load until the
+//! measured beta reaches 0.2, unload, re-approach, twist out and back; seeded
+//! noise of 2 µm on gamma1 and 0.02 deg on theta1).
 
 use easycalib::diagnosis::{DiagnoseOptions, Diagnosis, diagnose};
 use sim::effects::{
-    Command, SimProfile, TrueRig, adhesion, finite_thickness, partial_slip, sensor_gain, stage_backlash, thermal_drift,
+    Command, SimProfile, adhesion, finite_thickness, partial_slip, sensor_gain, stage_backlash, thermal_drift,
     viscoelastic,
 };
 use sim::physics::{Body, ContactPair};
-use sim::recording::{Direction, Metadata, Phase, Recording, Sample};
-use sim::rng::Rng;
+use sim::generator::{GeneratorConfig, generate};
+use sim::recording::{Direction, Phase, Recording};
 
 const E1: f64 = 0.33;
 const NU1: f64 = 0.39;
@@ -25,61 +25,13 @@ fn pair() -> ContactPair {
     ContactPair { elastomer: Body::new(E1, NU1, 33.0), indenter: Body::new(1.1, 0.39, 5.0) }
 }
 
-/// A recording of the standard sweeps on a rig with `profile`'s effects.
+/// A recording of the standard sweeps (the generator's procedure and noise)
+/// on a rig with `profile`'s effects.
 fn record(profile: &SimProfile, seed: u64) -> Recording {
-    let pair = pair();
-    let mut rig = TrueRig::new(pair, profile).unwrap();
-    let mut rng = Rng::seed_from(seed);
-    let mut samples = Vec::new();
-    let mut t = 0.0;
-    let step = 0.05;
-    let dt = 0.8;
-    let mut read = |rig: &mut TrueRig, t: f64, stage: f64, rot: f64, phase: Phase, dir: Direction| {
-        let r = rig.read(Command { t_s: t, stage_mm: stage, rot_deg: rot }).unwrap();
-        let g = if r.in_contact { r.gamma1_mm + rng.gaussian(SIGMA_G) } else { 0.0 };
-        let th = if phase == Phase::Torsion { r.theta1_deg + rng.gaussian(SIGMA_T) } else { 0.0 };
-        Sample { t_s: t, phase, stage_mm: stage, rot_deg: rot, gamma1_mm: g, theta1_deg: th, rep: None, dir: Some(dir) }
-    };
-    let mut k = 0;
-    loop {
-        let stage = (k as f64 * step * 1000.0).round() / 1000.0;
-        let s = read(&mut rig, t, stage, 0.0, Phase::Normal, Direction::Load);
-        t += dt;
-        let beta = (stage - s.gamma1_mm) / 5.0;
-        samples.push(s);
-        if beta >= 0.2 {
-            break;
-        }
-        k += 1;
-        assert!(k < 1000);
-    }
-    for j in (0..k).rev() {
-        let stage = (j as f64 * step * 1000.0).round() / 1000.0;
-        samples.push(read(&mut rig, t, stage, 0.0, Phase::Normal, Direction::Unload));
-        t += dt;
-    }
-    // Torsion depth: back to the stage where the measured beta reached the target.
-    let stage_t = (k as f64 * step * 1000.0).round() / 1000.0;
-    let n = 40;
-    let angles: Vec<(f64, Direction)> = (0..=n)
-        .map(|i| (i as f64 * 0.2, Direction::Load))
-        .chain((0..n).rev().map(|i| (i as f64 * 0.2, Direction::Unload)))
-        .collect();
-    for (a, dir) in angles {
-        let a = (a * 100.0f64).round() / 100.0;
-        samples.push(read(&mut rig, t, stage_t, a, Phase::Torsion, dir));
-        t += dt;
-    }
-    Recording {
-        meta: Metadata {
-            sensor: Some("test".into()),
-            indenter: pair.indenter,
-            elastomer_r_mm: pair.elastomer.r_mm,
-            created: None,
-            extra: vec![],
-        },
-        samples,
-    }
+    let cfg = GeneratorConfig { pair: pair(), profile: profile.clone(), seed, ..Default::default() };
+    assert_eq!(cfg.noise.gamma1_sigma_mm, SIGMA_G);
+    assert_eq!(cfg.noise.theta1_sigma_deg, SIGMA_T);
+    generate(&cfg).unwrap()
 }
 
 fn run(name: &str, profile: &SimProfile, seed: u64) -> Diagnosis {
@@ -264,8 +216,8 @@ fn profile_out_reproduces_the_recording() {
     };
     let rec = record(&p, 51);
     let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
-    let text = d.profile.to_toml().unwrap();
-    let prof = SimProfile::from_toml(&text).unwrap();
+    let text = d.profile.to_toml_string().unwrap();
+    let prof = SimProfile::from_toml_str(&text).unwrap();
     assert!(prof.stage_backlash.is_some() && prof.material.is_some(), "{text}");
     // Re-simulate the recording's commanded history with the written profile.
     let cmds: Vec<Command> =

@@ -23,7 +23,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<(), CliError> {
         }
     }
     if let Some(path) = &args.profile_out {
-        let text = d.profile.to_toml().map_err(|e| CliError::other(e.to_string()))?;
+        let text = d.profile.to_toml_string().map_err(|e| CliError::other(e.to_string()))?;
         let text = format!(
             "# sim profile written by `easycalib diagnose {}`: the fitted material, stage zero and the effects found\n{text}",
             args.recording.display()

@@ -29,6 +29,10 @@ use model::{Base, Candidate, Fitted, Model};
 /// these sweeps (multiple correlation above 0.9995).
 pub const VIF_DEGENERATE: f64 = 1000.0;
 
+/// Explanations whose BIC lies within this of the best cannot be ranked by
+/// the data (a Bayes factor below e^3 ~ 20): none of them is named.
+pub const AMBIGUOUS_BIC: f64 = 6.0;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DiagnoseOptions {
     /// Noise of the gamma1 readings, µm; estimated from the data when `None`.
@@ -134,6 +138,17 @@ pub struct Degenerate {
     pub separate_by: Option<&'static str>,
 }
 
+/// One of several explanations the sweeps cannot rank (BIC within [`AMBIGUOUS_BIC`] of the best).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Alternative {
+    pub effects: Vec<&'static str>,
+    /// BIC above the best explanation's (0 for the best itself).
+    pub delta_bic: f64,
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+}
+
 /// How one candidate (or pair) fared.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CandidateScore {
@@ -180,6 +195,8 @@ pub struct Diagnosis {
     pub remaining: Vec<Mismatch>,
     pub explanation: Vec<Explained>,
     pub degenerate: Vec<Degenerate>,
+    /// When the best explanation cannot be told from others: all of them, best first.
+    pub ambiguous: Vec<Alternative>,
     pub candidates: Vec<CandidateScore>,
     /// Per-branch statistics of the baseline and the corrected fit.
     pub segments_before: Vec<SegmentReport>,
@@ -399,13 +416,38 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     // explain: every candidate alone, then pairs on top of the best if it leaves structure.
     let mut scores = Vec::new();
     let mut best: Option<(Fitted, f64)> = None;
+    let mut singles: Vec<(Fitted, f64)> = Vec::new();
     for c in Candidate::FITTED {
         let Some(f) = extend(&model, &baseline, c) else { continue };
         let s = score(&model, &f, &baseline);
         if s.significant && best.as_ref().is_none_or(|(_, b)| s.delta_bic < *b) {
-            best = Some((f, s.delta_bic));
+            best = Some((f.clone(), s.delta_bic));
+        }
+        if s.significant {
+            singles.push((f, s.delta_bic));
         }
         scores.push(s);
+    }
+    // Can the data rank the best single explanation above the others, and above
+    // a depth-gain error (which has no signature of its own but can mimic some)?
+    let mut ambiguous = Vec::new();
+    if let Some((bf, bb)) = &best {
+        if let Some(g) = extend(&model, &baseline, Candidate::SensorGain) {
+            let s = score(&model, &g, &baseline);
+            singles.push((g, s.delta_bic));
+        }
+        let close: Vec<&(Fitted, f64)> =
+            singles.iter().filter(|(f, b)| f.cands != bf.cands && *b - *bb < AMBIGUOUS_BIC).collect();
+        if !close.is_empty() {
+            let alt = |f: &Fitted, d: f64| Alternative {
+                effects: f.cands.iter().map(|c| c.name()).collect(),
+                delta_bic: d,
+                e1_mpa: f.base().e1_mpa,
+                nu1: f.base().nu1,
+            };
+            ambiguous.push(alt(bf, 0.0));
+            ambiguous.extend(close.iter().map(|(f, b)| alt(f, b - bb)));
+        }
     }
     let mut chosen = best.map(|(f, _)| f);
     if let Some(single) = chosen.clone()
@@ -476,13 +518,37 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     let mismatch = mismatches(&before);
     let remaining = mismatches(&after);
     let unexplained = !remaining.is_empty();
-    // Never a forced attribution: when structure remains, nothing is named.
-    let (final_fit, effects) = if unexplained {
+    // Never a forced attribution: when structure remains, or the data cannot
+    // rank the explanations, nothing is named.
+    let (final_fit, mut effects) = if unexplained {
         (baseline.clone(), Vec::new())
+    } else if !ambiguous.is_empty() {
+        (last.clone(), Vec::new())
     } else {
         (last.clone(), last.cands.iter().map(|c| c.name()).collect::<Vec<_>>())
     };
-    let explanation = if unexplained { Vec::new() } else { explained(&final_fit) };
+    let mut explanation = if unexplained || !ambiguous.is_empty() { Vec::new() } else { explained(&final_fit) };
+    // contact_offset is every fit's z0: named when it is significant at the same guard.
+    let (z0, z0_se) = (final_fit.base().z0_mm, final_fit.se(2));
+    if !unexplained && z0_se.is_finite() && z0_se > 0.0 && (z0 / z0_se).powi(2) > chi2_crit(1) {
+        let t = t_quantile_975(final_fit.dof);
+        let info = &sim::effects::contact_offset::INFO;
+        effects.insert(0, info.name);
+        explanation.insert(
+            0,
+            Explained {
+                effect: info.name,
+                sentence: info.sentence,
+                params: vec![ParamEstimate {
+                    name: "z0_mm",
+                    unit: "mm",
+                    value: z0,
+                    ci95: [Some(z0 - t * z0_se), Some(z0 + t * z0_se)],
+                    well_determined: 2.0 * t * z0_se < z0.abs(),
+                }],
+            },
+        );
+    }
     let profile = model.profile(&final_fit.cands, &final_fit.x).ok_or(DiagnoseError::Model)?;
 
     let residuals = rec
@@ -514,6 +580,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         remaining,
         explanation,
         degenerate,
+        ambiguous,
         candidates: scores,
         segments_before: before,
         segments_after: after,
@@ -556,6 +623,21 @@ fn verdict(d: &Diagnosis, last: &Fitted) -> String {
             } else {
                 format!(" (the closest candidate, {}, leaves it.)", tried.join(" + "))
             }
+        )
+    } else if !d.ambiguous.is_empty() {
+        let alts: Vec<String> = d
+            .ambiguous
+            .iter()
+            .map(|a| format!("{} (dBIC {:.1}: E1 {:.4} MPa, nu1 {:.4})", a.effects.join(" + "), a.delta_bic, a.e1_mpa, a.nu1))
+            .collect();
+        format!(
+            "{}AMBIGUOUS: these sweeps cannot tell apart {}; none is named. E1 {:.4} -> {:.4} MPa, nu1 {:.4} -> {:.4} with the best of them.",
+            if d.mismatch.is_empty() { String::new() } else { format!("Mismatch: {}. ", where_(&d.mismatch)) },
+            alts.join(" / "),
+            b.e1_mpa,
+            c.e1_mpa,
+            b.nu1,
+            c.nu1
         )
     } else if d.effects.is_empty() {
         if d.mismatch.is_empty() {
