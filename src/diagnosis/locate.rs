@@ -281,11 +281,11 @@ pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, sigma: f64) -> O
     let w = 7.min(n);
     let thresh = 2.5 * sigma / (w as f64).sqrt();
     let mut marked: Vec<f64> = Vec::new();
-    for k in 0..n {
+    for (k, &x) in xs.iter().enumerate() {
         let a = k.saturating_sub(w / 2).min(n - w);
         let ma = rs[a..a + w].iter().sum::<f64>() / w as f64;
         if ma.abs() > thresh {
-            marked.push(xs[k]);
+            marked.push(x);
         }
     }
     let pool = if marked.is_empty() { &xs } else { &marked };
@@ -335,9 +335,10 @@ mod tests {
         let noise: Vec<f64> = (0..200).map(|_| rng.gaussian(1.0)).collect();
         assert!(runs_z(&noise).abs() < 3.0);
         assert!(chi2_z(noise.iter().map(|v| v * v).sum(), 200).abs() < 3.0);
-        let bow: Vec<f64> = (0..200).map(|i| (i as f64 / 200.0 * 3.14).sin() * 0.8 + rng.gaussian(1.0)).collect();
+        let bow: Vec<f64> =
+            (0..200).map(|i| 1.5 * (i as f64 / 200.0 * 2.0 * std::f64::consts::PI).cos() + rng.gaussian(1.0)).collect();
         assert!(runs_z(&bow) < -Z_SYSTEMATIC, "{}", runs_z(&bow));
-        let floor = noise_floor(&[bow.clone()]).unwrap();
+        let floor = noise_floor(std::slice::from_ref(&bow)).unwrap();
         assert!((floor - 1.0).abs() < 0.15, "{floor}");
         let mut step = noise.clone();
         for v in step.iter_mut().skip(100) {

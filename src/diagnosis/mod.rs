@@ -305,6 +305,13 @@ fn explained(fit: &Fitted) -> Vec<Explained> {
                         hi = f64::INFINITY;
                         open_hi = true;
                     }
+                    // Never report an interval end outside what the model accepts.
+                    if let Some(b) = c.info().params.iter().find(|b| b.name == *name) {
+                        lo = lo.max(b.min);
+                        if hi > b.max {
+                            hi = b.max;
+                        }
+                    }
                     let lo_v = lo.is_finite().then_some(lo);
                     let hi_v = (!open_hi && hi.is_finite()).then_some(hi);
                     let width = hi - lo;
@@ -324,12 +331,10 @@ fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fitted> {
     let mut cands = from.cands.clone();
     cands.push(add);
     let mut best: Option<Fitted> = None;
-    let starts: &[&[f64]] =
-        if add.start() == add.near_neutral() { &[add.start()] } else { &[add.start(), add.near_neutral()] };
     // A baseline pinned at a bound of nu1 (the logistic saturates) would stay there.
     let nu_lo = (0.1f64 / 0.9).ln();
     let nu_hi = (0.96f64 / 0.04).ln();
-    for st in starts {
+    for st in add.starts() {
         let mut x = from.x.clone();
         x[1] = x[1].clamp(nu_lo, nu_hi);
         x.extend_from_slice(st);
@@ -480,7 +485,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         for (k, c) in f.cands.iter().enumerate() {
             let off = f.offset_of(k);
             let vif = (off..off + c.n_params()).map(|j| f.vif[j]).fold(0.0, f64::max);
-            if !(vif <= VIF_DEGENERATE) {
+            if vif.is_nan() || vif > VIF_DEGENERATE {
                 any = true;
                 degenerate.push(Degenerate {
                     effect: c.name(),
@@ -501,7 +506,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     // Effects that by construction have no signature: probe how far E1/nu1 could absorb them.
     if let Some(v) = model.probe_vif(&last, Candidate::SensorGain) {
         let vif = v.first().copied().unwrap_or(f64::INFINITY);
-        if !(vif <= VIF_DEGENERATE) {
+        if vif.is_nan() || vif > VIF_DEGENERATE {
             let c = Candidate::SensorGain;
             degenerate.push(Degenerate {
                 effect: c.name(),
@@ -628,7 +633,9 @@ fn verdict(d: &Diagnosis, last: &Fitted) -> String {
         let alts: Vec<String> = d
             .ambiguous
             .iter()
-            .map(|a| format!("{} (dBIC {:.1}: E1 {:.4} MPa, nu1 {:.4})", a.effects.join(" + "), a.delta_bic, a.e1_mpa, a.nu1))
+            .map(|a| {
+                format!("{} (dBIC {:.1}: E1 {:.4} MPa, nu1 {:.4})", a.effects.join(" + "), a.delta_bic, a.e1_mpa, a.nu1)
+            })
             .collect();
         format!(
             "{}AMBIGUOUS: these sweeps cannot tell apart {}; none is named. E1 {:.4} -> {:.4} MPa, nu1 {:.4} -> {:.4} with the best of them.",

@@ -122,6 +122,16 @@ impl Candidate {
         }
     }
 
+    /// Every start the refit tries (the adhesion landscape has separate basins
+    /// for weak and strong tack, so it gets a ladder of w).
+    pub fn starts(self) -> Vec<&'static [f64]> {
+        match self {
+            Candidate::Adhesion => vec![&[0.3, 2.0], &[0.0, 2.0], &[1.5, 2.0], &[4.0, 2.0]],
+            Candidate::ThermalDrift | Candidate::SensorGain => vec![self.start()],
+            _ => vec![self.start(), self.near_neutral()],
+        }
+    }
+
     /// Internal coordinate `j` to the reported physical value.
     pub fn physical(self, j: usize, x: f64) -> f64 {
         match (self, j) {
@@ -294,7 +304,7 @@ impl<'a> Model<'a> {
     /// The sim profile of a parameter vector (None outside the bounds).
     pub fn profile(&self, cands: &[Candidate], x: &[f64]) -> Option<SimProfile> {
         let b = Base::from_internal(x);
-        if !(b.e1_mpa.is_finite() && b.e1_mpa > 0.0) || !(-0.5..=0.5).contains(&b.z0_mm) {
+        if !(b.e1_mpa.is_finite() && b.e1_mpa > 0.0 && (-0.5..=0.5).contains(&b.z0_mm)) {
             return None;
         }
         let mut p = SimProfile {
