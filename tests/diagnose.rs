@@ -66,7 +66,7 @@ fn run(name: &str, profile: &SimProfile, seed: u64) -> Diagnosis {
     println!("  {}", d.verdict);
     for c in &d.candidates {
         println!(
-            "    {:<32} dchi2 {:>9.1} dBIC {:>9.1} sig {} vif {:.1}",
+            "    {:<32} dchi2 {:>9.1} dBIC {:>9.1} sig {} vif {:?}",
             c.effects.join("+"),
             c.delta_chi2,
             c.delta_bic,

@@ -159,8 +159,9 @@ pub struct CandidateScore {
     pub delta_bic: f64,
     pub significant: bool,
     pub chi2_per_dof: f64,
-    /// Largest variance inflation of the added parameters against E1, nu1 and z0.
-    pub vif: f64,
+    /// Largest variance inflation of the added parameters against E1, nu1 and z0
+    /// (computed for significant candidates only).
+    pub vif: Option<f64>,
 }
 
 /// Residuals of one sample before and after correction (reading units; None: nothing to compare).
@@ -357,7 +358,11 @@ fn score(model: &Model, fit: &Fitted, reference: &Fitted) -> CandidateScore {
         delta_bic: -delta + k as f64 * n.ln(),
         significant: delta > chi2_crit(k).max(k as f64 * n.ln()),
         chi2_per_dof: fit.chi2 / fit.dof as f64,
-        vif: fit.vif[reference.n_params()..].iter().copied().fold(0.0, f64::max),
+        vif: if fit.vif.is_empty() {
+            None
+        } else {
+            Some(fit.vif[reference.n_params()..].iter().copied().fold(0.0, f64::max))
+        },
     }
 }
 
@@ -415,7 +420,8 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         .map_or(sg0, |s| s.max(1e-6));
     model.sigma_t = locate::noise_floor(&locate::series(rec, &base0.readings, &segs, Quantity::Theta1))
         .map_or(st0, |s| s.max(1e-6));
-    let baseline = model.fit(&[], &base0.x).ok_or(DiagnoseError::Model)?;
+    let mut baseline = model.fit(&[], &base0.x).ok_or(DiagnoseError::Model)?;
+    model.finish(&mut baseline);
     let before = locate::locate(rec, &baseline.readings, &segs, model.sigma_g, model.sigma_t);
 
     // explain: every candidate alone, then pairs on top of the best if it leaves structure.
@@ -423,7 +429,10 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     let mut best: Option<(Fitted, f64)> = None;
     let mut singles: Vec<(Fitted, f64)> = Vec::new();
     for c in Candidate::FITTED {
-        let Some(f) = extend(&model, &baseline, c) else { continue };
+        let Some(mut f) = extend(&model, &baseline, c) else { continue };
+        if score(&model, &f, &baseline).significant {
+            model.finish(&mut f);
+        }
         let s = score(&model, &f, &baseline);
         if s.significant && best.as_ref().is_none_or(|(_, b)| s.delta_bic < *b) {
             best = Some((f.clone(), s.delta_bic));
@@ -465,7 +474,10 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
                 if single.cands.contains(&c) {
                     continue;
                 }
-                let Some(f) = extend(&model, &single, c) else { continue };
+                let Some(mut f) = extend(&model, &single, c) else { continue };
+                if score(&model, &f, &single).significant {
+                    model.finish(&mut f);
+                }
                 let s = score(&model, &f, &single);
                 if s.significant && best_pair.as_ref().is_none_or(|(_, b)| s.delta_bic < *b) {
                     best_pair = Some((f, s.delta_bic));
@@ -480,11 +492,15 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
 
     // Degeneracy: effects whose parameters E1/nu1/z0 can stand in for are not picked.
     let mut degenerate = Vec::new();
+    if let Some(f) = chosen.as_mut() {
+        model.finish(f);
+    }
     if let Some(f) = &chosen {
         let mut any = false;
         for (k, c) in f.cands.iter().enumerate() {
             let off = f.offset_of(k);
-            let vif = (off..off + c.n_params()).map(|j| f.vif[j]).fold(0.0, f64::max);
+            let vif =
+                (off..off + c.n_params()).map(|j| f.vif.get(j).copied().unwrap_or(f64::INFINITY)).fold(0.0, f64::max);
             if vif.is_nan() || vif > VIF_DEGENERATE {
                 any = true;
                 degenerate.push(Degenerate {

@@ -238,7 +238,10 @@ pub struct Fitted {
     /// Weighted sum of squares (chi², with the noise floor as weights).
     pub chi2: f64,
     pub readings: Vec<Reading>,
-    /// Covariance of the internal coordinates (scaled by chi²/dof), if the Jacobian is regular.
+    /// Weighted residuals at the optimum.
+    pub residuals: Vec<f64>,
+    /// Covariance of the internal coordinates (scaled by chi²/dof), if the
+    /// Jacobian is regular; filled by [`Model::finish`].
     pub cov: Option<DMatrix<f64>>,
     /// Per parameter: how much its variance grows because E1, nu1 and z0 can
     /// take its place (1 = independent; base parameters themselves get 1).
@@ -369,8 +372,10 @@ impl<'a> Model<'a> {
     pub fn fit(&self, cands: &[Candidate], x0: &[f64]) -> Option<Fitted> {
         let opts = LmOptions {
             max_iterations: self.max_iterations,
-            cost_tolerance: 1e-7,
-            step_tolerance: 1e-7,
+            // chi² to ~1e-5 relative (~0.003 on a few hundred points) is far
+            // below the guard's resolution of ~1.
+            cost_tolerance: 1e-5,
+            step_tolerance: 1e-6,
             fd_step: 1e-6,
         };
         let out = lm::minimize(|x, r| self.eval(cands, x, r), x0, opts).ok()?;
@@ -378,19 +383,29 @@ impl<'a> Model<'a> {
         let readings = self.readings(&profile)?;
         let n = out.x.len();
         let dof = self.n_obs().saturating_sub(n).max(1);
-        let (cov, vif) = self.covariance(cands, &out.x, &out.residuals, dof);
         let s2 = out.ssr / dof as f64;
         Some(Fitted {
             cands: cands.to_vec(),
             x: out.x,
             chi2: out.ssr,
             readings,
-            cov,
-            vif,
+            residuals: out.residuals,
+            cov: None,
+            vif: Vec::new(),
             dof,
             iterations: out.iterations,
             s2,
         })
+    }
+
+    /// Covariance and variance inflation of a fit (2 model runs per
+    /// parameter, so only for the fits that are reported or compared).
+    pub fn finish(&self, f: &mut Fitted) {
+        if f.cov.is_none() && f.vif.is_empty() {
+            let (cov, vif) = self.covariance(&f.cands, &f.x, &f.residuals, f.dof);
+            f.cov = cov;
+            f.vif = vif;
+        }
     }
 
     /// Covariance from a central-difference Jacobian, and each parameter's
