@@ -335,7 +335,15 @@ fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fitted> {
     // A baseline pinned at a bound of nu1 (the logistic saturates) would stay there.
     let nu_lo = (0.1f64 / 0.9).ln();
     let nu_hi = (0.96f64 / 0.04).ln();
-    for st in add.starts() {
+    let fallback = add.fallback_starts();
+    let mut tried = 0;
+    let all: Vec<&[f64]> = add.starts().into_iter().chain(fallback.iter().copied()).collect();
+    let n_usual = all.len() - fallback.len();
+    for st in all {
+        tried += 1;
+        if tried > n_usual && best.as_ref().is_some_and(|b| b.s2 < 1.5) {
+            break;
+        }
         let mut x = from.x.clone();
         x[1] = x[1].clamp(nu_lo, nu_hi);
         x.extend_from_slice(st);
@@ -343,6 +351,23 @@ fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fitted> {
             && best.as_ref().is_none_or(|b| f.chi2 < b.chi2)
         {
             best = Some(f);
+        }
+    }
+    // A start far from the answer (a thin layer, where the baseline is far
+    // off) can use up the iterations: continue from where it stopped.
+    for _ in 0..3 {
+        match &best {
+            Some(b) if b.iterations >= model.max_iterations => {
+                let more = model.fit(&cands, &b.x.clone());
+                if let Some(m) = more
+                    && m.chi2 <= b.chi2
+                {
+                    best = Some(m);
+                } else {
+                    break;
+                }
+            }
+            _ => break,
         }
     }
     best

@@ -132,6 +132,16 @@ impl Candidate {
         }
     }
 
+    /// Further starts tried only when the usual ones leave the fit far above
+    /// the noise (a thin layer: the baseline is far off and the path from a
+    /// thick-layer start runs into the model's no-solution region).
+    pub fn fallback_starts(self) -> Vec<&'static [f64]> {
+        match self {
+            Candidate::FiniteThickness => vec![&[0.3], &[0.6], &[1.0]],
+            _ => Vec::new(),
+        }
+    }
+
     /// Internal coordinate `j` to the reported physical value.
     pub fn physical(self, j: usize, x: f64) -> f64 {
         match (self, j) {
