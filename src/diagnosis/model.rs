@@ -294,6 +294,8 @@ pub struct Model<'a> {
     pub sigma_t: f64,
     /// Iteration cap of each refit.
     pub max_iterations: usize,
+    /// LM stops when a step lowers chi² by less than this fraction.
+    pub cost_tolerance: f64,
 }
 
 impl<'a> Model<'a> {
@@ -307,7 +309,7 @@ impl<'a> Model<'a> {
                 rot_deg: if s.phase == Phase::Torsion { s.rot_deg } else { 0.0 },
             })
             .collect();
-        Self { rec, cmds, sigma_g, sigma_t, max_iterations: 40 }
+        Self { rec, cmds, sigma_g, sigma_t, max_iterations: 40, cost_tolerance: 1e-5 }
     }
 
     pub fn recording(&self) -> &Recording {
@@ -382,9 +384,7 @@ impl<'a> Model<'a> {
     pub fn fit(&self, cands: &[Candidate], x0: &[f64]) -> Option<Fitted> {
         let opts = LmOptions {
             max_iterations: self.max_iterations,
-            // chi² to ~1e-5 relative (~0.003 on a few hundred points) is far
-            // below the guard's resolution of ~1.
-            cost_tolerance: 1e-5,
+            cost_tolerance: self.cost_tolerance,
             step_tolerance: 1e-6,
             fd_step: 1e-6,
         };
