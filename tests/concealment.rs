@@ -65,7 +65,7 @@ fn every_case_conceals_its_effect() {
         let rms_n = cal.full.rms.normal_um / (c.gamma1_sigma_mm * 1e3);
         let rms_t = cal.full.rms.torsion_deg / c.theta1_sigma_deg;
         println!(
-            "{:18} {:>9?} | {fe:+8.2} {fn_:+8.2} | {pe:+8.2} {pn:+8.2} | {:8.5} {:8.5} | {rms_n:6.2} {rms_t:6.2}",
+            "{:18} {:>9} | {fe:+8.2} {fn_:+8.2} | {pe:+8.2} {pn:+8.2} | {:8.5} {:8.5} | {rms_n:6.2} {rms_t:6.2}",
             c.effect,
             format!("{:?}", c.bias_in),
             cal.paper.r2_normal,

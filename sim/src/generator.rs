@@ -399,4 +399,64 @@ mod tests {
         let err = generate(&bad).unwrap_err().to_string();
         assert!(err.contains("stage_backlash.b_mm"), "{err}");
     }
+
+    /// physics.md 2 and 2.6: the rig stops at the beta it measures, and frame
+    /// compliance adds C F to the measured gamma2, so the true beta is low; an
+    /// error of 50 um in gamma2 (delta beta = 0.01) lowers H3 by about 4 %.
+    #[test]
+    fn frame_compliance_lowers_h3_through_the_measured_depth() {
+        use crate::effects::frame_compliance;
+        use crate::physics::h3_from_materials;
+        let noiseless = NoiseSpec {
+            gamma1_sigma_mm: 0.0,
+            theta1_sigma_deg: 0.0,
+            stage_resolution_mm: 0.0,
+            rotation_resolution_deg: 0.0,
+        };
+        let base = GeneratorConfig { noise: noiseless, ..Default::default() };
+        let force = NormalModel::new(base.pair).unwrap().solve_for_gamma2(1.0).unwrap().force_n;
+        // C such that C F = 50 um at the torsion depth.
+        let c = 0.05 / force;
+        let cfg = GeneratorConfig {
+            profile: SimProfile {
+                frame_compliance: Some(frame_compliance::Params { c_mm_per_n: c }),
+                ..Default::default()
+            },
+            ..base.clone()
+        };
+        let rec = generate(&cfg).unwrap();
+        let h3 = |r: &Recording| {
+            let (sxy, sxx) = r.phase(Phase::Torsion).fold((0.0, 0.0), |(a, b), s| {
+                (a + s.theta1_deg * (s.rot_deg - s.theta1_deg), b + s.theta1_deg * s.theta1_deg)
+            });
+            sxy / sxx
+        };
+        let clean_h3 = h3_from_materials(&base.pair.elastomer, &base.pair.indenter, 0.2);
+        assert!((h3(&generate(&base).unwrap()) / clean_h3 - 1.0).abs() < 1e-9);
+        let drop = 1.0 - h3(&rec) / clean_h3;
+        assert!((drop - 0.04).abs() < 0.01, "H3 drop {drop}");
+    }
+
+    /// Real sensor layers (2-6 mm) at the standard sweep: the layer is not
+    /// concealed, the generator must still produce the whole run (a/h up to ~2).
+    #[test]
+    fn thin_layers_generate_full_runs() {
+        use crate::effects::finite_thickness;
+        let clean = generate(&GeneratorConfig::default()).unwrap();
+        let top = |r: &Recording| r.phase(Phase::Normal).map(|s| s.stage_mm).fold(0.0, f64::max);
+        for h in [2.0, 3.0, 5.0, 6.0] {
+            let cfg = GeneratorConfig {
+                profile: SimProfile {
+                    finite_thickness: Some(finite_thickness::Params { h_mm: h }),
+                    ..Default::default()
+                },
+                ..Default::default()
+            };
+            let rec = generate(&cfg).unwrap();
+            let first = rec.phase(Phase::Torsion).next().unwrap();
+            assert!(((first.stage_mm - first.gamma1_mm) / 5.0 - 0.2).abs() < 0.01, "h {h}");
+            // The stiffer layer deforms less at the same force: the target beta comes at a smaller stage.
+            assert!(top(&rec) < top(&clean), "h {h}: {} vs {}", top(&rec), top(&clean));
+        }
+    }
 }

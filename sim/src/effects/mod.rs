@@ -6,6 +6,39 @@
 //! ([`EffectInfo`]) that reports can print. A [`SimProfile`] (TOML) lists the
 //! enabled effects with their parameters; [`TrueRig`] turns a commanded
 //! stage / mount history into the readings a rig with those effects gives.
+//!
+//! # Public API (kept stable for the diagnosis and the simulated devices)
+//!
+//! * Catalogue: [`ALL`] (`[&EffectInfo; 10]`, physics.md order), [`info`]`(name)`;
+//!   [`EffectInfo`] `{ name, model, params: &[ParamInfo], signature,
+//!   identifiability, sentence, explanation, separate_by }`, [`ParamInfo`]
+//!   `{ name, unit, min, max, typical }` — `ParamInfo::name` is the TOML key.
+//! * Parameters: `<effect>::Params` per module (plain `pub` fields, serde),
+//!   each with `validate()`; extra helpers: `finite_thickness::{phi, torsion_factor}`,
+//!   `adhesion::punch_displacement`, `thermal_drift::Params::offset_mm(t)`,
+//!   `stage_backlash::Play` (the play operator), `partial_slip::{SlipState, elliptic_e}`.
+//! * Profile: [`SimProfile`] `{ material: Option<Material>, <effect>: Option<Params>, .. }`
+//!   with `from_toml_str`, `to_toml_string`, `load(&Path)`, `save(&Path)`,
+//!   `validate`, `enabled() -> Vec<&'static str>`, `is_clean`. Absent sections are
+//!   off; `material` (E1_MPa, nu1) overrides the elastomer of the pair given to
+//!   the rig. Errors: [`EffectError`] (`OutOfBounds` names `effect.param`, `Toml`
+//!   names unknown sections/keys, `Unsupported` for viscoelastic combined with
+//!   adhesion or finite_thickness, `NoSolution`, `GrossSlip`, `Io`).
+//! * True rig: [`TrueRig::new`]`(pair, &profile)`, [`TrueRig::read`]`(Command) ->
+//!   Result<Reading, EffectError>` — a stateful stepper: feed commands in time
+//!   order (stage backlash, adhesion, creep and slip keep history);
+//!   `Clone` it to probe without disturbing the history. [`simulate`]`(pair,
+//!   &profile, &[Command])` runs a whole history on a fresh rig.
+//!   [`Command`] `{ t_s, stage_mm, rot_deg }` (commanded values; `rot_deg` is the
+//!   mount angle since the twist began), [`Reading`] `{ gamma1_mm, theta1_deg }`
+//!   as the sensor reports them (noise-free; 0 without contact) plus the true
+//!   `gamma1_true_mm, gamma2_mm, force_n, contact_radius_mm, in_contact`.
+//! * Generator: `crate::generator::GeneratorConfig::profile` switches effects on
+//!   in synthetic recordings (an empty profile is the clean model bit for bit).
+//! * Corpus: [`corpus::cases`], [`corpus::CorpusManifest`] (tests/data/corpus.toml).
+//!
+//! The stage and mount inputs are the *commanded* positions: do not also give
+//! the emulator's `Axis` a backlash when `stage_backlash`/`rotation_backlash` is on.
 
 pub mod adhesion;
 pub mod contact_offset;

@@ -91,6 +91,10 @@ pub struct TrueRig {
     last_s: Option<f64>,
     last: Contact,
     slip: Option<(f64, SlipState)>,
+    /// Viscoelastic torsion history: filtered torque, last torque, last time.
+    tq: f64,
+    m_prev: f64,
+    tors_t: Option<f64>,
     torsion_cache: Option<(f64, f64, f64, f64, f64)>,
 }
 
@@ -122,12 +126,21 @@ impl TrueRig {
             last_s: None,
             last: Contact::default(),
             slip: None,
+            tq: 0.0,
+            m_prev: 0.0,
+            tors_t: None,
             torsion_cache: None,
         })
     }
 
+    /// The contact pair the rig uses (the profile's `material` applied).
     pub fn pair(&self) -> &ContactPair {
         &self.pair
+    }
+
+    /// The effects this rig has.
+    pub fn profile(&self) -> &SimProfile {
+        &self.profile
     }
 
     fn frame_c(&self) -> f64 {
@@ -370,6 +383,32 @@ impl TrueRig {
         Ok((c1, c2, crod, a_t))
     }
 
+    /// Torsion of a standard-linear-solid elastomer at mount angle `total` (rad),
+    /// held since the last reading: the elastomer's compliance creeps from
+    /// c1/rho to its relaxed c1 (same kernel as the normal contact, on the
+    /// torque history), in series with the elastic indenter and rod `c_series`.
+    /// Exact exponential recursion per sub-step; the torque relaxes during a hold.
+    fn visco_theta1(&mut self, total: f64, c1: f64, c_series: f64, t: f64) -> f64 {
+        let Some(v) = self.profile.viscoelastic else {
+            return total * c1 / (c1 + c_series);
+        };
+        let k = 1.0 - 1.0 / v.rho;
+        let span = self.tors_t.map_or(0.0, |tp| (t - tp).max(0.0));
+        self.tors_t = Some(t);
+        let n = ((span / super::viscoelastic::MAX_STEP_S).ceil() as usize).max(1);
+        let dt = span / n as f64;
+        let (e, w) =
+            if dt > 0.0 { ((-dt / v.tau_s).exp(), (1.0 - (-dt / v.tau_s).exp()) / (dt / v.tau_s)) } else { (1.0, 1.0) };
+        let mut m = self.m_prev;
+        for _ in 0..n {
+            // total = c1 (M - k (e q + w (M - M_prev))) + c_series M, solved for M.
+            m = (total + c1 * k * (e * self.tq - w * self.m_prev)) / (c1 * (1.0 - k * w) + c_series);
+            self.tq = e * self.tq + w * (m - self.m_prev);
+            self.m_prev = m;
+        }
+        total - c_series * m
+    }
+
     /// The reading at rig time `t_s` for the commanded stage and mount angle.
     pub fn read(&mut self, cmd: Command) -> Result<Reading, EffectError> {
         let stage = match self.stage_play.as_mut() {
@@ -401,11 +440,19 @@ impl TrueRig {
             None => cmd.rot_deg,
         };
         let total = rot.to_radians();
-        let theta1 = if !in_contact || (total == 0.0 && self.slip.is_none()) {
+        let creeping = self.profile.viscoelastic.is_some() && self.profile.partial_slip.is_none();
+        if !in_contact {
+            (self.tq, self.m_prev, self.tors_t) = (0.0, 0.0, None);
+        }
+        let theta1 = if !in_contact || (total == 0.0 && self.slip.is_none() && (!creeping || self.tq == 0.0)) {
+            if creeping && in_contact {
+                self.tors_t = Some(cmd.t_s);
+            }
             0.0
         } else {
             let (c1, c2, crod, a_t) = self.torsion_compliances(&contact)?;
             match self.profile.partial_slip {
+                None if creeping => self.visco_theta1(total, c1, c2 + crod, cmd.t_s),
                 None => total * c1 / (c1 + c2 + crod),
                 Some(ps) => {
                     if self.slip.is_none() {

@@ -184,6 +184,18 @@ fn viscoelastic_creeps_during_a_hold_and_saturates_at_the_relaxed_model() {
     let gap = |i: usize| relaxed - v[i].gamma1_mm;
     let frac = gap(20) / gap(0);
     assert!(frac > 0.25 && frac < 0.45, "{frac}");
+    // Torsion hold: a twist step is met by the glassy elastomer (theta1 low), then
+    // theta1 creeps up to the relaxed split with the same kernel.
+    let st = NormalModel::new(pair()).unwrap().solve_for_gamma2(1.0).unwrap().delta_mm;
+    let mut tw: Vec<Command> =
+        (0..=200).map(|i| Command { t_s: i as f64 * 0.25, stage_mm: st, rot_deg: 0.0 }).collect();
+    tw.extend((1..=200).map(|i| Command { t_s: 50.0 + i as f64 * 0.25, stage_mm: st, rot_deg: 5.0 }));
+    let prof = SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() };
+    let vt = run(prof, &tw);
+    let relaxed_split = run(SimProfile::default(), &tw[400..])[0].theta1_deg;
+    assert!(vt[201].theta1_deg < relaxed_split * 0.99, "{} vs {relaxed_split}", vt[201].theta1_deg);
+    assert!(vt[240].theta1_deg > vt[201].theta1_deg);
+    assert!((vt[400].theta1_deg / relaxed_split - 1.0).abs() < 2e-3, "{} vs {relaxed_split}", vt[400].theta1_deg);
     // Sweep: unload above load.
     let s = run(
         SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() },
@@ -388,4 +400,32 @@ fn profile_errors_name_the_effect_and_parameter() {
     assert_eq!(SimProfile::load(&path).unwrap(), p);
     let e = SimProfile::load(&dir.path().join("missing.toml")).unwrap_err().to_string();
     assert!(e.contains("missing.toml"), "{e}");
+}
+
+#[test]
+fn catalogue_parameter_names_are_the_toml_keys() {
+    // Every effect switched on (serialisation does not validate the combination).
+    let p = SimProfile {
+        finite_thickness: Some(finite_thickness::Params { h_mm: 5.0 }),
+        adhesion: Some(adhesion::Params { w_mj_m2: 50.0, eta: 2.0 }),
+        viscoelastic: Some(viscoelastic::Params { rho: 1.02, tau_s: 5.0 }),
+        contact_offset: Some(contact_offset::Params { z0_mm: 0.003 }),
+        stage_backlash: Some(stage_backlash::Params { b_mm: 0.005, engaged: true }),
+        frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }),
+        partial_slip: Some(partial_slip::Params { mu: 1.0 }),
+        rotation_backlash: Some(rotation_backlash::Params { b_deg: 0.1, engaged: true }),
+        thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 1e-5, vdot_mm_per_s2: 0.0 }),
+        sensor_gain: Some(sensor_gain::Params { g: 1.01 }),
+        material: None,
+    };
+    let v: toml::Table = toml::from_str(&p.to_toml_string().unwrap()).unwrap();
+    for info in ALL {
+        let sec = v[info.name].as_table().unwrap_or_else(|| panic!("{}", info.name));
+        for par in info.params {
+            assert!(sec.contains_key(par.name), "{}.{}", info.name, par.name);
+            assert!(par.min < par.max);
+        }
+    }
+    assert_eq!(p.enabled().len(), 10);
+    assert!(matches!(p.validate(), Err(EffectError::Unsupported(_))));
 }

@@ -6,7 +6,11 @@
 //! solved at every time step for the force that matches the stage, with the
 //! exact exponential recursion q <- e q + w dF. Each sample interval is the
 //! move (at its start) followed by the dwell, stepped at most 0.2 s.
-//! Simplification: the torsion split uses the relaxed shear modulus.
+//! Torsion uses the same kernel on the elastomer's torsional compliance (in
+//! series with the elastic indenter and rod), so theta1 creeps up after each
+//! twist step. Simplifications: the torsion history is kept in torque at the
+//! current contact (not in T = 3M/(16a^3)), and when `partial_slip` is also on
+//! the slip model uses the relaxed modulus.
 //!
 //! Shows as load/unload hysteresis (unload above load) and a saturating creep
 //! of gamma1 during holds (the torsion phase).
