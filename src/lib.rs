@@ -1,6 +1,7 @@
 //! easycalib: the rig controller — fitting, diagnosis, the calibration run, TUI and reports.
 
 pub mod cli;
+pub mod diagnosis;
 pub mod fit;
 pub mod report;
 pub mod run;

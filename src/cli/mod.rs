@@ -2,6 +2,7 @@
 
 mod calibrate;
 pub mod devices;
+mod diagnose;
 mod script;
 pub mod sensor;
 
@@ -33,6 +34,8 @@ pub enum Command {
     Sensor(sensor::SensorArgs),
     /// Print the built-in calibration script (`--default`) or check a script file.
     Script(ScriptArgs),
+    /// Locate and explain a mismatch between the model and a recording (docs/diagnosis.md).
+    Diagnose(DiagnoseArgs),
 }
 
 #[derive(Debug, Args)]
@@ -43,6 +46,24 @@ pub struct ScriptArgs {
     /// Validate this script file instead.
     #[arg(long, value_name = "SCRIPT")]
     pub check: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct DiagnoseArgs {
+    /// Recording in easycalib format v1 (CSV with `#` metadata).
+    pub recording: PathBuf,
+    /// Print the stable JSON document instead of the human report.
+    #[arg(long)]
+    pub json: bool,
+    /// Write residual plots before/after correction (SVG) into this directory.
+    #[arg(long, value_name = "DIR")]
+    pub plots: Option<PathBuf>,
+    /// Write a sim profile (TOML) with the fitted material and the effects found.
+    #[arg(long, value_name = "PROFILE.toml")]
+    pub profile_out: Option<PathBuf>,
+    /// Noise of the gamma1 readings, µm (estimated from the data if not given).
+    #[arg(long)]
+    pub noise_um: Option<f64>,
 }
 
 #[derive(Debug, Args)]
@@ -120,6 +141,7 @@ pub fn main() -> ExitCode {
         Command::Devices(a) => devices::run(a),
         Command::Sensor(a) => sensor::run(a),
         Command::Script(a) => script::script(a),
+        Command::Diagnose(a) => diagnose::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,509 @@
+//! The diagnosis's forward model: the recording's own commanded history run
+//! through `sim::effects::simulate` (the same true-rig model the simulator
+//! uses), with E1, nu1, the stage zero z0 and the parameters of zero or more
+//! candidate effects, fitted by the project's Levenberg–Marquardt.
+
+use nalgebra::DMatrix;
+use sim::effects::{
+    self, Command, EffectInfo, Material, Reading, SimProfile, adhesion, contact_offset, finite_thickness,
+    frame_compliance, partial_slip, rotation_backlash, sensor_gain, stage_backlash, thermal_drift, viscoelastic,
+};
+use sim::physics::{Body, ContactPair};
+use sim::recording::{Phase, Recording};
+
+use crate::fit::lm::{self, LmOptions};
+
+/// An effect of the library the diagnosis can fit, with its parametrisation.
+/// `contact_offset` is not here: z0 is part of every fit (the baseline's third parameter).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Candidate {
+    FiniteThickness,
+    Adhesion,
+    Viscoelastic,
+    StageBacklash,
+    FrameCompliance,
+    PartialSlip,
+    RotationBacklash,
+    ThermalDrift,
+    SensorGain,
+}
+
+/// Number of base parameters (ln E1, logit nu1, z0) ahead of the effects' parameters.
+pub const BASE: usize = 3;
+
+impl Candidate {
+    /// The effects a diagnosis refits, in library order. `sensor_gain` is left
+    /// out: it has no signature of its own, so it is probed for degeneracy instead.
+    pub const FITTED: [Candidate; 8] = [
+        Candidate::FiniteThickness,
+        Candidate::Adhesion,
+        Candidate::Viscoelastic,
+        Candidate::StageBacklash,
+        Candidate::FrameCompliance,
+        Candidate::PartialSlip,
+        Candidate::RotationBacklash,
+        Candidate::ThermalDrift,
+    ];
+
+    pub fn info(self) -> &'static EffectInfo {
+        match self {
+            Candidate::FiniteThickness => &finite_thickness::INFO,
+            Candidate::Adhesion => &adhesion::INFO,
+            Candidate::Viscoelastic => &viscoelastic::INFO,
+            Candidate::StageBacklash => &stage_backlash::INFO,
+            Candidate::FrameCompliance => &frame_compliance::INFO,
+            Candidate::PartialSlip => &partial_slip::INFO,
+            Candidate::RotationBacklash => &rotation_backlash::INFO,
+            Candidate::ThermalDrift => &thermal_drift::INFO,
+            Candidate::SensorGain => &sensor_gain::INFO,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        self.info().name
+    }
+
+    pub fn from_name(name: &str) -> Option<Candidate> {
+        Candidate::FITTED.into_iter().chain([Candidate::SensorGain]).find(|c| c.name() == name)
+    }
+
+    /// Names and units of the fitted parameters as reported (the profile's own names).
+    pub fn param_names(self) -> &'static [(&'static str, &'static str)] {
+        match self {
+            Candidate::FiniteThickness => &[("h_mm", "mm")],
+            Candidate::Adhesion => &[("w_mJ_m2", "mJ/m^2"), ("eta", "")],
+            Candidate::Viscoelastic => &[("rho", ""), ("tau_s", "s")],
+            Candidate::StageBacklash => &[("b_mm", "mm")],
+            Candidate::FrameCompliance => &[("c_mm_per_n", "mm/N")],
+            Candidate::PartialSlip => &[("mu", "")],
+            Candidate::RotationBacklash => &[("b_deg", "deg")],
+            Candidate::ThermalDrift => &[("v_mm_per_s", "mm/s")],
+            Candidate::SensorGain => &[("g", "")],
+        }
+    }
+
+    pub fn n_params(self) -> usize {
+        self.param_names().len()
+    }
+
+    /// Starting point in internal coordinates: a small, typical amount of the effect.
+    pub fn start(self) -> &'static [f64] {
+        match self {
+            // 1/h in 1/mm: a 10 mm layer.
+            Candidate::FiniteThickness => &[0.1],
+            // w / 100 mJ/m², eta.
+            Candidate::Adhesion => &[0.3, 2.0],
+            // rho - 1, ln tau.
+            Candidate::Viscoelastic => &[0.02, 1.609_437_912_434_100_3],
+            Candidate::StageBacklash => &[0.003],
+            Candidate::FrameCompliance => &[0.003],
+            // 1/mu: well inside full stick so that the start never hits gross slip.
+            Candidate::PartialSlip => &[0.3],
+            Candidate::RotationBacklash => &[0.05],
+            // µm/s.
+            Candidate::ThermalDrift => &[0.0],
+            Candidate::SensorGain => &[1.0],
+        }
+    }
+
+    /// A second start next to the neutral value, where the fit begins at the
+    /// baseline's cost and so can only improve on it.
+    pub fn near_neutral(self) -> &'static [f64] {
+        match self {
+            Candidate::FiniteThickness => &[0.0],
+            Candidate::Adhesion => &[0.0, 2.0],
+            Candidate::Viscoelastic => &[0.0, 1.609_437_912_434_100_3],
+            Candidate::StageBacklash => &[0.0],
+            Candidate::FrameCompliance => &[0.0],
+            Candidate::PartialSlip => &[0.01],
+            Candidate::RotationBacklash => &[0.0],
+            Candidate::ThermalDrift => &[0.0],
+            Candidate::SensorGain => &[1.0],
+        }
+    }
+
+    /// Every start the refit tries (the adhesion landscape has separate basins
+    /// for weak and strong tack, so it gets a ladder of w).
+    pub fn starts(self) -> Vec<&'static [f64]> {
+        match self {
+            Candidate::Adhesion => vec![&[0.3, 2.0], &[0.0, 2.0], &[1.5, 2.0], &[4.0, 2.0]],
+            Candidate::ThermalDrift | Candidate::SensorGain => vec![self.start()],
+            _ => vec![self.start(), self.near_neutral()],
+        }
+    }
+
+    /// Further starts tried only when the usual ones leave the fit far above
+    /// the noise (a thin layer: the baseline is far off and the path from a
+    /// thick-layer start runs into the model's no-solution region).
+    pub fn fallback_starts(self) -> Vec<&'static [f64]> {
+        match self {
+            Candidate::FiniteThickness => vec![&[0.3], &[0.6], &[1.0]],
+            _ => Vec::new(),
+        }
+    }
+
+    /// Internal coordinate `j` to the reported physical value.
+    pub fn physical(self, j: usize, x: f64) -> f64 {
+        match (self, j) {
+            (Candidate::FiniteThickness, _) => 1.0 / x,
+            (Candidate::Adhesion, 0) => 100.0 * x,
+            (Candidate::Viscoelastic, 0) => 1.0 + x,
+            (Candidate::Viscoelastic, _) => x.exp(),
+            (Candidate::PartialSlip, _) => 1.0 / x,
+            (Candidate::ThermalDrift, _) => x * 1e-3,
+            _ => x,
+        }
+    }
+
+    /// Put the effect with internal parameters `x` into `p`; false outside the model's bounds.
+    fn apply(self, x: &[f64], p: &mut SimProfile) -> bool {
+        let ok = |v: f64, lo: f64, hi: f64| v.is_finite() && v >= lo && v <= hi;
+        match self {
+            Candidate::FiniteThickness => {
+                if !ok(x[0], 0.0, 2.0) {
+                    return false;
+                }
+                // Thicker than the library's 1000 mm bound is a half-space: the layer is off.
+                if x[0] >= 1e-3 {
+                    p.finite_thickness = Some(finite_thickness::Params { h_mm: 1.0 / x[0] });
+                }
+            }
+            Candidate::Adhesion => {
+                if !ok(x[0], 0.0, 5.0) || !ok(x[1], 1.0, 20.0) {
+                    return false;
+                }
+                p.adhesion = Some(adhesion::Params { w_mj_m2: 100.0 * x[0], eta: x[1] });
+            }
+            Candidate::Viscoelastic => {
+                if !ok(x[0], 0.0, 1.0) || !ok(x[1], 0.05f64.ln(), 1000f64.ln()) {
+                    return false;
+                }
+                p.viscoelastic = Some(viscoelastic::Params { rho: 1.0 + x[0], tau_s: x[1].exp() });
+            }
+            Candidate::StageBacklash => {
+                if !ok(x[0], 0.0, 0.2) {
+                    return false;
+                }
+                p.stage_backlash = Some(stage_backlash::Params { b_mm: x[0], engaged: true });
+            }
+            Candidate::FrameCompliance => {
+                if !ok(x[0], 0.0, 0.2) {
+                    return false;
+                }
+                p.frame_compliance = Some(frame_compliance::Params { c_mm_per_n: x[0] });
+            }
+            Candidate::PartialSlip => {
+                if !ok(x[0], 0.01, 20.0) {
+                    return false;
+                }
+                p.partial_slip = Some(partial_slip::Params { mu: 1.0 / x[0] });
+            }
+            Candidate::RotationBacklash => {
+                if !ok(x[0], 0.0, 5.0) {
+                    return false;
+                }
+                p.rotation_backlash = Some(rotation_backlash::Params { b_deg: x[0], engaged: true });
+            }
+            Candidate::ThermalDrift => {
+                if !ok(x[0], -5.0, 5.0) {
+                    return false;
+                }
+                p.thermal_drift = Some(thermal_drift::Params { v_mm_per_s: x[0] * 1e-3, vdot_mm_per_s2: 0.0 });
+            }
+            Candidate::SensorGain => {
+                if !ok(x[0], 0.5, 1.5) {
+                    return false;
+                }
+                p.sensor_gain = Some(sensor_gain::Params { g: x[0] });
+            }
+        }
+        true
+    }
+}
+
+/// Base parameters in physical units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Base {
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    pub z0_mm: f64,
+}
+
+impl Base {
+    pub fn internal(&self) -> [f64; 3] {
+        let p = (self.nu1 / 0.5).clamp(1e-6, 1.0 - 1e-6);
+        [self.e1_mpa.ln(), (p / (1.0 - p)).ln(), self.z0_mm]
+    }
+    pub fn from_internal(x: &[f64]) -> Base {
+        Base { e1_mpa: x[0].exp(), nu1: 0.5 / (1.0 + (-x[1]).exp()), z0_mm: x[2] }
+    }
+}
+
+/// One fitted model: which effects, where, how well.
+#[derive(Debug, Clone)]
+pub struct Fitted {
+    pub cands: Vec<Candidate>,
+    /// Internal coordinates: BASE base parameters, then each effect's in order.
+    pub x: Vec<f64>,
+    /// Weighted sum of squares (chi², with the noise floor as weights).
+    pub chi2: f64,
+    pub readings: Vec<Reading>,
+    /// Weighted residuals at the optimum.
+    pub residuals: Vec<f64>,
+    /// Covariance of the internal coordinates (scaled by chi²/dof), if the
+    /// Jacobian is regular; filled by [`Model::finish`].
+    pub cov: Option<DMatrix<f64>>,
+    /// Per parameter: how much its variance grows because E1, nu1 and z0 can
+    /// take its place (1 = independent; base parameters themselves get 1).
+    pub vif: Vec<f64>,
+    pub dof: usize,
+    pub iterations: usize,
+    /// chi²/dof, the scale of `cov`.
+    pub s2: f64,
+}
+
+impl Fitted {
+    pub fn base(&self) -> Base {
+        Base::from_internal(&self.x)
+    }
+    pub fn n_params(&self) -> usize {
+        self.x.len()
+    }
+    /// Standard error of internal coordinate `j`.
+    pub fn se(&self, j: usize) -> f64 {
+        self.cov.as_ref().map_or(f64::INFINITY, |c| c[(j, j)].max(0.0).sqrt())
+    }
+    /// Standard error of internal coordinate `j` for unit noise scale (chi²/dof = 1),
+    /// which makes fits with different misfit comparable.
+    pub fn se_unscaled(&self, j: usize) -> f64 {
+        self.se(j) / self.s2.max(1e-300).sqrt()
+    }
+    /// Offset of candidate `k`'s first parameter in `x`.
+    pub fn offset_of(&self, k: usize) -> usize {
+        BASE + self.cands[..k].iter().map(|c| c.n_params()).sum::<usize>()
+    }
+}
+
+/// The recording's commanded history and the weights of its readings.
+pub struct Model<'a> {
+    rec: &'a Recording,
+    cmds: Vec<Command>,
+    /// Noise of gamma1 readings, mm.
+    pub sigma_g: f64,
+    /// Noise of theta1 readings, degrees.
+    pub sigma_t: f64,
+    /// Iteration cap of each refit.
+    pub max_iterations: usize,
+    /// LM stops when a step lowers chi² by less than this fraction.
+    pub cost_tolerance: f64,
+}
+
+impl<'a> Model<'a> {
+    pub fn new(rec: &'a Recording, sigma_g: f64, sigma_t: f64) -> Self {
+        let cmds = rec
+            .samples
+            .iter()
+            .map(|s| Command {
+                t_s: s.t_s,
+                stage_mm: s.stage_mm,
+                rot_deg: if s.phase == Phase::Torsion { s.rot_deg } else { 0.0 },
+            })
+            .collect();
+        Self { rec, cmds, sigma_g, sigma_t, max_iterations: 40, cost_tolerance: 1e-5 }
+    }
+
+    pub fn recording(&self) -> &Recording {
+        self.rec
+    }
+
+    /// The sim profile of a parameter vector (None outside the bounds).
+    pub fn profile(&self, cands: &[Candidate], x: &[f64]) -> Option<SimProfile> {
+        let b = Base::from_internal(x);
+        if !(b.e1_mpa.is_finite() && b.e1_mpa > 0.0 && (-0.5..=0.5).contains(&b.z0_mm)) {
+            return None;
+        }
+        let mut p = SimProfile {
+            material: Some(Material { e1_mpa: b.e1_mpa, nu1: b.nu1 }),
+            contact_offset: Some(contact_offset::Params { z0_mm: b.z0_mm }),
+            ..Default::default()
+        };
+        let mut off = BASE;
+        for c in cands {
+            let n = c.n_params();
+            if !c.apply(&x[off..off + n], &mut p) {
+                return None;
+            }
+            off += n;
+        }
+        p.validate().ok()?;
+        Some(p)
+    }
+
+    /// Noise-free readings of the recording's commanded history under `profile`.
+    pub fn readings(&self, profile: &SimProfile) -> Option<Vec<Reading>> {
+        let m = profile.material?;
+        let pair = ContactPair {
+            elastomer: Body::new(m.e1_mpa, m.nu1, self.rec.meta.elastomer_r_mm),
+            indenter: self.rec.meta.indenter,
+        };
+        effects::simulate(pair, profile, &self.cmds).ok()
+    }
+
+    /// Weighted residuals: gamma1 of every sample (the dead band pins z0), then
+    /// theta1 of every torsion sample.
+    pub fn weighted(&self, pred: &[Reading], out: &mut Vec<f64>) {
+        out.clear();
+        for (s, p) in self.rec.samples.iter().zip(pred) {
+            out.push((s.gamma1_mm - p.gamma1_mm) / self.sigma_g);
+        }
+        for (s, p) in self.rec.samples.iter().zip(pred) {
+            if s.phase == Phase::Torsion {
+                out.push((s.theta1_deg - p.theta1_deg) / self.sigma_t);
+            }
+        }
+    }
+
+    fn eval(&self, cands: &[Candidate], x: &[f64], out: &mut Vec<f64>) -> bool {
+        let Some(p) = self.profile(cands, x) else {
+            return false;
+        };
+        let Some(r) = self.readings(&p) else {
+            return false;
+        };
+        self.weighted(&r, out);
+        out.iter().all(|v| v.is_finite())
+    }
+
+    /// Readings that carry noise (dead-band zeros excluded): the observation count.
+    pub fn n_obs(&self) -> usize {
+        let live = self.rec.samples.iter().filter(|s| s.gamma1_mm != 0.0).count();
+        live + self.rec.phase(Phase::Torsion).count()
+    }
+
+    /// Fit E1, nu1, z0 and the candidates' parameters from `x0` (internal coordinates).
+    pub fn fit(&self, cands: &[Candidate], x0: &[f64]) -> Option<Fitted> {
+        let opts = LmOptions {
+            max_iterations: self.max_iterations,
+            cost_tolerance: self.cost_tolerance,
+            step_tolerance: 1e-6,
+            fd_step: 1e-6,
+        };
+        let out = lm::minimize(|x, r| self.eval(cands, x, r), x0, opts).ok()?;
+        let profile = self.profile(cands, &out.x)?;
+        let readings = self.readings(&profile)?;
+        let n = out.x.len();
+        let dof = self.n_obs().saturating_sub(n).max(1);
+        let s2 = out.ssr / dof as f64;
+        Some(Fitted {
+            cands: cands.to_vec(),
+            x: out.x,
+            chi2: out.ssr,
+            readings,
+            residuals: out.residuals,
+            cov: None,
+            vif: Vec::new(),
+            dof,
+            iterations: out.iterations,
+            s2,
+        })
+    }
+
+    /// Covariance and variance inflation of a fit (2 model runs per
+    /// parameter, so only for the fits that are reported or compared).
+    pub fn finish(&self, f: &mut Fitted) {
+        if f.cov.is_none() && f.vif.is_empty() {
+            let (cov, vif) = self.covariance(&f.cands, &f.x, &f.residuals, f.dof);
+            f.cov = cov;
+            f.vif = vif;
+        }
+    }
+
+    /// Covariance from a central-difference Jacobian, and each parameter's
+    /// variance inflation factor (from the normalised information matrix).
+    fn covariance(&self, cands: &[Candidate], x: &[f64], r0: &[f64], dof: usize) -> (Option<DMatrix<f64>>, Vec<f64>) {
+        let Some(jac) = self.jacobian(cands, x, r0.len()) else {
+            return (None, vec![f64::INFINITY; x.len()]);
+        };
+        let s2 = r0.iter().map(|v| v * v).sum::<f64>() / dof as f64;
+        let info = jac.transpose() * &jac;
+        let n = x.len();
+        let scale: Vec<f64> = (0..n).map(|j| info[(j, j)].max(1e-300).sqrt()).collect();
+        let norm = DMatrix::from_fn(n, n, |i, j| info[(i, j)] / (scale[i] * scale[j]));
+        let Some(inv) = norm.clone().try_inverse() else {
+            return (None, vec![f64::INFINITY; n]);
+        };
+        // Each effect parameter against the base parameters alone (not against
+        // the other parameters of its own effect).
+        let vif: Vec<f64> = (0..n)
+            .map(|j| {
+                if j < BASE {
+                    return 1.0;
+                }
+                let idx = [0, 1, 2, j];
+                let sub = DMatrix::from_fn(4, 4, |a, b| norm[(idx[a], idx[b])]);
+                sub.try_inverse().map_or(f64::INFINITY, |m| m[(3, 3)])
+            })
+            .collect();
+        if (0..n).any(|j| !inv[(j, j)].is_finite() || inv[(j, j)] <= 0.0) {
+            return (None, vec![f64::INFINITY; n]);
+        }
+        let cov = DMatrix::from_fn(n, n, |i, j| inv[(i, j)] / (scale[i] * scale[j]) * s2);
+        (Some(cov), vif)
+    }
+
+    /// Central-difference Jacobian of the weighted residuals (one-sided at a bound).
+    pub fn jacobian(&self, cands: &[Candidate], x: &[f64], m: usize) -> Option<DMatrix<f64>> {
+        let n = x.len();
+        let mut jac = DMatrix::zeros(m, n);
+        let (mut rp, mut rm, mut r0) = (Vec::new(), Vec::new(), Vec::new());
+        let mut xp = x.to_vec();
+        for j in 0..n {
+            let h = 1e-5 * x[j].abs().max(1e-2);
+            xp[j] = x[j] + h;
+            let up = self.eval(cands, &xp, &mut rp);
+            xp[j] = x[j] - h;
+            let down = self.eval(cands, &xp, &mut rm);
+            xp[j] = x[j];
+            let (a, b, d) = match (up, down) {
+                (true, true) => (&rp, &rm, 2.0 * h),
+                (true, false) => {
+                    if r0.is_empty() && !self.eval(cands, x, &mut r0) {
+                        return None;
+                    }
+                    (&rp, &r0, h)
+                }
+                (false, true) => {
+                    if r0.is_empty() && !self.eval(cands, x, &mut r0) {
+                        return None;
+                    }
+                    (&r0, &rm, h)
+                }
+                (false, false) => return None,
+            };
+            if a.len() != m || b.len() != m {
+                return None;
+            }
+            for i in 0..m {
+                jac[(i, j)] = (a[i] - b[i]) / d;
+            }
+        }
+        Some(jac)
+    }
+
+    /// Variance inflation of an extra candidate's parameters against E1, nu1
+    /// and z0 when added at its neutral value to `fit` (no refit: a local
+    /// identifiability probe). Infinite when the information matrix is singular.
+    pub fn probe_vif(&self, fit: &Fitted, extra: Candidate) -> Option<Vec<f64>> {
+        let mut cands = fit.cands.clone();
+        cands.push(extra);
+        let mut x = fit.x.clone();
+        x.extend_from_slice(extra.start());
+        let mut r0 = Vec::new();
+        if !self.eval(&cands, &x, &mut r0) {
+            return None;
+        }
+        let dof = self.n_obs().saturating_sub(x.len()).max(1);
+        let (_, vif) = self.covariance(&cands, &x, &r0, dof);
+        Some(vif[fit.x.len()..].to_vec())
+    }
+}
