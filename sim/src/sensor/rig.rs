@@ -7,6 +7,7 @@
 use devices::sensor::SensorFrame;
 
 use super::field::{ContactState, MarkerGrid, NoiseConfig, SimulatedSensor};
+use crate::effects::{Command as EffectCommand, EffectError, SimProfile, TrueRig};
 use crate::emulator::rig::{Rig, RigPose};
 use crate::generator::GeneratorConfig;
 use crate::physics::{ContactPair, NormalModel, NormalState, ParamError, torsion_at};
@@ -70,6 +71,12 @@ pub struct RigSensor {
     /// Mount angle when the current contact was made: twist before touching
     /// does not load the elastomer.
     twist_origin_deg: Option<f64>,
+    /// The left-out physics this rig has (a sim profile); `None` for the
+    /// paper's clean contact.
+    effects: Option<TrueRig>,
+    /// Readings the effect model could not give (e.g. gross slip), answered
+    /// with the clean contact instead.
+    effect_failures: u64,
 }
 
 impl std::fmt::Debug for RigSensor {
@@ -87,7 +94,57 @@ impl RigSensor {
         let model = NormalModel::new(cfg.pair)?;
         let sensor = SimulatedSensor::new(cfg.grid.clone(), cfg.noise, cfg.seed, Box::new(|_| None))
             .with_first_index(cfg.first_index);
-        Ok(Self { rig, model, cfg, sensor, twist_origin_deg: None })
+        Ok(Self { rig, model, cfg, sensor, twist_origin_deg: None, effects: None, effect_failures: 0 })
+    }
+
+    /// Give the simulated contact the effects of a sim profile (and its
+    /// `material`, if set), so the rig reproduces what a diagnosed recording
+    /// showed. A clean profile leaves the paper's contact.
+    pub fn with_profile(mut self, profile: &SimProfile) -> Result<Self, EffectError> {
+        if profile.is_clean() {
+            self.effects = None;
+            return Ok(self);
+        }
+        let effects = TrueRig::new(self.cfg.pair, profile)?;
+        self.cfg.pair = *effects.pair();
+        self.model = NormalModel::new(self.cfg.pair)?;
+        self.effects = Some(effects);
+        Ok(self)
+    }
+
+    /// The contact pair the sensor simulates (a profile's `material` applied).
+    pub fn pair(&self) -> &ContactPair {
+        &self.cfg.pair
+    }
+
+    /// Readings the effect model could not give and the clean contact answered.
+    pub fn effect_failures(&self) -> u64 {
+        self.effect_failures
+    }
+
+    /// The reading with the profile's effects for a pose, or `None` when the
+    /// rig has no effects or the effect model fails here.
+    fn effect_state(&mut self, pose: &RigPose) -> Option<ContactState> {
+        let effects = self.effects.as_mut()?;
+        let twist_deg = self.twist_origin_deg.map_or(0.0, |o| pose.rot_deg - o);
+        let cmd =
+            EffectCommand { t_s: pose.t_s, stage_mm: pose.stage_mm - self.cfg.contact_stage_mm, rot_deg: twist_deg };
+        match effects.read(cmd) {
+            Ok(r) if r.in_contact && r.gamma1_mm > 0.0 && r.contact_radius_mm > 0.0 => Some(
+                ContactState::new(
+                    self.cfg.contact_center_mm,
+                    r.gamma1_mm,
+                    r.contact_radius_mm,
+                    r.theta1_deg.to_radians(),
+                )
+                .with_nu1(self.cfg.pair.elastomer.nu),
+            ),
+            Ok(_) => None,
+            Err(_) => {
+                self.effect_failures += 1;
+                None
+            }
+        }
     }
 
     pub fn config(&self) -> &SensorSimConfig {
@@ -137,10 +194,21 @@ impl RigSensor {
             None => self.twist_origin_deg = None,
             Some(_) => {}
         }
-        let state = truth.map(|t| {
+        let clean = truth.map(|t| {
             ContactState::new(self.cfg.contact_center_mm, t.normal.gamma1_mm, t.normal.contact_radius_mm, t.theta1_rad)
                 .with_nu1(self.cfg.pair.elastomer.nu)
         });
+        // With effects the history-dependent model answers; it is stepped on
+        // every frame (in time order) so backlash, creep and drift see the
+        // whole history. Out of contact, or if it fails, the clean contact.
+        let state = match self.effects.is_some() {
+            true => {
+                let failures = self.effect_failures;
+                let s = self.effect_state(pose);
+                if self.effect_failures > failures { clean } else { s }
+            }
+            false => clean,
+        };
         self.sensor.frame_for(state, pose.t_s)
     }
 
@@ -216,5 +284,40 @@ mod tests {
         let after = s.frame();
         let peak = after.displacements.iter().map(|d| -d[2]).fold(0.0, f64::max);
         assert!(peak > 0.1, "peak {peak}");
+    }
+
+    fn peak_depth(f: &SensorFrame) -> f64 {
+        f.displacements.iter().map(|d| -d[2]).fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn a_profile_gives_the_frames_its_effects() {
+        let rig = Rig::new(VirtualClock::new(1.0), axis(-10.0, 10.0), axis(-360.0, 360.0));
+        let cfg = SensorSimConfig { noise: NoiseConfig::NONE, contact_stage_mm: 1.0, ..SensorSimConfig::default() };
+        let pose = |stage_mm| RigPose { t_s: 0.0, stage_mm, rot_deg: 0.0 };
+        let mut clean = RigSensor::new(rig.clone(), cfg.clone()).unwrap();
+
+        // A clean profile changes nothing.
+        let mut same = RigSensor::new(rig.clone(), cfg.clone()).unwrap().with_profile(&SimProfile::default()).unwrap();
+        assert_eq!(same.frame_at_pose(&pose(3.0)).displacements, clean.frame_at_pose(&pose(3.0)).displacements);
+
+        // A contact offset of 0.1 mm: the stage must go 0.1 mm further for the same contact.
+        let offset = SimProfile {
+            contact_offset: Some(crate::effects::contact_offset::Params { z0_mm: 0.1 }),
+            ..SimProfile::default()
+        };
+        let mut shifted = RigSensor::new(rig.clone(), cfg.clone()).unwrap().with_profile(&offset).unwrap();
+        let want = peak_depth(&clean.frame_at_pose(&pose(2.9)));
+        let got = peak_depth(&shifted.frame_at_pose(&pose(3.0)));
+        assert!((got - want).abs() < 1e-6 && want > 0.5, "{got} vs {want}");
+
+        // A depth gain of 0.9 scales what the sensor reports.
+        let gain =
+            SimProfile { sensor_gain: Some(crate::effects::sensor_gain::Params { g: 0.9 }), ..SimProfile::default() };
+        let mut scaled = RigSensor::new(rig, cfg).unwrap().with_profile(&gain).unwrap();
+        let want = 0.9 * peak_depth(&clean.frame_at_pose(&pose(3.0)));
+        let got = peak_depth(&scaled.frame_at_pose(&pose(3.0)));
+        assert!((got - want).abs() < 1e-6, "{got} vs {want}");
+        assert_eq!(scaled.effect_failures(), 0);
     }
 }
