@@ -5,6 +5,9 @@
 //! nuisance H2 and no fixed beta: the torsion depth comes from the model's own
 //! gamma2 at the torsion stage position.
 
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
+
 use nalgebra::DMatrix;
 use serde::Serialize;
 use sim::physics::{Body, ContactPair, NormalModel, torsion_at};
@@ -48,14 +51,15 @@ pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitE
         ContactPair { elastomer: Body::new(p.e1_mpa, p.nu1, rec.meta.elastomer_r_mm), indenter: rec.meta.indenter };
     let model = NormalModel::new(pair).map_err(|e| FitError::Model(e.to_string()))?;
     let mut out = Vec::with_capacity(rec.samples.len());
-    let mut cache: Option<(f64, sim::physics::NormalState)> = None;
+    // A sweep visits each stage position on loading and again on unloading,
+    // and the torsion sweep holds one: solve each distinct position once.
+    let mut solved: HashMap<u64, sim::physics::NormalState> = HashMap::with_capacity(rec.samples.len() / 2 + 1);
     for s in &rec.samples {
-        let state = match cache {
-            Some((stage, st)) if stage == s.stage_mm => st,
-            _ => {
+        let state = match solved.entry(s.stage_mm.to_bits()) {
+            Entry::Occupied(e) => *e.get(),
+            Entry::Vacant(e) => {
                 let st = model.solve(s.stage_mm - p.contact_offset_mm).map_err(|e| FitError::Model(e.to_string()))?;
-                cache = Some((s.stage_mm, st));
-                st
+                *e.insert(st)
             }
         };
         let beta = state.gamma2_mm / pair.indenter.r_mm;
