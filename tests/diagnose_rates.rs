@@ -164,27 +164,41 @@ fn identifiable(effect: &str) {
     }
 }
 
-/// A weakly determined effect: in every seed the report names it or lists it
-/// among the explanations it cannot rank, the corrected E1/nu1 intervals
-/// cover the truth in >= 80 % of the seeds, and when it is named its parameter
-/// interval covers the truth.
+/// A weakly determined effect (it and its look-alikes fit the sweeps equally
+/// well): the report never names another effect in its place nor calls it
+/// unexplained; in >= 90 % of the seeds it names the effect or lists it among
+/// the explanations it cannot rank (and then names none and says so); under
+/// the true explanation, the E1/nu1 intervals cover the truth in >= 80 % of
+/// those seeds; when it is named, its parameter interval covers the truth.
 fn weakly_determined(effect: &str) {
     let case = corpus_case(effect);
     let out = run_seeds(&case, SEEDS);
     let named: Vec<&Outcome> = out.iter().filter(|o| o.named(effect)).collect();
     let covered = named.iter().filter(|o| o.param_covers(effect)).count();
     summary_line(effect, &out, &named, covered);
-    let listed = out.iter().filter(|o| o.listed(effect)).count();
-    let e1_nu1 = out.iter().filter(|o| o.e1_nu1_cover()).count();
-    println!("RATE {effect}: listed as ambiguous {listed}/{} | E1 and nu1 intervals cover {e1_nu1}/{}", out.len(), out.len());
+    let found: Vec<&Outcome> = out.iter().filter(|o| o.named(effect) || o.listed(effect)).collect();
+    // E1/nu1 intervals of the true explanation (the corrected fit when named).
+    let truth_covers = |o: &Outcome| {
+        if o.named(effect) {
+            return o.e1_nu1_cover();
+        }
+        o.d.ambiguous.iter().filter(|a| a.effects == [effect]).any(|a| {
+            let c = &a.ci95;
+            c.e1_mpa[0] <= o.e1 && o.e1 <= c.e1_mpa[1] && c.nu1[0] <= o.nu1 && o.nu1 <= c.nu1[1]
+        })
+    };
+    let e1_nu1 = found.iter().filter(|o| truth_covers(o)).count();
+    let (n, f) = (out.len(), found.len());
+    println!("RATE {effect}: named or listed as ambiguous {f}/{n} | E1 and nu1 intervals of the true explanation cover {e1_nu1}/{f}");
     for o in &out {
         assert!(!o.d.unexplained, "{effect} seed {}: {}", o.seed, o.d.verdict);
-        assert!(o.named(effect) || o.listed(effect), "{effect} seed {}: {}", o.seed, o.d.verdict);
+        assert!(o.d.effects.iter().all(|e| *e == effect || *e == "contact_offset"), "{}", o.d.verdict);
         if o.listed(effect) {
             assert!(o.d.effects.is_empty() && o.d.verdict.contains("AMBIGUOUS"), "{}", o.d.verdict);
         }
     }
-    assert!(10 * e1_nu1 >= 8 * out.len(), "{effect}: E1/nu1 intervals cover the truth in {e1_nu1}/{}", out.len());
+    assert!(10 * f >= 9 * n, "{effect}: named or listed in {f}/{n} seeds");
+    assert!(10 * e1_nu1 >= 8 * f, "{effect}: E1/nu1 intervals cover the truth in {e1_nu1}/{f}");
     assert_eq!(covered, named.len(), "{effect}: a named seed's interval misses the truth");
 }
 

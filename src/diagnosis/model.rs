@@ -110,7 +110,9 @@ impl Candidate {
     /// baseline's cost and so can only improve on it.
     pub fn near_neutral(self) -> &'static [f64] {
         match self {
-            Candidate::FiniteThickness => &[0.0],
+            // 1/h below 1e-3 switches the layer off (a flat cost, no gradient):
+            // start just above, a 500 mm layer, which is next to a half-space.
+            Candidate::FiniteThickness => &[0.002],
             Candidate::Adhesion => &[0.0, 2.0],
             Candidate::Viscoelastic => &[0.0, 1.609_437_912_434_100_3],
             Candidate::StageBacklash => &[0.0],
