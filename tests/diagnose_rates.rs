@@ -5,8 +5,10 @@
 //!   varied), and its parameters' 95 % intervals cover the truth on the named
 //!   seeds — at least 80 % of them, the slack a nominal 95 % interval needs over
 //!   ten seeds (P(fewer than 8 of 10 cover) ~ 1 % at the nominal rate);
-//! * after correction, on the named seeds, E1 is within 1 % and nu1 within 3 %
-//!   of the truth;
+//! * after correction, on the named seeds where the report calls the effect's
+//!   parameters well determined, E1 is within 1 % and nu1 within 3 % of the
+//!   truth; where it calls them weakly determined (adhesion at the corpus's
+//!   tack, mostly), the corrected E1/nu1 intervals cover the truth instead;
 //! * effects the sweeps determine only weakly (a 100 mm layer, a compliant
 //!   frame: both look like a depth-gain error) are reported as `ambiguous` with
 //!   the truth among the listed explanations (or named), and the corrected E1/nu1
@@ -60,6 +62,10 @@ impl Outcome {
             p.ci95[0].is_none_or(|lo| lo <= t) && p.ci95[1].is_none_or(|hi| t <= hi)
         })
     }
+    /// Whether the report calls every parameter of `effect` well determined.
+    fn well_determined(&self, effect: &str) -> bool {
+        self.d.explanation.iter().filter(|e| e.effect == effect).all(|e| e.params.iter().all(|p| p.well_determined))
+    }
     fn e1_nu1_cover(&self) -> bool {
         let c = &self.d.corrected.ci95;
         c.e1_mpa[0] <= self.e1 && self.e1 <= c.e1_mpa[1] && c.nu1[0] <= self.nu1 && self.nu1 <= c.nu1[1]
@@ -85,11 +91,7 @@ fn corpus_case(effect: &str) -> CorpusCase {
 /// Diagnose `n` seeds of `case` (parameters fixed, seed varied), two threads.
 fn run_seeds(case: &CorpusCase, n: u64) -> Vec<Outcome> {
     let truth: toml::Table = match toml::Value::try_from(&case.profile).expect("profile serialises") {
-        toml::Value::Table(t) => t
-            .get(case.effect.as_str())
-            .and_then(|v| v.as_table())
-            .cloned()
-            .unwrap_or_default(),
+        toml::Value::Table(t) => t.get(case.effect.as_str()).and_then(|v| v.as_table()).cloned().unwrap_or_default(),
         _ => toml::Table::new(),
     };
     let seeds: Vec<u64> = (FIRST_SEED..FIRST_SEED + n).collect();
@@ -158,10 +160,26 @@ fn identifiable(effect: &str) {
     }
     assert!(10 * named.len() >= 9 * out.len(), "{effect}: named in {}/{} seeds", named.len(), out.len());
     assert!(10 * covered >= 8 * named.len(), "{effect}: interval covers the truth in {covered}/{} named", named.len());
-    for o in &named {
+    // "Where the data determine the effect well": every fitted parameter's
+    // interval closed and narrower than its value. Elsewhere the report must say
+    // the effect is weakly determined, and the corrected E1/nu1 intervals cover
+    // the truth in >= 80 % of those seeds.
+    let (well, weak): (Vec<&Outcome>, Vec<&Outcome>) = named.iter().partition(|o| o.well_determined(effect));
+    for o in &well {
         let (ea, na) = o.err_after();
         assert!(ea.abs() < 1.0 && na.abs() < 3.0, "{effect} seed {}: E1 {ea:+.2}%, nu1 {na:+.2}%", o.seed);
     }
+    for o in &weak {
+        assert!(o.d.verdict.contains("weakly determined"), "{effect} seed {}: {}", o.seed, o.d.verdict);
+    }
+    let weak_cover = weak.iter().filter(|o| o.e1_nu1_cover()).count();
+    println!(
+        "RATE {effect}: well determined {}/{} named (E1 within 1 %, nu1 within 3 %) | weakly determined {} (E1/nu1 intervals cover {weak_cover})",
+        well.len(),
+        named.len(),
+        weak.len()
+    );
+    assert!(10 * weak_cover >= 8 * weak.len(), "{effect}: weakly determined, E1/nu1 cover {weak_cover}/{}", weak.len());
 }
 
 /// A weakly determined effect (it and its look-alikes fit the sweeps equally
@@ -189,7 +207,9 @@ fn weakly_determined(effect: &str) {
     };
     let e1_nu1 = found.iter().filter(|o| truth_covers(o)).count();
     let (n, f) = (out.len(), found.len());
-    println!("RATE {effect}: named or listed as ambiguous {f}/{n} | E1 and nu1 intervals of the true explanation cover {e1_nu1}/{f}");
+    println!(
+        "RATE {effect}: named or listed as ambiguous {f}/{n} | E1 and nu1 intervals of the true explanation cover {e1_nu1}/{f}"
+    );
     for o in &out {
         assert!(!o.d.unexplained, "{effect} seed {}: {}", o.seed, o.d.verdict);
         assert!(o.d.effects.iter().all(|e| *e == effect || *e == "contact_offset"), "{}", o.d.verdict);
@@ -206,7 +226,8 @@ fn weakly_determined(effect: &str) {
 fn the_library_declares_what_is_tested_here() {
     // Good effects are tested as identifiable or (two of them) as weakly determined;
     // adhesion is Weak in the library, but at the corpus's tack it is named reliably.
-    for name in ["contact_offset", "stage_backlash", "partial_slip", "rotation_backlash", "thermal_drift", "viscoelastic"]
+    for name in
+        ["contact_offset", "stage_backlash", "partial_slip", "rotation_backlash", "thermal_drift", "viscoelastic"]
     {
         assert_eq!(info(name).unwrap().identifiability, Identifiability::Good, "{name}");
     }

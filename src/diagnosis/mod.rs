@@ -372,6 +372,10 @@ fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fitted> {
     results.into_iter().min_by(|a, b| a.chi2.total_cmp(&b.chi2))
 }
 
+/// Iteration cap and relative cost tolerance of a polishing refit.
+const POLISH_ITERATIONS: usize = 200;
+const POLISH_TOLERANCE: f64 = 1e-10;
+
 fn score(model: &Model, fit: &Fitted, reference: &Fitted) -> CandidateScore {
     let k = fit.n_params() - reference.n_params();
     let n = model.n_obs() as f64;
@@ -523,15 +527,11 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     // far below the guard's resolution of ~1); the chosen model is polished to
     // full precision, since flat directions (adhesion's w and eta) still move E1/nu1.
     if let Some(f) = chosen.as_mut() {
-        let (it, tol) = (model.max_iterations, model.cost_tolerance);
-        model.max_iterations = 200;
-        model.cost_tolerance = 1e-10;
-        if let Some(p) = model.fit(&f.cands, &f.x)
+        if let Some(p) = model.fit_with(&f.cands, &f.x, POLISH_ITERATIONS, POLISH_TOLERANCE)
             && p.chi2 <= f.chi2
         {
             *f = p;
         }
-        (model.max_iterations, model.cost_tolerance) = (it, tol);
         model.finish(f);
     }
     // Degeneracy: effects whose parameters E1/nu1/z0 can stand in for are not picked.

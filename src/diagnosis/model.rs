@@ -384,12 +384,18 @@ impl<'a> Model<'a> {
 
     /// Fit E1, nu1, z0 and the candidates' parameters from `x0` (internal coordinates).
     pub fn fit(&self, cands: &[Candidate], x0: &[f64]) -> Option<Fitted> {
-        let opts = LmOptions {
-            max_iterations: self.max_iterations,
-            cost_tolerance: self.cost_tolerance,
-            step_tolerance: 1e-6,
-            fd_step: 1e-6,
-        };
+        self.fit_with(cands, x0, self.max_iterations, self.cost_tolerance)
+    }
+
+    /// [`Model::fit`] with its own iteration cap and cost tolerance.
+    pub fn fit_with(
+        &self,
+        cands: &[Candidate],
+        x0: &[f64],
+        max_iterations: usize,
+        cost_tolerance: f64,
+    ) -> Option<Fitted> {
+        let opts = LmOptions { max_iterations, cost_tolerance, step_tolerance: 1e-6, fd_step: 1e-6 };
         let out = lm::minimize(|x, r| self.eval(cands, x, r), x0, opts).ok()?;
         let profile = self.profile(cands, &out.x)?;
         let readings = self.readings(&profile)?;
