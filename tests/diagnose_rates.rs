@@ -41,7 +41,7 @@ struct Outcome {
 
 impl Outcome {
     fn named(&self, effect: &str) -> bool {
-        self.d.effects.iter().any(|e| *e == effect)
+        self.d.effects.contains(&effect)
     }
     fn listed(&self, effect: &str) -> bool {
         self.d.ambiguous.iter().any(|a| a.effects.contains(&effect))
