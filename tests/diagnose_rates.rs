@@ -13,7 +13,10 @@
 //!   frame: both look like a depth-gain error) are reported as `ambiguous` with
 //!   the truth among the listed explanations (or named), and the corrected E1/nu1
 //!   intervals cover the truth;
-//! * clean controls: an effect is named in at most 5 % of them (at most 1 of 20).
+//! * the report locates the mismatch (non-empty `mismatch`) on >= 90 % of the
+//!   named seeds (except contact_offset, which is the baseline's own z0);
+//! * clean controls: an effect is named, or a mismatch reported, in at most 5 %
+//!   of them (at most 1 of 20).
 //!
 //! Before/after errors are printed: `cargo test --test diagnose_rates -- --nocapture`.
 //! The recordings are simulated here (seeded), not read from files; the seeds
@@ -172,6 +175,13 @@ fn identifiable(effect: &str) {
     for o in &weak {
         assert!(o.d.verdict.contains("weakly determined"), "{effect} seed {}: {}", o.seed, o.d.verdict);
     }
+    // The report says where the mismatch is (contact_offset is the baseline's
+    // own z0: there is nothing left to locate).
+    let located = named.iter().filter(|o| !o.d.mismatch.is_empty()).count();
+    println!("RATE {effect}: mismatch located on {located}/{} named", named.len());
+    if effect != "contact_offset" {
+        assert!(10 * located >= 9 * named.len(), "{effect}: mismatch located on {located}/{}", named.len());
+    }
     let weak_cover = weak.iter().filter(|o| o.e1_nu1_cover()).count();
     println!(
         "RATE {effect}: well determined {}/{} named (E1 within 1 %, nu1 within 3 %) | weakly determined {} (E1/nu1 intervals cover {weak_cover})",
@@ -288,8 +298,9 @@ fn clean_false_alarms() {
     let named = out.iter().filter(|o| !o.d.effects.is_empty()).count();
     let ambiguous = out.iter().filter(|o| !o.d.ambiguous.is_empty()).count();
     let unexplained = out.iter().filter(|o| o.d.unexplained).count();
+    let mismatch = out.iter().filter(|o| !o.d.mismatch.is_empty()).count();
     println!(
-        "RATE clean: named {named}/{} | ambiguous {ambiguous} | unexplained {unexplained} | mean |E1 err| {:.2}% | mean |nu1 err| {:.2}%",
+        "RATE clean: named {named}/{} | ambiguous {ambiguous} | unexplained {unexplained} | mismatch reported {mismatch} | mean |E1 err| {:.2}% | mean |nu1 err| {:.2}%",
         out.len(),
         mean_abs(out.iter().map(|o| o.err_after().0)),
         mean_abs(out.iter().map(|o| o.err_after().1)),
@@ -297,4 +308,5 @@ fn clean_false_alarms() {
     assert!(out.len() >= 20);
     assert!(20 * named <= out.len(), "an effect is named in {named}/{} clean controls", out.len());
     assert!(20 * unexplained <= out.len(), "unexplained in {unexplained}/{} clean controls", out.len());
+    assert!(20 * mismatch <= out.len(), "a mismatch reported in {mismatch}/{} clean controls", out.len());
 }

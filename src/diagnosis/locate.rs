@@ -350,6 +350,33 @@ pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) ->
     })
 }
 
+/// Where a correction removed structure: for each segment, the chi² (against
+/// the floor) of the residuals under `before` minus under `after`. The same
+/// floor divides both, so its uncertainty scales the gain but cannot create
+/// one; a gain beyond a chi² quantile locates a mismatch that the branch test
+/// alone (against an uncertain floor) may leave below its threshold.
+pub fn chi2_gain(rec: &Recording, before: &[Reading], after: &[Reading], seg: &Segment, floor: Floor) -> f64 {
+    let ss = |pred: &[Reading]| -> f64 {
+        seg.idx.iter().filter_map(|&i| residual(rec, pred, i, seg.quantity)).map(|r| (r / floor.sigma).powi(2)).sum()
+    };
+    ss(before) - ss(after)
+}
+
+/// The report of `seg` under `pred`, with its shape described even when the
+/// branch test alone does not call it systematic.
+pub fn describe(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) -> Option<SegmentReport> {
+    let mut r = assess(rec, pred, seg, floor)?;
+    if !r.systematic {
+        let (xs, rs): (Vec<f64>, Vec<f64>) = seg
+            .idx
+            .iter()
+            .filter_map(|&i| residual(rec, pred, i, seg.quantity).map(|v| (seg.axis_value(rec, i), v)))
+            .unzip();
+        r.shape = shape_of(seg, &xs, &rs, floor.sigma);
+    }
+    Some(r)
+}
+
 /// Assess every segment against the noise floors of gamma1 (mm) and theta1 (degrees).
 pub fn locate(rec: &Recording, pred: &[Reading], segs: &[Segment], gamma1: Floor, theta1: Floor) -> Vec<SegmentReport> {
     segs.iter()
