@@ -1,20 +1,23 @@
 //! Full diagnosis (baseline, every candidate effect, the pairs tried, the
-//! degeneracy probe) of a ~240-sample recording: a clean one and one with
-//! stage backlash (the commanded history of the generator's run, re-read
-//! through the true-rig model with the effect, plus seeded noise).
+//! degeneracy probe) of the generator's default recording (~290 samples) and
+//! of a coarser ~200-sample one (the target: <= 100 ms median for 200
+//! samples): a clean recording and one with stage backlash each (the
+//! commanded history of the generator's run, re-read through the true-rig
+//! model with the effect, plus seeded noise).
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use easycalib::diagnosis::{DiagnoseOptions, diagnose};
 use sim::effects::{Command, SimProfile, simulate, stage_backlash};
-use sim::generator::{GeneratorConfig, generate};
-use sim::recording::Phase;
+use sim::generator::{GeneratorConfig, SweepPlan, generate};
+use sim::recording::{Phase, Recording};
 use sim::rng::Rng;
 
-fn bench(c: &mut Criterion) {
-    let cfg = GeneratorConfig::default();
-    let clean = generate(&cfg).expect("default generator config is valid");
+/// A clean recording with `plan` and the same commanded history with stage backlash.
+fn recordings(plan: SweepPlan) -> (Recording, Recording) {
+    let cfg = GeneratorConfig { plan, ..Default::default() };
+    let clean = generate(&cfg).expect("generator config is valid");
     let profile = SimProfile {
         stage_backlash: Some(stage_backlash::Params { b_mm: 0.008, engaged: true }),
         ..Default::default()
@@ -28,12 +31,22 @@ fn bench(c: &mut Criterion) {
         s.gamma1_mm = if r.in_contact { r.gamma1_mm + rng.gaussian(0.002) } else { 0.0 };
         s.theta1_deg = if s.phase == Phase::Torsion { r.theta1_deg + rng.gaussian(0.02) } else { 0.0 };
     }
-    eprintln!("recording: {} samples", clean.samples.len());
+    (clean, backlash)
+}
+
+fn bench(c: &mut Criterion) {
+    let default = recordings(SweepPlan::default());
+    // Coarser steps: ~140 normal + ~55 torsion samples.
+    let coarse = recordings(SweepPlan { normal_step_mm: 0.075, torsion_step_deg: 0.3, ..Default::default() });
     let opts = DiagnoseOptions::default();
     let mut g = c.benchmark_group("diagnose");
     g.sample_size(10);
-    g.bench_function("clean", |b| b.iter(|| diagnose(black_box(&clean), &opts)));
-    g.bench_function("stage_backlash", |b| b.iter(|| diagnose(black_box(&backlash), &opts)));
+    for ((clean, backlash), tag) in [(&default, "default"), (&coarse, "coarse")] {
+        let n = clean.samples.len();
+        eprintln!("{tag}: {n} samples");
+        g.bench_function(format!("clean_{n}"), |b| b.iter(|| diagnose(black_box(clean), &opts)));
+        g.bench_function(format!("stage_backlash_{n}"), |b| b.iter(|| diagnose(black_box(backlash), &opts)));
+    }
     g.finish();
 }
 

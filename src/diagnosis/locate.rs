@@ -112,10 +112,34 @@ pub fn residual(rec: &Recording, pred: &[Reading], i: usize, q: Quantity) -> Opt
     }
 }
 
+/// A noise floor and how well it is known.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Floor {
+    /// Noise standard deviation (mm for gamma1, degrees for theta1).
+    pub sigma: f64,
+    /// Degrees of freedom of the estimate (infinite when the floor is given).
+    pub dof: f64,
+}
+
+impl Floor {
+    /// A floor known exactly (given by the user).
+    pub fn known(sigma: f64) -> Self {
+        Self { sigma, dof: f64::INFINITY }
+    }
+}
+
 /// Noise standard deviation from second differences within segments, robust
 /// to steps and kinks: a median-based first guess rejects outlying
 /// differences, then the mean square of the rest gives an efficient estimate.
 pub fn noise_floor(series: &[Vec<f64>]) -> Option<f64> {
+    noise_floor_dof(series).map(|f| f.sigma)
+}
+
+/// [`noise_floor`] with its degrees of freedom. Second differences of white
+/// noise are correlated (lag 1: -4/6, lag 2: 1/6), so m of them estimate the
+/// variance like a chi² with 2m / (140/36) ~ 0.51 m degrees of freedom: about
+/// 40 for the ~80 theta1 samples of a torsion sweep, a floor uncertain by ~11 %.
+pub fn noise_floor_dof(series: &[Vec<f64>]) -> Option<Floor> {
     let d: Vec<f64> = series.iter().flat_map(|v| v.windows(3).map(|w| w[0] - 2.0 * w[1] + w[2])).collect();
     if d.len() < 5 {
         return None;
@@ -127,7 +151,8 @@ pub fn noise_floor(series: &[Vec<f64>]) -> Option<f64> {
     if kept.is_empty() {
         return None;
     }
-    Some((kept.iter().map(|x| x * x).sum::<f64>() / (6.0 * kept.len() as f64)).sqrt())
+    let sigma = (kept.iter().map(|x| x * x).sum::<f64>() / (6.0 * kept.len() as f64)).sqrt();
+    Some(Floor { sigma, dof: kept.len() as f64 * 36.0 / 70.0 })
 }
 
 /// Statistics of one segment against the noise floor.
@@ -152,6 +177,20 @@ pub struct SegmentReport {
     pub from: f64,
     pub to: f64,
     pub shape: String,
+}
+
+/// Excess variance of `n` residuals with sum of squares `chi2` (in units of a
+/// floor estimated with `dof` degrees of freedom) as a normal deviate: the
+/// ratio is F(n, dof) distributed, turned into z by Paulson's cube-root
+/// approximation (Wilson–Hilferty when the floor is known). An estimated floor
+/// that happens to be low must not make a clean branch look systematic.
+fn excess_z(chi2: f64, n: usize, dof: f64) -> f64 {
+    if !dof.is_finite() {
+        return chi2_z(chi2, n);
+    }
+    let (a, b) = (2.0 / (9.0 * n as f64), 2.0 / (9.0 * dof.max(1.0)));
+    let f = (chi2 / n as f64).max(0.0).cbrt();
+    ((1.0 - b) * f - (1.0 - a)) / (b * f * f + a).sqrt()
 }
 
 fn chi2_z(chi2: f64, k: usize) -> f64 {
@@ -256,7 +295,8 @@ fn shape_of(seg: &Segment, x: &[f64], r: &[f64], sigma: f64) -> String {
 }
 
 /// Test one segment's residuals against the noise floor.
-pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, sigma: f64) -> Option<SegmentReport> {
+pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) -> Option<SegmentReport> {
+    let sigma = floor.sigma;
     let (xs, rs): (Vec<f64>, Vec<f64>) = seg
         .idx
         .iter()
@@ -267,7 +307,7 @@ pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, sigma: f64) -> O
         return None;
     }
     let chi2: f64 = rs.iter().map(|r| (r / sigma).powi(2)).sum();
-    let cz = chi2_z(chi2, n);
+    let cz = excess_z(chi2, n, floor.dof);
     let rz = runs_z(&rs);
     let mean = rs.iter().sum::<f64>() / n as f64;
     let rms = (rs.iter().map(|r| r * r).sum::<f64>() / n as f64).sqrt();
@@ -310,10 +350,37 @@ pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, sigma: f64) -> O
     })
 }
 
-/// Assess every segment; `sigma_g` mm and `sigma_t` degrees are the noise floors.
-pub fn locate(rec: &Recording, pred: &[Reading], segs: &[Segment], sigma_g: f64, sigma_t: f64) -> Vec<SegmentReport> {
+/// Where a correction removed structure: for each segment, the chi² (against
+/// the floor) of the residuals under `before` minus under `after`. The same
+/// floor divides both, so its uncertainty scales the gain but cannot create
+/// one; a gain beyond a chi² quantile locates a mismatch that the branch test
+/// alone (against an uncertain floor) may leave below its threshold.
+pub fn chi2_gain(rec: &Recording, before: &[Reading], after: &[Reading], seg: &Segment, floor: Floor) -> f64 {
+    let ss = |pred: &[Reading]| -> f64 {
+        seg.idx.iter().filter_map(|&i| residual(rec, pred, i, seg.quantity)).map(|r| (r / floor.sigma).powi(2)).sum()
+    };
+    ss(before) - ss(after)
+}
+
+/// The report of `seg` under `pred`, with its shape described even when the
+/// branch test alone does not call it systematic.
+pub fn describe(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) -> Option<SegmentReport> {
+    let mut r = assess(rec, pred, seg, floor)?;
+    if !r.systematic {
+        let (xs, rs): (Vec<f64>, Vec<f64>) = seg
+            .idx
+            .iter()
+            .filter_map(|&i| residual(rec, pred, i, seg.quantity).map(|v| (seg.axis_value(rec, i), v)))
+            .unzip();
+        r.shape = shape_of(seg, &xs, &rs, floor.sigma);
+    }
+    Some(r)
+}
+
+/// Assess every segment against the noise floors of gamma1 (mm) and theta1 (degrees).
+pub fn locate(rec: &Recording, pred: &[Reading], segs: &[Segment], gamma1: Floor, theta1: Floor) -> Vec<SegmentReport> {
     segs.iter()
-        .filter_map(|s| assess(rec, pred, s, if s.quantity == Quantity::Gamma1 { sigma_g } else { sigma_t }))
+        .filter_map(|s| assess(rec, pred, s, if s.quantity == Quantity::Gamma1 { gamma1 } else { theta1 }))
         .collect()
 }
 

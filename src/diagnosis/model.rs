@@ -110,7 +110,9 @@ impl Candidate {
     /// baseline's cost and so can only improve on it.
     pub fn near_neutral(self) -> &'static [f64] {
         match self {
-            Candidate::FiniteThickness => &[0.0],
+            // 1/h below 1e-3 switches the layer off (a flat cost, no gradient):
+            // start just above, a 500 mm layer, which is next to a half-space.
+            Candidate::FiniteThickness => &[0.002],
             Candidate::Adhesion => &[0.0, 2.0],
             Candidate::Viscoelastic => &[0.0, 1.609_437_912_434_100_3],
             Candidate::StageBacklash => &[0.0],
@@ -382,12 +384,18 @@ impl<'a> Model<'a> {
 
     /// Fit E1, nu1, z0 and the candidates' parameters from `x0` (internal coordinates).
     pub fn fit(&self, cands: &[Candidate], x0: &[f64]) -> Option<Fitted> {
-        let opts = LmOptions {
-            max_iterations: self.max_iterations,
-            cost_tolerance: self.cost_tolerance,
-            step_tolerance: 1e-6,
-            fd_step: 1e-6,
-        };
+        self.fit_with(cands, x0, self.max_iterations, self.cost_tolerance)
+    }
+
+    /// [`Model::fit`] with its own iteration cap and cost tolerance.
+    pub fn fit_with(
+        &self,
+        cands: &[Candidate],
+        x0: &[f64],
+        max_iterations: usize,
+        cost_tolerance: f64,
+    ) -> Option<Fitted> {
+        let opts = LmOptions { max_iterations, cost_tolerance, step_tolerance: 1e-6, fd_step: 1e-6 };
         let out = lm::minimize(|x, r| self.eval(cands, x, r), x0, opts).ok()?;
         let profile = self.profile(cands, &out.x)?;
         let readings = self.readings(&profile)?;
