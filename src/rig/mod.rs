@@ -6,6 +6,7 @@
 pub mod config;
 pub mod connect;
 pub mod emulated;
+pub mod session;
 
 pub use config::{ConfigError, RigConfig};
 pub use connect::{
@@ -13,3 +14,4 @@ pub use connect::{
     StageSpec, measure_frame, open_rig,
 };
 pub use emulated::{EmulatedRig, EmulatedRigOptions, EmulatedSensor, StageEmulator};
+pub use session::{RECORDING_FILE, RunRequest, RunResult, StartError, fit_and_report, run_calibration};
