@@ -246,25 +246,35 @@ pub async fn open_rotation(spec: &RotationSpec) -> Result<AptRotation<SerialStre
     AptRotation::connect(io, spec.cfg.clone()).await.map_err(|e| err(format!("APT connect: {e}")))
 }
 
+/// Frames the sensor link holds for the gauge. The sequencer wants the
+/// elastomer's state *now*: a longer queue would hand it frames taken while
+/// the stage was still moving, and a few stale frames agree with each other
+/// well enough to pass as settled. Older frames are dropped (and counted).
+pub const GAUGE_QUEUE: usize = 1;
+
 /// Open the sensor link (streaming starts in the sequencer's connect step).
 pub async fn open_sensor(spec: &SensorSpec) -> Result<SensorDriver, ConnectError> {
     let err = |message: String| ConnectError::Sensor { what: spec.describe(), message };
     match spec {
         SensorSpec::LinkSerial { path, baud } => {
             let path = path.to_str().ok_or_else(|| err("the path is not valid UTF-8".into()))?;
-            let link = LinkReceiver::open_serial(path, *baud, LinkConfig::default()).map_err(|e| err(e.to_string()))?;
+            let link = LinkReceiver::open_serial(path, *baud, link_cfg()).map_err(|e| err(e.to_string()))?;
             Ok(SensorDriver::Link(link))
         }
         SensorSpec::LinkUdp { bind, device } => {
-            let link = LinkReceiver::udp(*bind, *device, LinkConfig::default()).await.map_err(|e| err(e.to_string()))?;
+            let link = LinkReceiver::udp(*bind, *device, link_cfg()).await.map_err(|e| err(e.to_string()))?;
             Ok(SensorDriver::Link(link))
         }
         SensorSpec::Tac3d { bind } => {
-            let cfg = Tac3dReceiverConfig { bind: *bind, ..Tac3dReceiverConfig::default() };
+            let cfg = Tac3dReceiverConfig { bind: *bind, queue_capacity: GAUGE_QUEUE, ..Tac3dReceiverConfig::default() };
             let rx = Tac3dReceiver::bind(cfg).await.map_err(|e| err(e.to_string()))?;
             Ok(SensorDriver::Tac3d(rx))
         }
     }
+}
+
+fn link_cfg() -> LinkConfig {
+    LinkConfig { queue_capacity: GAUGE_QUEUE, ..LinkConfig::default() }
 }
 
 /// Open every device of the rig.
