@@ -4,6 +4,7 @@ mod calibrate;
 pub mod devices;
 pub mod run;
 mod script;
+pub mod sim;
 pub mod sensor;
 
 use std::path::PathBuf;
@@ -32,6 +33,8 @@ pub enum Command {
     Devices(devices::DevicesArgs),
     /// Tactile sensor link tools.
     Sensor(sensor::SensorArgs),
+    /// The emulated rig: `sim serve` serves it on pseudo-terminals for your own client.
+    Sim(sim::SimArgs),
     /// Print the built-in calibration script (`--default`) or check a script file.
     Script(ScriptArgs),
 }
@@ -137,6 +140,7 @@ pub fn main() -> ExitCode {
         Command::Devices(a) => devices::run(a),
         Command::Sensor(a) => sensor::run(a),
         Command::Script(a) => script::script(a),
+        Command::Sim(a) => sim::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
