@@ -87,6 +87,10 @@ pub enum ConnectError {
     Sensor { what: String, message: String },
 }
 
+/// Longest wait for a stopped stage to come to rest (a Z8 decelerates from
+/// full speed in well under a second).
+const STOP_WAIT: Duration = Duration::from_secs(5);
+
 /// The stage, whichever driver it needs.
 pub enum StageDriver {
     Apt(AptStage<SerialStream>),
@@ -150,8 +154,30 @@ impl LinearStage for StageDriver {
     async fn wait_until_stopped(&mut self, timeout: Duration) -> Result<f64, StageError> {
         delegate!(self, d => d.wait_until_stopped(timeout))
     }
+    /// Stop and wait until the axis is at rest. The APT driver's stop only
+    /// sends MOT_MOVE_STOP; a move commanded right after it (the backing off
+    /// of an abort) could otherwise take that stop's late answer for its own
+    /// end and report the stage backed off while it is still in contact.
     async fn stop(&mut self) -> Result<(), StageError> {
-        delegate!(self, d => d.stop())
+        match self {
+            StageDriver::Apt(d) => {
+                d.stop().await?;
+                d.wait_until_stopped(STOP_WAIT).await?;
+                Ok(())
+            }
+            StageDriver::Grbl(d) => {
+                d.stop().await?;
+                // An alarm leaves GRBL locked, and the indenter pressed into
+                // the elastomer. The sequencer stops only to abort, and its
+                // next move is the back-off, away from the sensor: unlock
+                // ($X) so it can move. The position may be off after a limit
+                // alarm (the abort message says so); re-home before the next run.
+                if d.alarm().is_some() {
+                    d.unlock().await?;
+                }
+                Ok(())
+            }
+        }
     }
     async fn position_mm(&mut self) -> Result<f64, StageError> {
         delegate!(self, d => d.position_mm())
