@@ -28,7 +28,7 @@ use tokio::sync::mpsc::unbounded_channel;
 /// One rig at a time: two cores, real timeouts.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
-const SPEEDUP: f64 = 50.0;
+const SPEEDUP: f64 = 25.0;
 
 async fn rig(grbl: bool) -> EmulatedRig {
     EmulatedRig::start(EmulatedRigOptions { speedup: SPEEDUP, grbl, ..EmulatedRigOptions::default() }).await.unwrap()

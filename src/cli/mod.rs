@@ -4,8 +4,8 @@ mod calibrate;
 pub mod devices;
 pub mod run;
 mod script;
-pub mod sim;
 pub mod sensor;
+pub mod sim;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -192,6 +192,12 @@ fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<()
     );
     let show = |p: &PathBuf| p.display().to_string();
     println!("Recording: {}", show(&o.recording));
-    println!("Report:    {} ({}, {}, {})", show(&files.markdown), show(&files.json), show(&files.normal_svg), show(&files.torsion_svg));
+    println!(
+        "Report:    {} ({}, {}, {})",
+        show(&files.markdown),
+        show(&files.json),
+        show(&files.normal_svg),
+        show(&files.torsion_svg)
+    );
     Ok(())
 }

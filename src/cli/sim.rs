@@ -91,4 +91,3 @@ fn serve(a: &ServeArgs) -> Result<(), CliError> {
         Ok(())
     })
 }
-

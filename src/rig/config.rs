@@ -94,7 +94,8 @@ fn invalid(key: &'static str, message: impl Into<String>) -> ConfigError {
 
 impl RigConfig {
     pub fn from_toml(text: &str) -> Result<RigConfig, ConfigError> {
-        let cfg: RigConfig = toml::from_str(text).map_err(|e| ConfigError::Parse { at: None, message: e.to_string() })?;
+        let cfg: RigConfig =
+            toml::from_str(text).map_err(|e| ConfigError::Parse { at: None, message: e.to_string() })?;
         cfg.to_spec()?;
         Ok(cfg)
     }
@@ -119,8 +120,7 @@ impl RigConfig {
     pub fn to_spec(&self) -> Result<RigSpec, ConfigError> {
         let stage = match self.stage.driver.as_str() {
             "apt" => {
-                if self.stage.axis.is_some() || self.stage.feed_mm_per_min.is_some() || self.stage.travel_mm.is_some()
-                {
+                if self.stage.axis.is_some() || self.stage.feed_mm_per_min.is_some() || self.stage.travel_mm.is_some() {
                     return Err(invalid("stage", "axis, feed_mm_per_min and travel_mm are GRBL settings"));
                 }
                 let cfg = match self.stage.actuator.as_deref().unwrap_or("z825b") {
@@ -183,14 +183,18 @@ impl RigConfig {
                 unused("sensor.udp_port", s.udp_port.is_some())?;
                 unused("sensor.device", s.device.is_some())?;
                 unused("sensor.bind", s.bind.is_some())?;
-                let path = s.path.clone().ok_or_else(|| invalid("sensor.path", "a link-serial sensor needs its serial device"))?;
+                let path = s
+                    .path
+                    .clone()
+                    .ok_or_else(|| invalid("sensor.path", "a link-serial sensor needs its serial device"))?;
                 SensorSpec::LinkSerial { path, baud: s.baud.unwrap_or(115_200) }
             }
             "link-udp" => {
                 unused("sensor.udp_port", s.udp_port.is_some())?;
                 unused("sensor.path", s.path.is_some())?;
                 unused("sensor.baud", s.baud.is_some())?;
-                let device = s.device.ok_or_else(|| invalid("sensor.device", "a link-udp sensor needs the device's address"))?;
+                let device =
+                    s.device.ok_or_else(|| invalid("sensor.device", "a link-udp sensor needs the device's address"))?;
                 SensorSpec::LinkUdp { bind: s.bind.unwrap_or(SocketAddr::from(([0, 0, 0, 0], 0))), device }
             }
             other => {
@@ -215,12 +219,16 @@ mod tests {
     fn shipped_examples_parse() {
         let thor = RigConfig::read_path(&Path::new(ROOT).join("examples/rig-thorlabs.toml")).unwrap();
         let spec = thor.to_spec().unwrap();
-        assert!(matches!(&spec.stage, StageSpec::Apt { path, cfg } if path == Path::new("/dev/easycalib-stage") && cfg.travel == (0.0, 25.0)));
+        assert!(
+            matches!(&spec.stage, StageSpec::Apt { path, cfg } if path == Path::new("/dev/easycalib-stage") && cfg.travel == (0.0, 25.0))
+        );
         assert_eq!(spec.rotation.path, Path::new("/dev/easycalib-rotation"));
         assert_eq!(spec.sensor, SensorSpec::Tac3d { bind: "0.0.0.0:9988".parse().unwrap() });
         let grbl = RigConfig::read_path(&Path::new(ROOT).join("examples/rig-grbl.toml")).unwrap();
         let spec = grbl.to_spec().unwrap();
-        assert!(matches!(&spec.stage, StageSpec::Grbl { path, cfg } if path == Path::new("/dev/easycalib-grbl") && cfg.axis == 'Z'));
+        assert!(
+            matches!(&spec.stage, StageSpec::Grbl { path, cfg } if path == Path::new("/dev/easycalib-grbl") && cfg.axis == 'Z')
+        );
         assert!(matches!(&spec.sensor, SensorSpec::LinkSerial { baud: 115_200, .. }));
     }
 
@@ -232,8 +240,10 @@ mod tests {
     #[test]
     fn mistakes_name_the_key() {
         assert!(RigConfig::from_toml(&base()).is_ok());
-        let e = RigConfig::from_toml(&base().replace("driver = \"apt\"\nport = \"/dev/a\"", "driver = \"zaber\"\nport = \"/dev/a\""))
-            .unwrap_err();
+        let e = RigConfig::from_toml(
+            &base().replace("driver = \"apt\"\nport = \"/dev/a\"", "driver = \"zaber\"\nport = \"/dev/a\""),
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("stage.driver") && e.to_string().contains("zaber"), "{e}");
         let e = RigConfig::from_toml(&base().replace("kind = \"tac3d\"", "kind = \"link-serial\"")).unwrap_err();
         assert!(e.to_string().contains("sensor.path"), "{e}");

@@ -292,7 +292,8 @@ pub async fn open_sensor(spec: &SensorSpec) -> Result<SensorDriver, ConnectError
             Ok(SensorDriver::Link(link))
         }
         SensorSpec::Tac3d { bind } => {
-            let cfg = Tac3dReceiverConfig { bind: *bind, queue_capacity: GAUGE_QUEUE, ..Tac3dReceiverConfig::default() };
+            let cfg =
+                Tac3dReceiverConfig { bind: *bind, queue_capacity: GAUGE_QUEUE, ..Tac3dReceiverConfig::default() };
             let rx = Tac3dReceiver::bind(cfg).await.map_err(|e| err(e.to_string()))?;
             Ok(SensorDriver::Tac3d(rx))
         }

@@ -33,7 +33,7 @@ pub const STAGE_TRAVEL_MM: f64 = 25.0;
 /// mm: beyond the default script's `approach.start_mm` (10 mm).
 pub const CONTACT_STAGE_MM: f64 = 12.0;
 /// Default time acceleration of the emulated rig.
-pub const DEFAULT_SPEEDUP: f64 = 40.0;
+pub const DEFAULT_SPEEDUP: f64 = 25.0;
 
 /// How the emulated sensor delivers its frames.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -159,7 +159,8 @@ impl EmulatedRig {
             EmulatedSensor::LinkPty => {
                 let pty = PtyMaster::open()?;
                 let path = pty.slave_path().to_path_buf();
-                let sink = LinkPtySink { device: LinkDevice::new(pty), streaming: false };
+                let backlog = SlaveBacklog::open(&path)?;
+                let sink = LinkPtySink { device: LinkDevice::new(pty), streaming: false, backlog };
                 (spawn_sensor_stream(rig.clone(), cfg, sink).map_err(bad)?, SensorEndpoint::Pty(path))
             }
             EmulatedSensor::Tac3d { to } => {
@@ -194,8 +195,10 @@ impl EmulatedRig {
             StageSpec::Apt { path: self.stage.path().to_path_buf(), cfg }
         };
         let base = AptConfig::k10cr1();
-        let rotation =
-            RotationSpec { path: self.rotation.path().to_path_buf(), cfg: AptConfig { poll_period: poll(base.poll_period), ..base } };
+        let rotation = RotationSpec {
+            path: self.rotation.path().to_path_buf(),
+            cfg: AptConfig { poll_period: poll(base.poll_period), ..base },
+        };
         let sensor = match &self.sensor_endpoint {
             SensorEndpoint::Pty(path) => SensorSpec::LinkSerial { path: path.clone(), baud: 115_200 },
             SensorEndpoint::Udp(to) => SensorSpec::Tac3d { bind: *to },
@@ -287,6 +290,35 @@ impl EmulatedRig {
 struct LinkPtySink {
     device: LinkDevice,
     streaming: bool,
+    backlog: SlaveBacklog,
+}
+
+/// Bytes written to the pty that its reader has not taken yet (FIONREAD on
+/// a descriptor of the slave side, which is never read from).
+///
+/// Why: time acceleration multiplies the link's wall-clock latency into rig
+/// time. A producer that outpaces the reader fills the pty buffer (several
+/// 10 kB frames), and every frame the host then reads is that many frames
+/// old: at 50x a few milliseconds of backlog are a whole stage step, and a
+/// run of stale frames agrees with itself well enough to pass as settled. A
+/// real sensor on a slow link drops frames rather than queueing them; so
+/// does this one, and the host sees the gaps as dropped frames.
+struct SlaveBacklog(std::fs::File);
+
+impl SlaveBacklog {
+    fn open(path: &Path) -> io::Result<Self> {
+        use std::os::unix::fs::OpenOptionsExt;
+        let f = std::fs::OpenOptions::new().read(true).write(true).custom_flags(libc::O_NOCTTY).open(path)?;
+        Ok(Self(f))
+    }
+
+    fn bytes(&self) -> usize {
+        use std::os::fd::AsRawFd;
+        let mut n: libc::c_int = 0;
+        // SAFETY: FIONREAD writes one c_int through the pointer; the fd is ours and open.
+        let rc = unsafe { libc::ioctl(self.0.as_raw_fd(), libc::FIONREAD, &mut n) };
+        if rc < 0 { 0 } else { n.max(0) as usize }
+    }
 }
 
 impl LinkPtySink {
@@ -311,6 +343,10 @@ impl FrameSink for LinkPtySink {
             }
             self.device.ack(cmd).await.map_err(|e| SinkError::Other(e.to_string()))?;
         }
+        // Drop this frame while the host has not taken the previous one yet.
+        if self.streaming && self.backlog.bytes() >= MAX_BACKLOG_BYTES {
+            return Ok(());
+        }
         if self.streaming {
             // A host that stopped reading without saying STOP must not stall
             // the sensor (and its command handling): drop the frame instead. A
@@ -323,6 +359,10 @@ impl FrameSink for LinkPtySink {
         Ok(())
     }
 }
+
+/// Unread bytes in the pty above which a frame is dropped: less than one
+/// frame of the default 20 x 20 marker grid (about 9.7 kB).
+const MAX_BACKLOG_BYTES: usize = 4096;
 
 /// Longest a frame may wait for room in the pty before it is dropped.
 const FRAME_WRITE_TIMEOUT: Duration = Duration::from_millis(200);

@@ -73,8 +73,7 @@ pub async fn run_calibration(
     controls: UnboundedReceiver<RunControl>,
 ) -> Result<RunResult, StartError> {
     req.script.validate()?;
-    std::fs::create_dir_all(&req.out_dir)
-        .map_err(|source| StartError::OutDir { path: req.out_dir.clone(), source })?;
+    std::fs::create_dir_all(&req.out_dir).map_err(|source| StartError::OutDir { path: req.out_dir.clone(), source })?;
     let devices = open_rig(&req.spec).await?;
     let recording = req.out_dir.join(RECORDING_FILE);
     let mut meta = req.metadata.clone();
