@@ -30,6 +30,13 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 const SPEEDUP: f64 = 25.0;
 
+/// Run `body` on its own runtime while no other rig runs.
+fn one_at_a_time<F: std::future::Future>(body: F) -> F::Output {
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    rt.block_on(body)
+}
+
 async fn rig(grbl: bool) -> EmulatedRig {
     EmulatedRig::start(EmulatedRigOptions { speedup: SPEEDUP, grbl, ..EmulatedRigOptions::default() }).await.unwrap()
 }
@@ -95,130 +102,135 @@ fn check_recording(r: &RunResult, events: &[RunEvent], at_least: usize) -> Recor
     rec
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn default_run_through_the_real_drivers_recovers_the_truth() {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    let dir = tempfile::tempdir().unwrap();
-    let rig = rig(false).await;
-    let (r, events) = run_on(&rig, dir.path(), |_| {}, usize::MAX, |_| {}).await;
-    assert_eq!(r.outcome.status, RunStatus::Completed, "{:?}", r.outcome.status);
-    let truth = rig.truth();
-    let cal = r.calibration.as_ref().expect("fit");
-    let (e1, nu1) = (cal.full.e1_mpa, cal.full.nu1);
-    eprintln!(
-        "default emulated run: {} samples, rig {:.1} s, wall {:.2} s, E1 {e1:.4} (truth {}), nu1 {nu1:.4} (truth {})",
-        r.outcome.samples, r.outcome.rig_time_s, r.outcome.wall_time_s, truth.e1_mpa, truth.nu1
-    );
-    assert!((e1 / truth.e1_mpa - 1.0).abs() < 0.01, "E1 {e1} vs {}", truth.e1_mpa);
-    assert!((nu1 / truth.nu1 - 1.0).abs() < 0.02, "nu1 {nu1} vs {}", truth.nu1);
-    // The contact was found where the simulated elastomer is.
-    let contact = r.outcome.contact_mm.unwrap();
-    // (Found a few tens of µm late: the sensor's dead band; the fit's contact offset takes it up.)
-    assert!((contact - CONTACT_STAGE_MM).abs() < 0.1, "contact at {contact} mm");
+#[test]
+fn default_run_through_the_real_drivers_recovers_the_truth() {
+    one_at_a_time(async {
+        let dir = tempfile::tempdir().unwrap();
+        let rig = rig(false).await;
+        let (r, events) = run_on(&rig, dir.path(), |_| {}, usize::MAX, |_| {}).await;
+        assert_eq!(r.outcome.status, RunStatus::Completed, "{:?}", r.outcome.status);
+        let truth = rig.truth();
+        let cal = r.calibration.as_ref().expect("fit");
+        let (e1, nu1) = (cal.full.e1_mpa, cal.full.nu1);
+        eprintln!(
+            "default emulated run: {} samples, rig {:.1} s, wall {:.2} s, E1 {e1:.4} (truth {}), nu1 {nu1:.4} (truth {})",
+            r.outcome.samples, r.outcome.rig_time_s, r.outcome.wall_time_s, truth.e1_mpa, truth.nu1
+        );
+        assert!((e1 / truth.e1_mpa - 1.0).abs() < 0.01, "E1 {e1} vs {}", truth.e1_mpa);
+        assert!((nu1 / truth.nu1 - 1.0).abs() < 0.02, "nu1 {nu1} vs {}", truth.nu1);
+        // The contact was found where the simulated elastomer is.
+        let contact = r.outcome.contact_mm.unwrap();
+        // (Found a few tens of µm late: the sensor's dead band; the fit's contact offset takes it up.)
+        assert!((contact - CONTACT_STAGE_MM).abs() < 0.1, "contact at {contact} mm");
 
-    // The recording, read back and fitted on its own, gives the same result.
-    let rec = Recording::read_path(&r.outcome.recording).unwrap();
-    assert_eq!(rec.samples.len(), sample_events(&events));
-    assert!(rec.phase(Phase::Normal).count() > 100);
-    assert_eq!(rec.phase(Phase::Torsion).count(), Script::default().twist_angles().len());
-    let again = calibrate(&rec, &FitOptions::default()).unwrap();
-    assert_eq!((again.full.e1_mpa, again.full.nu1), (e1, nu1));
-    assert!(rec.meta.extra.iter().any(|(k, v)| k == "sim_E1_MPa" && v.parse::<f64>().unwrap() == truth.e1_mpa));
+        // The recording, read back and fitted on its own, gives the same result.
+        let rec = Recording::read_path(&r.outcome.recording).unwrap();
+        assert_eq!(rec.samples.len(), sample_events(&events));
+        assert!(rec.phase(Phase::Normal).count() > 100);
+        assert_eq!(rec.phase(Phase::Torsion).count(), Script::default().twist_angles().len());
+        let again = calibrate(&rec, &FitOptions::default()).unwrap();
+        assert_eq!((again.full.e1_mpa, again.full.nu1), (e1, nu1));
+        assert!(rec.meta.extra.iter().any(|(k, v)| k == "sim_E1_MPa" && v.parse::<f64>().unwrap() == truth.e1_mpa));
 
-    // The report: JSON with the truth, Markdown and both figures.
-    let files = r.report.as_ref().unwrap();
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&files.json).unwrap()).unwrap();
-    assert_eq!(v["sim_truth"]["E1_MPa"].as_f64(), Some(truth.e1_mpa));
-    assert_eq!(v["E1_MPa"].as_f64(), Some(e1));
-    assert!(std::fs::read_to_string(&files.markdown).unwrap().contains("normal_sweep.svg"));
-    assert!(std::fs::read_to_string(&files.torsion_svg).unwrap().starts_with("<svg"));
-    // The run ended with the summary, and the stage is back at the retract position.
-    assert!(matches!(events.last(), Some(RunEvent::Finished { summary }) if summary.e1_mpa == Some(e1)));
-    let pose = rig.pose();
-    assert!((pose.stage_mm - Script::default().limits.retract_mm).abs() < 1e-3, "{pose:?}");
+        // The report: JSON with the truth, Markdown and both figures.
+        let files = r.report.as_ref().unwrap();
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&files.json).unwrap()).unwrap();
+        assert_eq!(v["sim_truth"]["E1_MPa"].as_f64(), Some(truth.e1_mpa));
+        assert_eq!(v["E1_MPa"].as_f64(), Some(e1));
+        assert!(std::fs::read_to_string(&files.markdown).unwrap().contains("normal_sweep.svg"));
+        assert!(std::fs::read_to_string(&files.torsion_svg).unwrap().starts_with("<svg"));
+        // The run ended with the summary, and the stage is back at the retract position.
+        assert!(matches!(events.last(), Some(RunEvent::Finished { summary }) if summary.e1_mpa == Some(e1)));
+        let pose = rig.pose();
+        assert!((pose.stage_mm - Script::default().limits.retract_mm).abs() < 1e-3, "{pose:?}");
+    });
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn stage_cable_cut_mid_sweep() {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    let dir = tempfile::tempdir().unwrap();
-    let rig = rig(false).await;
-    let (r, events) = run_on(&rig, dir.path(), |_| {}, 25, |rig| rig.cut_stage()).await;
-    let info = aborted(&r);
-    eprintln!("cut: {info}");
-    assert_eq!(info.culprit, Culprit::Stage);
-    assert!(info.message.contains("stage") && info.message.contains("disconnected"), "{}", info.message);
-    // Nobody can move a stage whose cable is cut: the abort says so.
-    assert!(matches!(&info.backoff, Backoff::Failed(m) if m.contains("disconnected")), "{:?}", info.backoff);
-    let rec = check_recording(&r, &events, 25);
-    // The stage did not go deeper than the sweep had taken it (one step at most).
-    let deepest = rec.samples.iter().map(|s| s.stage_mm).fold(f64::MIN, f64::max) + r.outcome.contact_mm.unwrap();
-    tokio::time::sleep(Duration::from_millis(20)).await;
-    assert!(rig.pose().stage_mm <= deepest + 0.05 + 1e-3, "{:?} vs {deepest}", rig.pose());
+#[test]
+fn stage_cable_cut_mid_sweep() {
+    one_at_a_time(async {
+        let dir = tempfile::tempdir().unwrap();
+        let rig = rig(false).await;
+        let (r, events) = run_on(&rig, dir.path(), |_| {}, 25, |rig| rig.cut_stage()).await;
+        let info = aborted(&r);
+        eprintln!("cut: {info}");
+        assert_eq!(info.culprit, Culprit::Stage);
+        assert!(info.message.contains("stage") && info.message.contains("disconnected"), "{}", info.message);
+        // Nobody can move a stage whose cable is cut: the abort says so.
+        assert!(matches!(&info.backoff, Backoff::Failed(m) if m.contains("disconnected")), "{:?}", info.backoff);
+        let rec = check_recording(&r, &events, 25);
+        // The stage did not go deeper than the sweep had taken it (one step at most).
+        let deepest = rec.samples.iter().map(|s| s.stage_mm).fold(f64::MIN, f64::max) + r.outcome.contact_mm.unwrap();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        assert!(rig.pose().stage_mm <= deepest + 0.05 + 1e-3, "{:?} vs {deepest}", rig.pose());
+    });
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn sensor_stream_stopping_mid_sweep() {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    let dir = tempfile::tempdir().unwrap();
-    let rig = rig(false).await;
-    let (r, events) =
-        run_on(&rig, dir.path(), |s| s.timeouts.sensor_dropout_s = 1.0, 25, |rig| rig.silence_sensor(true)).await;
-    let info = aborted(&r);
-    eprintln!("silenced: {info}");
-    assert_eq!(info.culprit, Culprit::Sensor);
-    assert!(info.message.contains("sensor"), "{}", info.message);
-    check_recording(&r, &events, 25);
-    // Backed off to the retract position.
-    let retract = Script::default().limits.retract_mm;
-    assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{:?}", info.backoff);
-    assert!((rig.pose().stage_mm - retract).abs() < 1e-3, "{:?}", rig.pose());
+#[test]
+fn sensor_stream_stopping_mid_sweep() {
+    one_at_a_time(async {
+        let dir = tempfile::tempdir().unwrap();
+        let rig = rig(false).await;
+        let (r, events) =
+            run_on(&rig, dir.path(), |s| s.timeouts.sensor_dropout_s = 1.0, 25, |rig| rig.silence_sensor(true)).await;
+        let info = aborted(&r);
+        eprintln!("silenced: {info}");
+        assert_eq!(info.culprit, Culprit::Sensor);
+        assert!(info.message.contains("sensor"), "{}", info.message);
+        check_recording(&r, &events, 25);
+        // Backed off to the retract position.
+        let retract = Script::default().limits.retract_mm;
+        assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{:?}", info.backoff);
+        assert!((rig.pose().stage_mm - retract).abs() < 1e-3, "{:?}", rig.pose());
+    });
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn apt_device_error_mid_sweep() {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    let dir = tempfile::tempdir().unwrap();
-    let rig = rig(false).await;
-    let (r, events) = run_on(
-        &rig,
-        dir.path(),
-        |_| {},
-        25,
-        |rig| {
-            assert!(rig.inject_stage_error(InjectedError::Rich {
-                msg_id: 0x0453,
-                code: 7,
-                text: "motor overcurrent".into()
-            }))
-        },
-    )
-    .await;
-    let info = aborted(&r);
-    eprintln!("device error: {info}");
-    assert_eq!(info.culprit, Culprit::Stage);
-    assert!(info.message.contains("motor overcurrent"), "{}", info.message);
-    check_recording(&r, &events, 25);
-    let retract = Script::default().limits.retract_mm;
-    assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{:?}", info.backoff);
-    assert!((rig.pose().stage_mm - retract).abs() < 1e-3, "{:?}", rig.pose());
+#[test]
+fn apt_device_error_mid_sweep() {
+    one_at_a_time(async {
+        let dir = tempfile::tempdir().unwrap();
+        let rig = rig(false).await;
+        let (r, events) = run_on(
+            &rig,
+            dir.path(),
+            |_| {},
+            25,
+            |rig| {
+                assert!(rig.inject_stage_error(InjectedError::Rich {
+                    msg_id: 0x0453,
+                    code: 7,
+                    text: "motor overcurrent".into()
+                }))
+            },
+        )
+        .await;
+        let info = aborted(&r);
+        eprintln!("device error: {info}");
+        assert_eq!(info.culprit, Culprit::Stage);
+        assert!(info.message.contains("motor overcurrent"), "{}", info.message);
+        check_recording(&r, &events, 25);
+        let retract = Script::default().limits.retract_mm;
+        assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{:?}", info.backoff);
+        assert!((rig.pose().stage_mm - retract).abs() < 1e-3, "{:?}", rig.pose());
+    });
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn grbl_alarm_mid_sweep() {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    let dir = tempfile::tempdir().unwrap();
-    let rig = rig(true).await;
-    let (r, events) = run_on(&rig, dir.path(), |_| {}, 25, |rig| assert!(rig.inject_stage_alarm(1))).await;
-    let info = aborted(&r);
-    eprintln!("GRBL alarm: {info}; pose {:?}", rig.pose());
-    assert_eq!(info.culprit, Culprit::Stage);
-    assert!(info.message.contains("GRBL") && info.message.contains("ALARM"), "{}", info.message);
-    check_recording(&r, &events, 25);
-    // Unlocked and backed off out of contact, to the retract position.
-    let retract = Script::default().limits.retract_mm;
-    assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{:?}", info.backoff);
-    assert!((rig.pose().stage_mm - retract).abs() < 1e-3, "{:?}", rig.pose());
+#[test]
+fn grbl_alarm_mid_sweep() {
+    one_at_a_time(async {
+        let dir = tempfile::tempdir().unwrap();
+        let rig = rig(true).await;
+        let (r, events) = run_on(&rig, dir.path(), |_| {}, 25, |rig| assert!(rig.inject_stage_alarm(1))).await;
+        let info = aborted(&r);
+        eprintln!("GRBL alarm: {info}; pose {:?}", rig.pose());
+        assert_eq!(info.culprit, Culprit::Stage);
+        assert!(info.message.contains("GRBL") && info.message.contains("ALARM"), "{}", info.message);
+        check_recording(&r, &events, 25);
+        // Unlocked and backed off out of contact, to the retract position.
+        let retract = Script::default().limits.retract_mm;
+        assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{:?}", info.backoff);
+        assert!((rig.pose().stage_mm - retract).abs() < 1e-3, "{:?}", rig.pose());
+    });
 }
 
 #[test]

@@ -88,8 +88,7 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
                 .await
                 .map_err(|e| CliError::other(format!("cannot start the emulated rig: {e}")))?;
             let script = given_script.unwrap_or_else(|| {
-                let mut s = Script::default();
-                s.indenter = pair.indenter;
+                let mut s = Script { indenter: pair.indenter, ..Script::default() };
                 s.sensor.elastomer_r_mm = pair.elastomer.r_mm;
                 s
             });

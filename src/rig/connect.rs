@@ -234,7 +234,10 @@ pub fn measure_frame(frame: &SensorFrame) -> Result<(f64, f64, f64), String> {
 }
 
 /// The gauge the sequencer reads: the sensor link plus [`measure_frame`].
-pub type RigGauge = SensorGauge<SensorDriver, fn(&SensorFrame) -> Result<(f64, f64, f64), String>>;
+pub type RigGauge = SensorGauge<SensorDriver, MeasureFn>;
+
+/// The frame-measuring function of a [`RigGauge`].
+pub type MeasureFn = fn(&SensorFrame) -> Result<(f64, f64, f64), String>;
 
 /// The opened devices of a rig.
 pub struct RigDevices {
@@ -309,7 +312,7 @@ pub async fn open_rig(spec: &RigSpec) -> Result<RigDevices, ConnectError> {
     let stage = open_stage(&spec.stage).await?;
     let rotation = open_rotation(&spec.rotation).await?;
     let sensor = open_sensor(&spec.sensor).await?;
-    let measure: fn(&SensorFrame) -> Result<(f64, f64, f64), String> = measure_frame;
+    let measure: MeasureFn = measure_frame;
     let gauge = SensorGauge::new(sensor, measure, spec.sensor_name.clone());
     Ok(RigDevices { stage, rotation, gauge })
 }

@@ -351,9 +351,8 @@ impl FrameSink for LinkPtySink {
             // A host that stopped reading without saying STOP must not stall
             // the sensor (and its command handling): drop the frame instead. A
             // frame cut short is resynchronised by the receiver's CRCs.
-            match tokio::time::timeout(FRAME_WRITE_TIMEOUT, self.device.send_frame(frame)).await {
-                Ok(r) => r.map_err(|e| SinkError::Other(e.to_string()))?,
-                Err(_) => {}
+            if let Ok(r) = tokio::time::timeout(FRAME_WRITE_TIMEOUT, self.device.send_frame(frame)).await {
+                r.map_err(|e| SinkError::Other(e.to_string()))?;
             }
         }
         Ok(())
