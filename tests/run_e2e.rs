@@ -267,3 +267,34 @@ fn sim_serve_prints_devices_an_apt_client_can_drive() {
     assert_eq!(info.model, "KDC101");
     assert!((p - 1.0).abs() < 1e-3, "{p}");
 }
+
+#[test]
+fn ctrl_c_aborts_the_cli_run_backs_off_and_keeps_the_recording() {
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_easycalib"))
+        .args(["run", "--out", dir.path().to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Plain progress lines (stdout is a pipe): interrupt once the normal sweep records.
+    let stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut lines = stdout.lines();
+    for line in lines.by_ref() {
+        if line.unwrap().contains("normal sweep 1/1  10%") {
+            break;
+        }
+    }
+    // SAFETY: kill(2) on our own child's pid with SIGINT, as Ctrl-C in a terminal.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) }, 0);
+    let rest: Vec<String> = lines.map(|l| l.unwrap()).collect();
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(4), "stderr: {err}");
+    assert!(err.contains("run aborted by operator") && err.contains("backed off to 0.000 mm"), "{err}");
+    assert!(rest.iter().any(|l| l.contains("ABORTED")), "{rest:?}");
+    let rec = Recording::read_path(&dir.path().join("recording.csv")).expect("readable recording");
+    assert!(rec.phase(Phase::Normal).count() > 0);
+    assert!(!dir.path().join("report.json").exists(), "no report for an aborted run");
+}
