@@ -298,3 +298,44 @@ fn ctrl_c_aborts_the_cli_run_backs_off_and_keeps_the_recording() {
     assert!(rec.phase(Phase::Normal).count() > 0);
     assert!(!dir.path().join("report.json").exists(), "no report for an aborted run");
 }
+
+#[test]
+fn tac3d_sensor_over_loopback_udp_reads_the_emulated_press() {
+    use easycalib::rig::connect::open_sensor;
+    use easycalib::rig::emulated::EmulatedSensor;
+    use easycalib::rig::{SensorSpec, measure_frame};
+    use easycalib::run::gauge::{Gauge, SensorGauge};
+
+    one_at_a_time(async {
+        // A free loopback port for the receiver (the emulated Tac3D sends to it).
+        let port = std::net::UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        let to: std::net::SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+        let rig = EmulatedRig::start(EmulatedRigOptions {
+            speedup: SPEEDUP,
+            sensor: EmulatedSensor::Tac3d { to },
+            ..EmulatedRigOptions::default()
+        })
+        .await
+        .unwrap();
+        assert_eq!(rig.spec().sensor, SensorSpec::Tac3d { bind: to });
+        assert_eq!(rig.device_lines()[2], format!("sensor udp://{to}"));
+        let link = open_sensor(&rig.spec().sensor).await.unwrap();
+        let mut gauge = SensorGauge::new(link, measure_frame, "tac3d");
+        gauge.start().await.unwrap();
+        // Out of contact: a valid reading of zero.
+        let r = gauge.read(Duration::from_secs(2)).await.unwrap();
+        assert_eq!(r.gamma1_mm, 0.0);
+        // Press 0.5 mm past the contact point: gamma1 becomes most of the approach
+        // (the indenter is three times stiffer than the elastomer).
+        rig.rig().with_stage(|ax, t| ax.command_move_to(t, CONTACT_STAGE_MM + 0.5));
+        let mut last = 0.0;
+        for _ in 0..2000 {
+            last = gauge.read(Duration::from_secs(2)).await.unwrap().gamma1_mm;
+            if last > 0.3 && (rig.pose().stage_mm - (CONTACT_STAGE_MM + 0.5)).abs() < 1e-6 {
+                break;
+            }
+        }
+        assert!(last > 0.3 && last < 0.5, "gamma1 {last} mm at a 0.5 mm approach");
+        assert!(gauge.link_stats().frames > 0);
+    });
+}

@@ -136,7 +136,17 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
             }
         })
     };
-    let req = RunRequest { spec, script, out_dir: out_dir.clone(), truth, metadata: Vec::new() };
+    let rig_note = match (&args.rig, &emulated) {
+        (Some(p), _) => format!("rig file {}", p.display()),
+        (None, Some(rig)) => format!(
+            "emulated ({} stage, K10CR1, link-protocol sensor) at {}x",
+            if args.grbl { "GRBL" } else { "KDC101 + Z825B" },
+            rig.speedup()
+        ),
+        (None, None) => "unknown".into(),
+    };
+    let metadata = vec![("rig".to_string(), rig_note)];
+    let req = RunRequest { spec, script, out_dir: out_dir.clone(), truth, metadata };
     let result = run_calibration(req, ev_tx, ctl_rx).await;
     let display_result = display.await;
     ctrl_c.abort();
