@@ -92,10 +92,39 @@ pub enum ConnectError {
 const STOP_WAIT: Duration = Duration::from_secs(5);
 
 /// The stage, whichever driver it needs.
-pub enum StageDriver {
+pub enum StageKind {
     Apt(AptStage<SerialStream>),
     Grbl(GrblStage<SerialStream>),
 }
+
+/// The stage as the sequencer sees it: the driver, plus a check that a move
+/// really ended where it was sent. A driver may take a completion message
+/// that belongs to an earlier move (or to a stop) for the end of the current
+/// one; the sequencer would then read the sensor before the stage has even
+/// started, get steady readings of the old depth, and record them at the new
+/// position. So after the driver's wait, the position is checked against the
+/// target, and the wait goes on (by status polls) until the stage is there,
+/// stands still somewhere else for [`STALL_GRACE`], or the timeout ends.
+pub struct StageDriver {
+    pub kind: StageKind,
+    target: Option<f64>,
+}
+
+impl StageDriver {
+    pub fn new(kind: StageKind) -> Self {
+        Self { kind, target: None }
+    }
+}
+
+/// Distance from the target within which a move counts as arrived, mm
+/// (tens of encoder counts or microsteps).
+const ARRIVED_MM: f64 = 1e-3;
+/// A stage standing still away from its target this long (wall time) has
+/// stopped short (a limit, a stop): its position is returned as it is.
+const STALL_GRACE: Duration = Duration::from_millis(300);
+/// Status poll period while checking arrival.
+const ARRIVAL_POLL: Duration = Duration::from_millis(2);
+
 
 /// A stage driver's error.
 #[derive(Debug, thiserror::Error)]
@@ -118,9 +147,9 @@ impl DeviceFault for StageError {
 /// Delegate one async call to whichever driver is inside, mapping its error.
 macro_rules! delegate {
     ($self:ident, $d:ident => $call:expr) => {
-        match $self {
-            StageDriver::Apt($d) => $call.await.map_err(StageError::from),
-            StageDriver::Grbl($d) => $call.await.map_err(StageError::from),
+        match &mut $self.kind {
+            StageKind::Apt($d) => $call.await.map_err(StageError::from),
+            StageKind::Grbl($d) => $call.await.map_err(StageError::from),
         }
     };
 }
@@ -137,35 +166,59 @@ impl Identify for StageDriver {
 impl LinearStage for StageDriver {
     type Error = StageError;
     fn travel_mm(&self) -> (f64, f64) {
-        match self {
-            StageDriver::Apt(d) => d.travel_mm(),
-            StageDriver::Grbl(d) => d.travel_mm(),
+        match &self.kind {
+            StageKind::Apt(d) => d.travel_mm(),
+            StageKind::Grbl(d) => d.travel_mm(),
         }
     }
     async fn home(&mut self, timeout: Duration) -> Result<(), StageError> {
+        self.target = None;
         delegate!(self, d => d.home(timeout))
     }
     async fn start_move_to_mm(&mut self, target_mm: f64) -> Result<(), StageError> {
-        delegate!(self, d => d.start_move_to_mm(target_mm))
+        self.target = None;
+        delegate!(self, d => d.start_move_to_mm(target_mm))?;
+        self.target = Some(target_mm);
+        Ok(())
     }
     async fn start_move_by_mm(&mut self, delta_mm: f64) -> Result<(), StageError> {
+        self.target = None;
         delegate!(self, d => d.start_move_by_mm(delta_mm))
     }
     async fn wait_until_stopped(&mut self, timeout: Duration) -> Result<f64, StageError> {
-        delegate!(self, d => d.wait_until_stopped(timeout))
+        let deadline = tokio::time::Instant::now() + timeout;
+        let mut p = delegate!(self, d => d.wait_until_stopped(timeout))?;
+        let Some(target) = self.target.take() else { return Ok(p) };
+        let mut still_since: Option<tokio::time::Instant> = None;
+        while (p - target).abs() > ARRIVED_MM {
+            let now = tokio::time::Instant::now();
+            if now >= deadline || still_since.is_some_and(|t| now.duration_since(t) >= STALL_GRACE) {
+                break;
+            }
+            tokio::time::sleep(ARRIVAL_POLL).await;
+            let s = delegate!(self, d => d.status())?;
+            p = s.position;
+            if s.moving {
+                still_since = None;
+            } else if still_since.is_none() {
+                still_since = Some(tokio::time::Instant::now());
+            }
+        }
+        Ok(p)
     }
     /// Stop and wait until the axis is at rest. The APT driver's stop only
     /// sends MOT_MOVE_STOP; a move commanded right after it (the backing off
     /// of an abort) could otherwise take that stop's late answer for its own
     /// end and report the stage backed off while it is still in contact.
     async fn stop(&mut self) -> Result<(), StageError> {
-        match self {
-            StageDriver::Apt(d) => {
+        self.target = None;
+        match &mut self.kind {
+            StageKind::Apt(d) => {
                 d.stop().await?;
                 d.wait_until_stopped(STOP_WAIT).await?;
                 Ok(())
             }
-            StageDriver::Grbl(d) => {
+            StageKind::Grbl(d) => {
                 d.stop().await?;
                 // An alarm leaves GRBL locked, and the indenter pressed into
                 // the elastomer. The sequencer stops only to abort, and its
@@ -259,11 +312,11 @@ pub async fn open_stage(spec: &StageSpec) -> Result<StageDriver, ConnectError> {
         StageSpec::Apt { path, cfg } => {
             let io = serial(path).await.map_err(|e| err(format!("cannot open the port: {e}")))?;
             let stage = AptStage::connect(io, cfg.clone()).await.map_err(|e| err(format!("APT connect: {e}")))?;
-            Ok(StageDriver::Apt(stage))
+            Ok(StageDriver::new(StageKind::Apt(stage)))
         }
         StageSpec::Grbl { path, cfg } => {
             let stage = GrblStage::open(path, cfg.clone()).await.map_err(|e| err(format!("GRBL connect: {e}")))?;
-            Ok(StageDriver::Grbl(stage))
+            Ok(StageDriver::new(StageKind::Grbl(stage)))
         }
     }
 }
