@@ -28,7 +28,7 @@ use tokio::sync::mpsc::unbounded_channel;
 /// One rig at a time: two cores, real timeouts.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
-const SPEEDUP: f64 = 25.0;
+const SPEEDUP: f64 = 40.0;
 
 /// Run `body` on its own runtime while no other rig runs.
 fn one_at_a_time<F: std::future::Future>(body: F) -> F::Output {

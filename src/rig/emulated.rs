@@ -33,7 +33,7 @@ pub const STAGE_TRAVEL_MM: f64 = 25.0;
 /// mm: beyond the default script's `approach.start_mm` (10 mm).
 pub const CONTACT_STAGE_MM: f64 = 12.0;
 /// Default time acceleration of the emulated rig.
-pub const DEFAULT_SPEEDUP: f64 = 25.0;
+pub const DEFAULT_SPEEDUP: f64 = 40.0;
 
 /// How the emulated sensor delivers its frames.
 #[derive(Debug, Clone, Copy, PartialEq)]
