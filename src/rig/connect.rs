@@ -125,7 +125,6 @@ const STALL_GRACE: Duration = Duration::from_millis(300);
 /// Status poll period while checking arrival.
 const ARRIVAL_POLL: Duration = Duration::from_millis(2);
 
-
 /// A stage driver's error.
 #[derive(Debug, thiserror::Error)]
 pub enum StageError {
