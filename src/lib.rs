@@ -4,6 +4,7 @@ pub mod cli;
 pub mod diagnosis;
 pub mod fit;
 pub mod report;
+pub mod rig;
 pub mod run;
 pub mod sensing;
 pub mod tui;

@@ -52,12 +52,17 @@ fn simulate_then_fit_recovers_the_elastomer_through_the_documented_json() {
 
 #[test]
 fn run_on_the_simulated_rig_reports_truth_alongside_the_fit() {
-    let out = easycalib(&["run", "--json", "--seed", "5"]);
+    let dir = tempfile::tempdir().unwrap();
+    let out = easycalib(&["run", "--json", "--seed", "5", "--out", dir.path().to_str().unwrap()]);
     assert!(out.status.success(), "run failed: {}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let truth_e1 = v["sim_truth"]["E1_MPa"].as_f64().unwrap();
     let e1 = v["E1_MPa"].as_f64().unwrap();
     assert!((e1 / truth_e1 - 1.0).abs() < 0.01, "E1 {e1} vs truth {truth_e1}");
+    // The run left its recording and report in --out.
+    for f in ["recording.csv", "report.json", "report.md", "normal_sweep.svg", "torsion_sweep.svg"] {
+        assert!(dir.path().join(f).is_file(), "{f} missing");
+    }
 }
 
 fn expect_bad_input(path: &Path, what: &str) {

@@ -4,10 +4,10 @@ use sim::generator::{GeneratorConfig, generate};
 use sim::physics::{Body, ContactPair};
 use sim::recording::Recording;
 
-use super::{CliError, ElastomerArgs, FitArgs, RunArgs, SimulateArgs};
+use super::{CliError, ElastomerArgs, FitArgs, SimulateArgs};
 use crate::fit::{FitOptions, calibrate};
 
-pub use crate::report::json::{CalibrationOutput, Truth, calibration_output};
+pub use crate::report::json::{CalibrationOutput, calibration_output};
 
 fn pm(ci: [f64; 2]) -> f64 {
     0.5 * (ci[1] - ci[0])
@@ -156,16 +156,4 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {
         cfg.seed
     );
     Ok(())
-}
-
-pub fn run_simulated(args: &RunArgs) -> Result<(), CliError> {
-    let cfg = generator_config(&args.elastomer)?;
-    let rec = generate(&cfg).map_err(|e| CliError::bad_input(format!("cannot simulate: {e}")))?;
-    if let Some(path) = &args.output {
-        rec.write_path(path).map_err(|e| CliError::other(format!("cannot write {}: {e}", path.display())))?;
-    }
-    let cal = calibrate(&rec, &FitOptions::default()).map_err(|e| CliError::fit_failed(e.to_string()))?;
-    let truth = Truth { e1_mpa: cfg.pair.elastomer.e_mpa, nu1: cfg.pair.elastomer.nu };
-    let out = calibration_output(&rec, &cal, args.output.as_deref(), Some(truth));
-    print_output(&out, &rec, args.json)
 }

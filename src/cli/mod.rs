@@ -3,8 +3,10 @@
 mod calibrate;
 pub mod devices;
 mod diagnose;
+pub mod run;
 mod script;
 pub mod sensor;
+pub mod sim;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -32,6 +34,8 @@ pub enum Command {
     Devices(devices::DevicesArgs),
     /// Tactile sensor link tools.
     Sensor(sensor::SensorArgs),
+    /// The emulated rig: `sim serve` serves it on pseudo-terminals for your own client.
+    Sim(sim::SimArgs),
     /// Print the built-in calibration script (`--default`) or check a script file.
     Script(ScriptArgs),
     /// Locate and explain a mismatch between the model and a recording (docs/diagnosis.md).
@@ -117,14 +121,30 @@ pub struct SimulateArgs {
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    #[command(flatten)]
-    pub elastomer: ElastomerArgs,
-    /// Print the stable JSON document instead of the human summary.
+    /// Run on the real rig described by this file (default: the built-in emulated rig).
+    #[arg(long, value_name = "RIG_TOML")]
+    pub rig: Option<PathBuf>,
+    /// Calibration script (default: the rig file's, else the built-in one).
+    #[arg(long, value_name = "SCRIPT_TOML")]
+    pub script: Option<PathBuf>,
+    /// Folder for the recording and the report (default: runs/<UTC time>-<sensor>).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Print the report's JSON document on stdout (progress goes to stderr).
     #[arg(long)]
     pub json: bool,
-    /// Also write the recording here.
-    #[arg(short = 'o', long = "output")]
-    pub output: Option<PathBuf>,
+    /// Emulated rig: run at real rig speed.
+    #[arg(long, conflicts_with_all = ["speedup", "rig"])]
+    pub realtime: bool,
+    /// Emulated rig: rig time runs this many times faster than wall time.
+    #[arg(long, value_name = "N", conflicts_with = "rig")]
+    pub speedup: Option<f64>,
+    /// Emulated rig: serve the stage as a GRBL controller instead of a Thorlabs KDC101.
+    #[arg(long, conflicts_with = "rig")]
+    pub grbl: bool,
+    /// The simulated elastomer and indenter (emulated rig only).
+    #[command(flatten)]
+    pub elastomer: ElastomerArgs,
 }
 
 /// Exit code for bad input (unreadable or invalid recording, impossible parameters).
@@ -137,11 +157,12 @@ pub fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Fit(a) => calibrate::fit(a),
         Command::Simulate(a) => calibrate::simulate(a),
-        Command::Run(a) => calibrate::run_simulated(a),
+        Command::Run(a) => run::run(a),
         Command::Devices(a) => devices::run(a),
         Command::Sensor(a) => sensor::run(a),
         Command::Script(a) => script::script(a),
         Command::Diagnose(a) => diagnose::run(a),
+        Command::Sim(a) => sim::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

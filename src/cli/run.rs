@@ -1,0 +1,212 @@
+//! `easycalib run`: a calibration on the built-in emulated rig (default) or on
+//! a real rig described by `--rig rig.toml`, with the live display, Ctrl-C as
+//! abort, and the fit and report at the end.
+
+use std::path::{Path, PathBuf};
+use std::time::SystemTime;
+
+use sim::physics::{Body, ContactPair};
+use sim::recording::Recording;
+use tokio::sync::mpsc::unbounded_channel;
+
+use super::calibrate::human_summary;
+use super::{CliError, ElastomerArgs, RunArgs};
+use crate::report::{Truth, calibration_output, default_run_dir};
+use crate::rig::emulated::{DEFAULT_SPEEDUP, EmulatedRig, EmulatedRigOptions, EmulatedSensor};
+use crate::rig::{RigConfig, RunRequest, RunResult, run_calibration};
+use crate::run::events::{RunControl, format_duration};
+use crate::run::{RunStatus, Script};
+
+/// Exit code of a run that was aborted (operator, device fault, safety); the
+/// recording of everything before the abort is kept.
+pub const EXIT_ABORTED: u8 = 4;
+/// Exit code when a device cannot be opened (nothing moved).
+pub const EXIT_DEVICE: u8 = 5;
+
+fn read_script(path: &Path) -> Result<Script, CliError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| CliError::bad_input(format!("cannot read script {}: {e}", path.display())))?;
+    Script::from_toml(&text).map_err(|e| CliError::bad_input(format!("{}: {e}", path.display())))
+}
+
+/// The simulated hardware for an elastomer given on the command line; the
+/// indenter and R1 follow the script when one is given, so the script
+/// describes the rig it runs on.
+fn simulated_pair(a: &ElastomerArgs, script: Option<&Script>) -> Result<ContactPair, CliError> {
+    let pair = match script {
+        Some(s) => ContactPair { elastomer: Body::new(a.e1_mpa, a.nu1, s.sensor.elastomer_r_mm), indenter: s.indenter },
+        None => ContactPair {
+            elastomer: Body::new(a.e1_mpa, a.nu1, a.r1_mm),
+            indenter: Body::new(a.indenter_e_mpa, a.indenter_nu, a.indenter_r_mm),
+        },
+    };
+    pair.validate().map_err(|e| CliError::bad_input(e.to_string()))?;
+    Ok(pair)
+}
+
+pub fn speedup(args: &RunArgs) -> Result<f64, CliError> {
+    let s = if args.realtime { 1.0 } else { args.speedup.unwrap_or(DEFAULT_SPEEDUP) };
+    if !(s.is_finite() && s > 0.0) {
+        return Err(CliError::bad_input(format!("--speedup must be a positive number, got {s}")));
+    }
+    Ok(s)
+}
+
+pub fn run(args: &RunArgs) -> Result<(), CliError> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::other(format!("cannot start the async runtime: {e}")))?;
+    rt.block_on(run_async(args))
+}
+
+async fn run_async(args: &RunArgs) -> Result<(), CliError> {
+    // The rig and the script.
+    let rig_cfg = match &args.rig {
+        Some(p) => Some(RigConfig::read_path(p).map_err(|e| CliError::bad_input(e.to_string()))?),
+        None => None,
+    };
+    let script_path = args.script.clone().or_else(|| rig_cfg.as_ref().and_then(|c| c.script.clone()));
+    let given_script = script_path.as_deref().map(read_script).transpose()?;
+    let mut emulated = None;
+    let (spec, truth, script) = match &rig_cfg {
+        Some(cfg) => {
+            let spec = cfg.to_spec().map_err(|e| CliError::bad_input(e.to_string()))?;
+            (spec, None, given_script.unwrap_or_default())
+        }
+        None => {
+            let pair = simulated_pair(&args.elastomer, given_script.as_ref())?;
+            let opts = EmulatedRigOptions {
+                speedup: speedup(args)?,
+                grbl: args.grbl,
+                pair,
+                seed: args.elastomer.seed,
+                sensor: EmulatedSensor::LinkPty,
+                ..EmulatedRigOptions::default()
+            };
+            let rig = EmulatedRig::start(opts)
+                .await
+                .map_err(|e| CliError::other(format!("cannot start the emulated rig: {e}")))?;
+            let script = given_script.unwrap_or_else(|| {
+                let mut s = Script { indenter: pair.indenter, ..Script::default() };
+                s.sensor.elastomer_r_mm = pair.elastomer.r_mm;
+                s
+            });
+            let spec = rig.spec();
+            let truth = rig.truth();
+            emulated = Some(rig);
+            (spec, Some(truth), script)
+        }
+    };
+    let out_dir = match &args.out {
+        Some(d) => d.clone(),
+        None => default_run_dir(Path::new("runs"), Some(&spec.sensor_name), SystemTime::now()),
+    };
+    if let Some(rig) = &emulated {
+        eprintln!(
+            "easycalib run: emulated rig at {}x real time ({}), real drivers over {}",
+            rig.speedup(),
+            if args.grbl { "GRBL stage" } else { "APT stage" },
+            rig.device_lines().join(", ")
+        );
+    }
+
+    // The run, the display and Ctrl-C, concurrently.
+    let (ev_tx, ev_rx) = unbounded_channel();
+    let (ctl_tx, ctl_rx) = unbounded_channel();
+    let display = {
+        let ctl = ctl_tx.clone();
+        let json = args.json;
+        tokio::spawn(async move {
+            if json {
+                // stdout carries the JSON document: progress goes to stderr.
+                let r = crate::tui::run_plain(ev_rx, std::io::stderr()).await;
+                drop(ctl);
+                r
+            } else {
+                crate::tui::run_display(ev_rx, ctl).await
+            }
+        })
+    };
+    let ctrl_c = {
+        let ctl = ctl_tx.clone();
+        tokio::spawn(async move {
+            while tokio::signal::ctrl_c().await.is_ok() {
+                let _ = ctl.send(RunControl::Abort);
+            }
+        })
+    };
+    let rig_note = match (&args.rig, &emulated) {
+        (Some(p), _) => format!("rig file {}", p.display()),
+        (None, Some(rig)) => format!(
+            "emulated ({} stage, K10CR1, link-protocol sensor) at {}x",
+            if args.grbl { "GRBL" } else { "KDC101 + Z825B" },
+            rig.speedup()
+        ),
+        (None, None) => "unknown".into(),
+    };
+    let metadata = vec![("rig".to_string(), rig_note)];
+    let req = RunRequest { spec, script, out_dir: out_dir.clone(), truth, metadata };
+    let result = run_calibration(req, ev_tx, ctl_rx).await;
+    let display_result = display.await;
+    ctrl_c.abort();
+    drop(ctl_tx);
+    let result = result.map_err(|e| match e {
+        crate::rig::StartError::Connect(c) => CliError { code: EXIT_DEVICE, message: c.to_string() },
+        other => CliError::bad_input(other.to_string()),
+    })?;
+    if let Ok(Err(e)) = display_result {
+        eprintln!("warning: the display failed: {e}");
+    }
+    drop(emulated);
+    report(args, &result, truth)
+}
+
+fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<(), CliError> {
+    let o = &result.outcome;
+    if let RunStatus::Aborted(info) = &o.status {
+        return Err(CliError {
+            code: EXIT_ABORTED,
+            message: format!(
+                "run aborted by {}: {info}\n{} samples recorded up to the abort: {}",
+                info.culprit.as_str(),
+                o.samples,
+                o.recording.display()
+            ),
+        });
+    }
+    let (Some(cal), Some(files)) = (&result.calibration, &result.report) else {
+        return Err(CliError::fit_failed(format!(
+            "{} (recording: {})",
+            result.fit_error.as_deref().unwrap_or("no fit"),
+            o.recording.display()
+        )));
+    };
+    if args.json {
+        let text = std::fs::read_to_string(&files.json)
+            .map_err(|e| CliError::other(format!("cannot read back {}: {e}", files.json.display())))?;
+        print!("{text}");
+        return Ok(());
+    }
+    let rec = Recording::read_path(&o.recording)
+        .map_err(|e| CliError::other(format!("cannot read back {}: {e}", o.recording.display())))?;
+    let out = calibration_output(&rec, cal, Some(&o.recording), truth);
+    println!();
+    print!("{}", human_summary(&out, &rec.meta));
+    println!(
+        "\nRun: {} samples, rig time {}, wall time {}",
+        o.samples,
+        format_duration(o.rig_time_s),
+        format_duration(o.wall_time_s)
+    );
+    let show = |p: &PathBuf| p.display().to_string();
+    println!("Recording: {}", show(&o.recording));
+    println!(
+        "Report:    {} ({}, {}, {})",
+        show(&files.markdown),
+        show(&files.json),
+        show(&files.normal_svg),
+        show(&files.torsion_svg)
+    );
+    Ok(())
+}

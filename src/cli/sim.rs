@@ -1,0 +1,93 @@
+//! `easycalib sim serve`: the emulated rig for someone else's client. Prints
+//! one `NAME PATH` line per device, then serves until Ctrl-C.
+
+use std::io::Write;
+use std::net::SocketAddr;
+
+use clap::{Args, Subcommand};
+use sim::physics::{Body, ContactPair};
+
+use super::{CliError, ElastomerArgs};
+use crate::rig::emulated::{EmulatedRig, EmulatedRigOptions, EmulatedSensor};
+
+#[derive(Debug, Args)]
+pub struct SimArgs {
+    #[command(subcommand)]
+    pub command: SimCommand,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum SimCommand {
+    /// Serve the emulated rig (stage, rotation mount, sensor) on pseudo-terminals until Ctrl-C.
+    Serve(ServeArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// Serve the stage as a GRBL controller instead of a Thorlabs KDC101 (APT).
+    #[arg(long)]
+    pub grbl: bool,
+    /// Rig time runs this many times faster than wall time (1 = real time).
+    #[arg(long, value_name = "N", default_value_t = 1.0)]
+    pub speedup: f64,
+    /// Send the sensor's frames as a Tac3D (UDP) to this address instead of
+    /// serving easycalib's link protocol on a pty.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub tac3d_to: Option<SocketAddr>,
+    #[command(flatten)]
+    pub elastomer: ElastomerArgs,
+}
+
+pub fn run(args: &SimArgs) -> Result<(), CliError> {
+    match &args.command {
+        SimCommand::Serve(a) => serve(a),
+    }
+}
+
+fn serve(a: &ServeArgs) -> Result<(), CliError> {
+    if !(a.speedup.is_finite() && a.speedup > 0.0) {
+        return Err(CliError::bad_input(format!("--speedup must be a positive number, got {}", a.speedup)));
+    }
+    let e = &a.elastomer;
+    let pair = ContactPair {
+        elastomer: Body::new(e.e1_mpa, e.nu1, e.r1_mm),
+        indenter: Body::new(e.indenter_e_mpa, e.indenter_nu, e.indenter_r_mm),
+    };
+    pair.validate().map_err(|err| CliError::bad_input(err.to_string()))?;
+    let opts = EmulatedRigOptions {
+        speedup: a.speedup,
+        grbl: a.grbl,
+        pair,
+        seed: e.seed,
+        sensor: match a.tac3d_to {
+            Some(to) => EmulatedSensor::Tac3d { to },
+            None => EmulatedSensor::LinkPty,
+        },
+        ..EmulatedRigOptions::default()
+    };
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|err| CliError::other(format!("cannot start the async runtime: {err}")))?;
+    rt.block_on(async move {
+        let rig = EmulatedRig::start(opts)
+            .await
+            .map_err(|err| CliError::other(format!("cannot start the emulated rig: {err}")))?;
+        let mut out = std::io::stdout().lock();
+        for line in rig.device_lines() {
+            writeln!(out, "{line}").map_err(|err| CliError::other(err.to_string()))?;
+        }
+        out.flush().map_err(|err| CliError::other(err.to_string()))?;
+        drop(out);
+        eprintln!(
+            "emulated rig at {}x real time (E1 {} MPa, nu1 {}; first contact at stage {} mm); Ctrl-C to stop",
+            rig.speedup(),
+            e.e1_mpa,
+            e.nu1,
+            crate::rig::emulated::CONTACT_STAGE_MM
+        );
+        tokio::signal::ctrl_c().await.map_err(|err| CliError::other(format!("cannot wait for Ctrl-C: {err}")))?;
+        drop(rig);
+        Ok(())
+    })
+}

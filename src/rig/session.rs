@@ -1,0 +1,107 @@
+//! One calibration run on a rig, start to finish: open the devices, run the
+//! script with the sequencer, then fit the recording and write the report.
+//! The command line and the end-to-end tests both call [`run_calibration`].
+
+use std::path::{Path, PathBuf};
+
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
+
+use super::connect::{ConnectError, RigSpec, open_rig};
+use crate::fit::{Calibration, FitOptions, calibrate};
+use crate::report::{ReportFiles, Truth, write_report};
+use crate::run::events::{LogLevel, RunControl, RunEvent};
+use crate::run::{RunOutcome, Script, ScriptError, Sequencer};
+
+/// File name of the recording inside a run's folder.
+pub const RECORDING_FILE: &str = "recording.csv";
+
+/// What to run and where its files go.
+#[derive(Debug, Clone)]
+pub struct RunRequest {
+    pub spec: RigSpec,
+    pub script: Script,
+    /// Folder for the recording and the report (created if missing).
+    pub out_dir: PathBuf,
+    /// The simulation's truth, for a simulated rig (goes into the recording and the report).
+    pub truth: Option<Truth>,
+    /// More `# key: value` metadata for the recording.
+    pub metadata: Vec<(String, String)>,
+}
+
+/// How a run ended.
+#[derive(Debug)]
+pub struct RunResult {
+    pub outcome: RunOutcome,
+    /// The fit, when the run completed and the recording could be fitted.
+    pub calibration: Option<Calibration>,
+    pub report: Option<ReportFiles>,
+    /// Why there is no fit or report after a completed run.
+    pub fit_error: Option<String>,
+}
+
+/// Why a run could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    #[error(transparent)]
+    Connect(#[from] ConnectError),
+    #[error(transparent)]
+    Script(#[from] ScriptError),
+    #[error("cannot create the output folder {path}: {source}")]
+    OutDir { path: PathBuf, source: std::io::Error },
+}
+
+/// Fit a finished recording and write the report next to it.
+pub fn fit_and_report(
+    recording: &Path,
+    out_dir: &Path,
+    truth: Option<Truth>,
+) -> Result<(Calibration, ReportFiles), String> {
+    let rec = sim::recording::Recording::read_path(recording)
+        .map_err(|e| format!("cannot read the recording {}: {e}", recording.display()))?;
+    let cal = calibrate(&rec, &FitOptions::default()).map_err(|e| format!("cannot fit the recording: {e}"))?;
+    let files = write_report(out_dir, recording, &cal, truth).map_err(|e| format!("cannot write the report: {e}"))?;
+    Ok((cal, files))
+}
+
+/// Open the rig, run the script, fit and report. Events go to `events`
+/// (ending with `Finished` or `Aborted`), operator controls come from
+/// `controls`. A device that cannot be opened is an `Err` before anything
+/// moves; everything after that is in the [`RunResult`].
+pub async fn run_calibration(
+    req: RunRequest,
+    events: UnboundedSender<RunEvent>,
+    controls: UnboundedReceiver<RunControl>,
+) -> Result<RunResult, StartError> {
+    req.script.validate()?;
+    std::fs::create_dir_all(&req.out_dir).map_err(|source| StartError::OutDir { path: req.out_dir.clone(), source })?;
+    let devices = open_rig(&req.spec).await?;
+    let recording = req.out_dir.join(RECORDING_FILE);
+    let mut meta = req.metadata.clone();
+    if let Some(t) = req.truth {
+        meta.push(("sim_E1_MPa".into(), format!("{}", t.e1_mpa)));
+        meta.push(("sim_nu1".into(), format!("{}", t.nu1)));
+    }
+    let mut seq = Sequencer::new(req.script.clone(), devices.stage, devices.rotation, devices.gauge, &recording)?
+        .with_events(events.clone())
+        .with_controls(controls)
+        .with_metadata(meta);
+    let outcome = seq.run().await;
+    // Close the devices (stop keep-alives, release the ports) before fitting.
+    drop(seq);
+    if !outcome.completed() {
+        return Ok(RunResult { outcome, calibration: None, report: None, fit_error: None });
+    }
+    match fit_and_report(&outcome.recording, &req.out_dir, req.truth) {
+        Ok((cal, files)) => {
+            let mut summary = outcome.summary(Some(&cal));
+            summary.report = Some(files.json.display().to_string());
+            let _ = events.send(RunEvent::Finished { summary });
+            Ok(RunResult { outcome, calibration: Some(cal), report: Some(files), fit_error: None })
+        }
+        Err(e) => {
+            let _ = events.send(RunEvent::Log { level: LogLevel::Error, message: e.clone() });
+            let _ = events.send(RunEvent::Finished { summary: outcome.summary(None) });
+            Ok(RunResult { outcome, calibration: None, report: None, fit_error: Some(e) })
+        }
+    }
+}
