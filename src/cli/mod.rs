@@ -142,6 +142,11 @@ pub struct RunArgs {
     /// Emulated rig: serve the stage as a GRBL controller instead of a Thorlabs KDC101.
     #[arg(long, conflicts_with = "rig")]
     pub grbl: bool,
+    /// Emulated rig: give the simulated contact the left-out physics of this sim
+    /// profile (e.g. from `easycalib diagnose --profile-out`), so the rig
+    /// reproduces the recording it was diagnosed from.
+    #[arg(long, value_name = "PROFILE.toml", conflicts_with = "rig")]
+    pub profile: Option<PathBuf>,
     /// The simulated elastomer and indenter (emulated rig only).
     #[command(flatten)]
     pub elastomer: ElastomerArgs,

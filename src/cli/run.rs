@@ -82,6 +82,7 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
                 pair,
                 seed: args.elastomer.seed,
                 sensor: EmulatedSensor::LinkPty,
+                profile: load_profile(args.profile.as_deref())?,
                 ..EmulatedRigOptions::default()
             };
             let rig = EmulatedRig::start(opts)
@@ -209,4 +210,13 @@ fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<()
         show(&files.torsion_svg)
     );
     Ok(())
+}
+
+/// The sim profile given with `--profile` (clean without one).
+pub fn load_profile(path: Option<&std::path::Path>) -> Result<sim::effects::SimProfile, CliError> {
+    match path {
+        None => Ok(sim::effects::SimProfile::default()),
+        Some(p) => sim::effects::SimProfile::load(p)
+            .map_err(|e| CliError::bad_input(format!("sim profile {}: {e}", p.display()))),
+    }
 }

@@ -34,6 +34,9 @@ pub struct ServeArgs {
     /// serving easycalib's link protocol on a pty.
     #[arg(long, value_name = "HOST:PORT")]
     pub tac3d_to: Option<SocketAddr>,
+    /// Give the simulated contact the left-out physics of this sim profile.
+    #[arg(long, value_name = "PROFILE.toml")]
+    pub profile: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub elastomer: ElastomerArgs,
 }
@@ -63,6 +66,7 @@ fn serve(a: &ServeArgs) -> Result<(), CliError> {
             Some(to) => EmulatedSensor::Tac3d { to },
             None => EmulatedSensor::LinkPty,
         },
+        profile: super::run::load_profile(a.profile.as_deref())?,
         ..EmulatedRigOptions::default()
     };
     let rt = tokio::runtime::Builder::new_multi_thread()

@@ -15,14 +15,16 @@ use devices::sensor::SensorFrame;
 use devices::sensor::link::{Command, LinkDevice};
 use devices::sensor::tac3d::{Tac3dSender, Tac3dSenderConfig};
 use sim::clock::VirtualClock;
+use sim::effects::{EffectError, SimProfile};
 use sim::emulator::apt::{EmulatorHandle, InjectedError, k10cr1_axis, spawn_apt_rotation, spawn_apt_stage, z8_axis};
 use sim::emulator::axis::AxisConfig;
 use sim::emulator::grbl::{GrblEmulatorConfig, GrblPort, serve_grbl_stage};
 use sim::emulator::pty::PtyMaster;
 use sim::emulator::rig::{Rig, RigPose};
 use sim::physics::ContactPair;
+use sim::sensor::rig::RigSensor;
 use sim::sensor::rig::SensorSimConfig;
-use sim::sensor::stream::{FrameSink, SensorStream, SinkError, spawn_sensor_stream};
+use sim::sensor::stream::{FrameSink, SensorStream, SinkError, spawn_rig_sensor};
 
 use super::connect::{RigSpec, RotationSpec, SensorSpec, StageSpec};
 use crate::report::Truth;
@@ -57,6 +59,9 @@ pub struct EmulatedRigOptions {
     pub sensor: EmulatedSensor,
     /// Stage position of first contact, mm.
     pub contact_stage_mm: f64,
+    /// Left-out physics the simulated contact has (e.g. what `easycalib
+    /// diagnose --profile-out` found in a real recording); clean by default.
+    pub profile: SimProfile,
 }
 
 impl Default for EmulatedRigOptions {
@@ -68,6 +73,7 @@ impl Default for EmulatedRigOptions {
             seed: 1,
             sensor: EmulatedSensor::LinkPty,
             contact_stage_mm: CONTACT_STAGE_MM,
+            profile: SimProfile::default(),
         }
     }
 }
@@ -155,23 +161,28 @@ impl EmulatedRig {
             ..SensorSimConfig::default()
         };
         let bad = |e: sim::physics::ParamError| io::Error::new(io::ErrorKind::InvalidInput, e.to_string());
+        let invalid = |e: EffectError| io::Error::new(io::ErrorKind::InvalidInput, format!("sim profile: {e}"));
+        let sensor_model =
+            RigSensor::new(rig.clone(), cfg).map_err(bad)?.with_profile(&opts.profile).map_err(invalid)?;
+        // A profile's `material` replaces the elastomer: that is the truth now.
+        let effective = *sensor_model.pair();
         let (sensor, sensor_endpoint) = match opts.sensor {
             EmulatedSensor::LinkPty => {
                 let pty = PtyMaster::open()?;
                 let path = pty.slave_path().to_path_buf();
                 let backlog = SlaveBacklog::open(&path)?;
                 let sink = LinkPtySink { device: LinkDevice::new(pty), streaming: false, backlog };
-                (spawn_sensor_stream(rig.clone(), cfg, sink).map_err(bad)?, SensorEndpoint::Pty(path))
+                (spawn_rig_sensor(sensor_model, sink), SensorEndpoint::Pty(path))
             }
             EmulatedSensor::Tac3d { to } => {
                 let bind = SocketAddr::new(to.ip(), 0);
                 let sender = Tac3dSender::bind(bind, to, Tac3dSenderConfig::default())
                     .await
                     .map_err(|e| io::Error::other(e.to_string()))?;
-                (spawn_sensor_stream(rig.clone(), cfg, Tac3dSink(sender)).map_err(bad)?, SensorEndpoint::Udp(to))
+                (spawn_rig_sensor(sensor_model, Tac3dSink(sender)), SensorEndpoint::Udp(to))
             }
         };
-        let truth = Truth { e1_mpa: opts.pair.elastomer.e_mpa, nu1: opts.pair.elastomer.nu };
+        let truth = Truth { e1_mpa: effective.elastomer.e_mpa, nu1: effective.elastomer.nu };
         Ok(EmulatedRig { rig, stage, rotation, sensor, sensor_endpoint, truth, grbl: opts.grbl })
     }
 

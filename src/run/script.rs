@@ -29,15 +29,22 @@ elastomer_r_mm = 33.0
 # Approach: travel fast to start_mm (known to be clear of the sensor), estimate
 # the gamma1 noise from noise_readings untouched readings, then step in by
 # step_mm until gamma1 rises above contact_sigmas x noise (at least
-# contact_min_mm). The contact point is refined by a line through a few
-# in-contact readings; the normal sweep starts pre_contact_mm before it.
+# contact_min_mm). The contact point is then refined: the stage steps on (at
+# most refine_steps steps of step_mm) until gamma1 reaches
+# refine_to_gamma1_mm, and a line through the settled readings with gamma1 in
+# [refine_from_gamma1_mm, refine_to_gamma1_mm] is extrapolated to gamma1 = 0.
+# (A marker grid reads small contacts poorly, so the shallowest readings would
+# bias the contact point, and with it every gamma2 of the paper's method.)
+# The normal sweep starts pre_contact_mm before the contact.
 [approach]
 start_mm = 10.0
 step_mm = 0.05
 noise_readings = 20
 contact_sigmas = 6.0
 contact_min_mm = 0.005
-refine_steps = 3
+refine_steps = 20
+refine_from_gamma1_mm = 0.25
+refine_to_gamma1_mm = 0.5
 pre_contact_mm = 0.15
 
 # Normal sweep: step in by step_mm until the live depth
@@ -114,6 +121,8 @@ pub struct ApproachSection {
     pub contact_sigmas: f64,
     pub contact_min_mm: f64,
     pub refine_steps: usize,
+    pub refine_from_gamma1_mm: f64,
+    pub refine_to_gamma1_mm: f64,
     pub pre_contact_mm: f64,
 }
 
@@ -199,7 +208,9 @@ impl Default for ApproachSection {
             noise_readings: 20,
             contact_sigmas: 6.0,
             contact_min_mm: 0.005,
-            refine_steps: 3,
+            refine_steps: 20,
+            refine_from_gamma1_mm: 0.25,
+            refine_to_gamma1_mm: 0.5,
             pre_contact_mm: 0.15,
         }
     }
@@ -292,6 +303,18 @@ impl Script {
         positive("approach.contact_min_mm", a.contact_min_mm)?;
         if a.noise_readings < 3 {
             return Err(invalid("approach.noise_readings", format!("need at least 3, got {}", a.noise_readings)));
+        }
+        if !(a.refine_from_gamma1_mm.is_finite()
+            && a.refine_from_gamma1_mm >= 0.0
+            && a.refine_to_gamma1_mm > a.refine_from_gamma1_mm)
+        {
+            return Err(invalid(
+                "approach.refine_to_gamma1_mm",
+                format!(
+                    "the refinement window [{}, {}] mm must be non-empty and >= 0",
+                    a.refine_from_gamma1_mm, a.refine_to_gamma1_mm
+                ),
+            ));
         }
         if !(a.pre_contact_mm.is_finite() && a.pre_contact_mm >= 0.0) {
             return Err(invalid("approach.pre_contact_mm", format!("must be >= 0, got {}", a.pre_contact_mm)));

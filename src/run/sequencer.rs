@@ -565,17 +565,28 @@ where
             last_clear = pos;
             self.progress_fraction((pos - a.start_mm) / (self.guard.limits().stage_max_mm - a.start_mm));
         }
-        // Refine: settled readings at a few in-contact positions, line to gamma1 = 0.
+        // Refine: settled readings deeper in, where the grid resolves the
+        // contact, and a line through them back to gamma1 = 0.
         let mut pts = Vec::new();
         let first = self.settle().await?;
         pts.push((pos, first.gamma1_mm));
         for _ in 0..a.refine_steps {
+            if pts.last().is_some_and(|p| p.1 >= a.refine_to_gamma1_mm) {
+                break;
+            }
             let next = pos + a.step_mm;
+            if self.guard.check_stage(self.stage_mm, self.g1_bound, next).is_err() {
+                break;
+            }
             self.move_stage(next, "contact refinement").await?;
             pos = next;
             pts.push((pos, self.settle().await?.gamma1_mm));
         }
-        let contact = contact_from_line(&pts, threshold)
+        let window: Vec<(f64, f64)> =
+            pts.iter().copied().filter(|p| (a.refine_from_gamma1_mm..=a.refine_to_gamma1_mm).contains(&p.1)).collect();
+        let line = if window.len() >= 2 { contact_from_line(&window, threshold) } else { None };
+        let contact = line
+            .or_else(|| contact_from_line(&pts, threshold))
             .unwrap_or(0.5 * (last_clear + pts[0].0))
             .clamp(last_clear - a.step_mm, pts[0].0);
         self.contact_mm = Some(contact);
