@@ -282,7 +282,8 @@ fn ctrl_c_aborts_the_cli_run_backs_off_and_keeps_the_recording() {
     let stdout = BufReader::new(child.stdout.take().unwrap());
     let mut lines = stdout.lines();
     for line in lines.by_ref() {
-        if line.unwrap().contains("normal sweep 1/1  10%") {
+        let line = line.unwrap();
+        if line.contains("normal sweep 1/1") && line.contains("% elapsed") {
             break;
         }
     }
