@@ -231,6 +231,15 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         }
     }
     let out = res.ok_or_else(|| FitError::Model("no fit pass ran".into()))?;
+    // nu1 is mapped onto (0, 0.5); an optimum pressed against either end means
+    // the sweeps did not determine it, not that the elastomer is that odd.
+    if !(0.005..=0.4995).contains(&params.nu1) {
+        return Err(FitError::Model(format!(
+            "the fit ran to the edge of the physical range (nu1 = {:.4}): these sweeps do not determine nu1; \
+             check the contact point and the torsion sweep (easycalib diagnose)",
+            params.nu1
+        )));
+    }
 
     // Covariance in physical parameters: central-difference Jacobian at the optimum.
     let phys = [params.e1_mpa, params.nu1, params.contact_offset_mm];
@@ -246,11 +255,19 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         lo[j] -= steps[j];
         let (mut rp, mut rm) = (Vec::new(), Vec::new());
         let mk = |v: [f64; 3]| ModelParams { e1_mpa: v[0], nu1: v[1], contact_offset_mm: v[2] };
-        if !weighted_residuals(rec, &mk(hi), sg, st, &mut rp) || !weighted_residuals(rec, &mk(lo), sg, st, &mut rm) {
-            return Err(FitError::Model("the model cannot be evaluated next to the optimum".into()));
-        }
+        let up = weighted_residuals(rec, &mk(hi), sg, st, &mut rp);
+        let down = weighted_residuals(rec, &mk(lo), sg, st, &mut rm);
+        // Deep sweeps end close to the contact model's turning point, where a
+        // step to one side may leave the model's range: difference one-sided then.
         for i in 0..m {
-            jac[(i, j)] = (rp[i] - rm[i]) / (2.0 * steps[j]);
+            jac[(i, j)] = match (up, down) {
+                (true, true) => (rp[i] - rm[i]) / (2.0 * steps[j]),
+                (true, false) => (rp[i] - r0[i]) / steps[j],
+                (false, true) => (r0[i] - rm[i]) / steps[j],
+                (false, false) => {
+                    return Err(FitError::Model("the model cannot be evaluated next to the optimum".into()));
+                }
+            };
         }
     }
     // Dead-band rows carry no noise: count only noisy readings as observations.
