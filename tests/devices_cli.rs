@@ -9,8 +9,7 @@ use std::process::Output;
 use std::time::Duration;
 
 use sim::clock::VirtualClock;
-use sim::emulator::axis::AxisConfig;
-use sim::emulator::grbl::{GrblEmulatorConfig, serve_grbl_stage};
+use sim::emulator::grbl::{GrblEmulatorConfig, free_rotation_axis, serve_grbl_stage, stepper_stage_axis};
 use sim::emulator::rig::Rig;
 
 const BIN: &str = env!("CARGO_BIN_EXE_easycalib");
@@ -48,27 +47,7 @@ async fn run(root: &Path, extra: &[&str]) -> Output {
 }
 
 fn rig() -> Rig {
-    let stage = AxisConfig {
-        max_velocity: 2.0,
-        acceleration: 4.0,
-        min_position: 0.0,
-        max_position: 25.0,
-        resolution: 1.0 / 6400.0,
-        backlash: 0.0,
-        home_velocity: 2.0,
-        power_on_position: 3.0,
-    };
-    let rot = AxisConfig {
-        max_velocity: 10.0,
-        acceleration: 20.0,
-        min_position: -1e6,
-        max_position: 1e6,
-        resolution: 1e-4,
-        backlash: 0.0,
-        home_velocity: 5.0,
-        power_on_position: 0.0,
-    };
-    Rig::new(VirtualClock::new(50.0), stage, rot)
+    Rig::new(VirtualClock::new(50.0), stepper_stage_axis(25.0), free_rotation_axis())
 }
 
 #[tokio::test]

@@ -9,8 +9,7 @@ use std::time::Duration;
 use devices::grbl::{AlarmCode, GrblConfig, GrblError, GrblStage, MachineState};
 use devices::{DeviceFault, FaultKind, Identify, LinearStage};
 use sim::clock::VirtualClock;
-use sim::emulator::axis::AxisConfig;
-use sim::emulator::grbl::{GrblEmulatorConfig, GrblPort, serve_grbl_stage};
+use sim::emulator::grbl::{GrblEmulatorConfig, GrblPort, free_rotation_axis, serve_grbl_stage, stepper_stage_axis};
 use sim::emulator::rig::Rig;
 use tokio_serial::SerialStream;
 
@@ -18,27 +17,7 @@ const SPEEDUP: f64 = 50.0;
 const LONG: Duration = Duration::from_secs(10);
 
 fn rig(speedup: f64) -> Rig {
-    let stage = AxisConfig {
-        max_velocity: 2.0,
-        acceleration: 4.0,
-        min_position: 0.0,
-        max_position: 25.0,
-        resolution: 1.0 / 6400.0,
-        backlash: 0.0,
-        home_velocity: 2.0,
-        power_on_position: 3.0,
-    };
-    let rot = AxisConfig {
-        max_velocity: 10.0,
-        acceleration: 20.0,
-        min_position: -1e6,
-        max_position: 1e6,
-        resolution: 1e-4,
-        backlash: 0.0,
-        home_velocity: 5.0,
-        power_on_position: 0.0,
-    };
-    Rig::new(VirtualClock::new(speedup), stage, rot)
+    Rig::new(VirtualClock::new(speedup), stepper_stage_axis(25.0), free_rotation_axis())
 }
 
 fn driver_cfg() -> GrblConfig {

@@ -17,8 +17,7 @@ use devices::sensor::tac3d::{Tac3dSender, Tac3dSenderConfig};
 use sim::clock::VirtualClock;
 use sim::effects::{EffectError, SimProfile};
 use sim::emulator::apt::{EmulatorHandle, InjectedError, k10cr1_axis, spawn_apt_rotation, spawn_apt_stage, z8_axis};
-use sim::emulator::axis::AxisConfig;
-use sim::emulator::grbl::{GrblEmulatorConfig, GrblPort, serve_grbl_stage};
+use sim::emulator::grbl::{GrblEmulatorConfig, GrblPort, serve_grbl_stage, stepper_stage_axis};
 use sim::emulator::pty::PtyMaster;
 use sim::emulator::rig::{Rig, RigPose};
 use sim::physics::ContactPair;
@@ -122,19 +121,6 @@ pub struct EmulatedRig {
 }
 
 /// The GRBL build's stage: a 1/6400 mm stepper micrometer, 2 mm/s.
-fn grbl_axis() -> AxisConfig {
-    AxisConfig {
-        max_velocity: 2.0,
-        acceleration: 4.0,
-        min_position: 0.0,
-        max_position: STAGE_TRAVEL_MM,
-        resolution: 1.0 / 6400.0,
-        backlash: 0.0,
-        home_velocity: 2.0,
-        power_on_position: 3.0,
-    }
-}
-
 impl EmulatedRig {
     /// Start the emulators. Needs a tokio runtime.
     pub async fn start(opts: EmulatedRigOptions) -> io::Result<EmulatedRig> {
@@ -146,7 +132,7 @@ impl EmulatedRig {
         }
         opts.pair.validate().map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e.to_string()))?;
         let clock = VirtualClock::new(opts.speedup);
-        let stage_axis = if opts.grbl { grbl_axis() } else { z8_axis(STAGE_TRAVEL_MM) };
+        let stage_axis = if opts.grbl { stepper_stage_axis(STAGE_TRAVEL_MM) } else { z8_axis(STAGE_TRAVEL_MM) };
         let rig = Rig::new(clock, stage_axis, k10cr1_axis());
         let stage = if opts.grbl {
             StageEmulator::Grbl(serve_grbl_stage(rig.clone(), GrblEmulatorConfig::default()).await?)

@@ -26,8 +26,38 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
+use super::axis::AxisConfig;
 use super::pty::PtyMaster;
 use super::rig::Rig;
+
+/// Axis preset for a low-cost stepper micrometer on a GRBL board: a lead
+/// screw at 6400 microsteps per mm, 2 mm/s, 4 mm/s², powered up 3 mm from home.
+pub fn stepper_stage_axis(travel_mm: f64) -> AxisConfig {
+    AxisConfig {
+        max_velocity: 2.0,
+        acceleration: 4.0,
+        min_position: 0.0,
+        max_position: travel_mm,
+        resolution: 1.0 / 6400.0,
+        backlash: 0.0,
+        home_velocity: 2.0,
+        power_on_position: 3.0,
+    }
+}
+
+/// A rotation axis with no stops, for rigs whose controller drives the stage only.
+pub fn free_rotation_axis() -> AxisConfig {
+    AxisConfig {
+        max_velocity: 10.0,
+        acceleration: 20.0,
+        min_position: -1e6,
+        max_position: 1e6,
+        resolution: 1e-4,
+        backlash: 0.0,
+        home_velocity: 5.0,
+        power_on_position: 0.0,
+    }
+}
 
 /// Emulated controller settings.
 #[derive(Debug, Clone, PartialEq)]
@@ -969,31 +999,10 @@ impl Emulator {
 mod tests {
     use super::*;
     use crate::clock::VirtualClock;
-    use crate::emulator::axis::AxisConfig;
     use tokio::io::{AsyncBufReadExt, BufReader, DuplexStream, ReadHalf, WriteHalf};
 
     fn rig(speedup: f64) -> Rig {
-        let stage = AxisConfig {
-            max_velocity: 2.0,
-            acceleration: 4.0,
-            min_position: 0.0,
-            max_position: 25.0,
-            resolution: 1.0 / 6400.0,
-            backlash: 0.0,
-            home_velocity: 2.0,
-            power_on_position: 3.0,
-        };
-        let rot = AxisConfig {
-            max_velocity: 10.0,
-            acceleration: 20.0,
-            min_position: -1e6,
-            max_position: 1e6,
-            resolution: 1e-4,
-            backlash: 0.0,
-            home_velocity: 5.0,
-            power_on_position: 0.0,
-        };
-        Rig::new(VirtualClock::new(speedup), stage, rot)
+        Rig::new(VirtualClock::new(speedup), stepper_stage_axis(25.0), free_rotation_axis())
     }
 
     struct Host {
