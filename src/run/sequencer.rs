@@ -247,6 +247,28 @@ async fn next_control(ctl: &mut Option<UnboundedReceiver<RunControl>>) -> RunCon
     }
 }
 
+/// Wait for a move to end while still taking the operator's controls: abort
+/// or quit interrupts the wait (the caller stops the device); pause and
+/// resume are noted for the next safe point.
+async fn until_done_or_stopped<T>(
+    done: impl std::future::Future<Output = T>,
+    controls: &mut Option<UnboundedReceiver<RunControl>>,
+    pause_requested: &mut bool,
+) -> Result<T, RunControl> {
+    tokio::pin!(done);
+    loop {
+        tokio::select! {
+            biased;
+            r = &mut done => return Ok(r),
+            c = next_control(controls) => match c {
+                RunControl::Abort | RunControl::Quit => return Err(c),
+                RunControl::Pause => *pause_requested = true,
+                RunControl::Resume => *pause_requested = false,
+            },
+        }
+    }
+}
+
 fn mean(xs: &[GaugeReading]) -> GaugeReading {
     let n = xs.len().max(1) as f64;
     let mut m = GaugeReading {
@@ -729,21 +751,12 @@ where
             .map_err(|e| self.stage_fault(&format!("{context}: move to {target:.4} mm"), e))?;
         self.stage_mm = target;
         let timeout = self.script.move_timeout();
-        let res = {
-            let fut = self.stage.wait_until_stopped(timeout);
-            tokio::pin!(fut);
-            loop {
-                tokio::select! {
-                    biased;
-                    r = &mut fut => break Ok(r),
-                    c = next_control(&mut self.controls) => match c {
-                        RunControl::Abort | RunControl::Quit => break Err(c),
-                        RunControl::Pause => self.pause_requested = true,
-                        RunControl::Resume => self.pause_requested = false,
-                    },
-                }
-            }
-        };
+        let res = until_done_or_stopped(
+            self.stage.wait_until_stopped(timeout),
+            &mut self.controls,
+            &mut self.pause_requested,
+        )
+        .await;
         match res {
             Ok(Ok(p)) => {
                 self.stage_mm = p;
@@ -766,21 +779,12 @@ where
             .map_err(|e| self.mount_fault(&format!("{context}: move to {target:.3} deg"), e))?;
         self.mount_deg = target;
         let timeout = self.script.move_timeout();
-        let res = {
-            let fut = self.mount.wait_until_stopped(timeout);
-            tokio::pin!(fut);
-            loop {
-                tokio::select! {
-                    biased;
-                    r = &mut fut => break Ok(r),
-                    c = next_control(&mut self.controls) => match c {
-                        RunControl::Abort | RunControl::Quit => break Err(c),
-                        RunControl::Pause => self.pause_requested = true,
-                        RunControl::Resume => self.pause_requested = false,
-                    },
-                }
-            }
-        };
+        let res = until_done_or_stopped(
+            self.mount.wait_until_stopped(timeout),
+            &mut self.controls,
+            &mut self.pause_requested,
+        )
+        .await;
         match res {
             Ok(Ok(p)) => {
                 self.mount_deg = p;
