@@ -17,7 +17,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::effects::{Command, EffectError, SimProfile, TrueRig};
-use crate::physics::{Body, ContactPair, NormalError, NormalModel, ParamError, torsion_at};
+use crate::physics::{ContactPair, NormalError, NormalModel, ParamError, torsion_at};
 use crate::recording::{Direction, Metadata, Phase, Recording, Sample};
 use crate::rng::Rng;
 
@@ -65,10 +65,10 @@ pub struct NoiseSpec {
 impl Default for NoiseSpec {
     fn default() -> Self {
         Self {
-            gamma1_sigma_mm: 0.002,
-            theta1_sigma_deg: 0.02,
-            stage_resolution_mm: 0.001,
-            rotation_resolution_deg: 0.01,
+            gamma1_sigma_mm: crate::defaults::GAMMA1_SIGMA_MM,
+            theta1_sigma_deg: crate::defaults::THETA1_SIGMA_DEG,
+            stage_resolution_mm: crate::defaults::STAGE_RESOLUTION_MM,
+            rotation_resolution_deg: crate::defaults::ROTATION_RESOLUTION_DEG,
         }
     }
 }
@@ -91,7 +91,7 @@ impl Default for GeneratorConfig {
     /// A Tac3D-like elastomer (domed, R1 ~ 33 mm) against the paper's PDMS indenter.
     fn default() -> Self {
         Self {
-            pair: ContactPair { elastomer: Body::new(0.33, 0.39, 33.0), indenter: Body::new(1.1, 0.39, 5.0) },
+            pair: crate::defaults::pair(),
             plan: SweepPlan::default(),
             noise: NoiseSpec::default(),
             seed: 1,
@@ -257,6 +257,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
             sensor: Some(cfg.sensor.clone()),
             indenter: pair.indenter,
             elastomer_r_mm: pair.elastomer.r_mm,
+            layer: None,
             created: None,
             extra,
         },

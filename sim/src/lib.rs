@@ -3,6 +3,7 @@
 //! synthetic recording generator, and emulators of the rig's hardware.
 
 pub mod clock;
+pub mod defaults;
 pub mod effects;
 pub mod emulator;
 pub mod generator;

@@ -10,7 +10,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::physics::Body;
+use crate::physics::{Body, Layer, LayerBase};
 
 pub const FORMAT_VERSION: u32 = 1;
 
@@ -67,6 +67,9 @@ pub struct Metadata {
     pub indenter: Body,
     /// Effective radius R1 of the elastomer, mm (`inf` = flat).
     pub elastomer_r_mm: f64,
+    /// The elastomer layer as declared (`elastomer_thickness_mm`, `elastomer_base`,
+    /// `elastomer_thickness_tol_mm`); `None` is a half-space.
+    pub layer: Option<Layer>,
     pub created: Option<String>,
     /// Keys this version does not know, kept in order.
     pub extra: Vec<(String, String)>,
@@ -137,6 +140,9 @@ impl Recording {
         let mut r1 = f64::INFINITY;
         let mut r1_line = 0;
         let mut sensor = None;
+        let mut thickness: Option<(usize, f64)> = None;
+        let mut base: Option<(usize, LayerBase)> = None;
+        let mut thickness_tol: Option<(usize, f64)> = None;
         let mut created = None;
         let mut extra = Vec::new();
         let mut seen: Vec<String> = Vec::new();
@@ -170,6 +176,14 @@ impl Recording {
                 "elastomer_R_mm" => {
                     r1 = parse_meta_number(n, key, value)?;
                     r1_line = n;
+                }
+                "elastomer_thickness_mm" => thickness = Some((n, parse_meta_number(n, key, value)?)),
+                "elastomer_thickness_tol_mm" => thickness_tol = Some((n, parse_meta_number(n, key, value)?)),
+                "elastomer_base" => {
+                    let b = LayerBase::parse(value).ok_or_else(|| {
+                        err(n, format!("elastomer_base must be `bonded` or `sliding`, got `{value}`"))
+                    })?;
+                    base = Some((n, b));
                 }
                 "sensor" => sensor = Some(value.to_string()),
                 "created" => created = Some(value.to_string()),
@@ -209,6 +223,7 @@ impl Recording {
         if r1 <= 0.0 {
             return Err(err(r1_line, format!("elastomer_R_mm must be > 0 (or inf), got {r1}")));
         }
+        let layer = layer_from_meta(thickness, base, thickness_tol)?;
 
         let Some((hline, header)) = header else {
             return Err(err(last_line.max(1), "missing the column header row after the metadata"));
@@ -304,7 +319,7 @@ impl Recording {
             return Err(err(hline, "the recording has a header but no samples"));
         }
         Ok(Recording {
-            meta: Metadata { sensor, indenter: Body::new(e2, nu2, r2), elastomer_r_mm: r1, created, extra },
+            meta: Metadata { sensor, indenter: Body::new(e2, nu2, r2), elastomer_r_mm: r1, layer, created, extra },
             samples,
         })
     }
@@ -330,6 +345,38 @@ impl Recording {
     }
 }
 
+/// The declared layer from its three keys: a base or a tolerance without a
+/// thickness is an error (it would silently describe a half-space).
+fn layer_from_meta(
+    thickness: Option<(usize, f64)>,
+    base: Option<(usize, LayerBase)>,
+    tol: Option<(usize, f64)>,
+) -> Result<Option<Layer>, RecordingError> {
+    let Some((h_line, h)) = thickness else {
+        if let Some((n, _)) = base {
+            return Err(err(n, "elastomer_base is given without elastomer_thickness_mm"));
+        }
+        if let Some((n, _)) = tol {
+            return Err(err(n, "elastomer_thickness_tol_mm is given without elastomer_thickness_mm"));
+        }
+        return Ok(None);
+    };
+    if !(h.is_finite() && h > 0.0) {
+        return Err(err(h_line, format!("elastomer_thickness_mm must be a finite thickness > 0, got {h}")));
+    }
+    let layer = Layer {
+        thickness_mm: h,
+        base: base.map_or(LayerBase::Bonded, |(_, b)| b),
+        thickness_tol_mm: tol.map(|(_, t)| t),
+    };
+    if let Some((n, t)) = tol
+        && layer.validate().is_err()
+    {
+        return Err(err(n, format!("elastomer_thickness_tol_mm must be >= 0 and below the thickness, got {t}")));
+    }
+    Ok(Some(layer))
+}
+
 fn fmt_radius(r: f64) -> String {
     if r.is_infinite() { "inf".to_string() } else { format!("{r}") }
 }
@@ -350,6 +397,13 @@ impl<W: Write> RecordingWriter<W> {
         writeln!(out, "# indenter_nu: {}", meta.indenter.nu)?;
         writeln!(out, "# indenter_R_mm: {}", fmt_radius(meta.indenter.r_mm))?;
         writeln!(out, "# elastomer_R_mm: {}", fmt_radius(meta.elastomer_r_mm))?;
+        if let Some(l) = &meta.layer {
+            writeln!(out, "# elastomer_thickness_mm: {}", l.thickness_mm)?;
+            writeln!(out, "# elastomer_base: {}", l.base.as_str())?;
+            if let Some(t) = l.thickness_tol_mm {
+                writeln!(out, "# elastomer_thickness_tol_mm: {t}")?;
+            }
+        }
         if let Some(c) = &meta.created {
             writeln!(out, "# created: {c}")?;
         }
@@ -404,6 +458,40 @@ mod tests {
     use super::*;
 
     const GOOD: &str = "# easycalib-recording: 1\n# sensor: tac3d-SN0042\n# indenter_E_MPa: 2.0\n# indenter_nu: 0.40\n# indenter_R_mm: 5.0\n# elastomer_R_mm: inf\n# created: 2026-11-22T09:30:00Z\n# lab_note: kept\nt_s,phase,stage_mm,rot_deg,gamma1_mm,theta1_deg\n0.00,normal,0.000,0.000,0.0000,0.0000\n0.80,normal,0.050,0.000,0.0171,0.0000\n31.20,torsion,1.450,0.500,1.0,0.1602\n";
+
+    #[test]
+    fn reads_and_writes_the_declared_layer() {
+        let with = |extra: &str| GOOD.replace("# created:", &format!("{extra}# created:"));
+        let r = Recording::parse(&with("# elastomer_thickness_mm: 5.0\n# elastomer_base: bonded\n")).unwrap();
+        assert_eq!(r.meta.layer, Some(Layer::bonded(5.0)));
+        let r = Recording::parse(&with(
+            "# elastomer_thickness_mm: 3\n# elastomer_base: sliding\n# elastomer_thickness_tol_mm: 0.1\n",
+        ))
+        .unwrap();
+        let l = r.meta.layer.unwrap();
+        assert_eq!((l.thickness_mm, l.base, l.thickness_tol_mm), (3.0, LayerBase::Sliding, Some(0.1)));
+        // Round trip through the writer keeps the layer.
+        assert_eq!(Recording::parse(&r.to_csv_string()).unwrap().meta.layer, Some(l));
+        // A thickness alone is a bonded layer; none at all is a half-space.
+        assert_eq!(
+            Recording::parse(&with("# elastomer_thickness_mm: 4\n")).unwrap().meta.layer,
+            Some(Layer::bonded(4.0))
+        );
+        assert_eq!(Recording::parse(GOOD).unwrap().meta.layer, None);
+        for (bad, line, what) in [
+            ("# elastomer_thickness_mm: 0\n", 7, "thickness"),
+            ("# elastomer_thickness_mm: -2\n", 7, "thickness"),
+            ("# elastomer_thickness_mm: inf\n", 7, "thickness"),
+            ("# elastomer_thickness_mm: 5\n# elastomer_base: glued\n", 8, "bonded"),
+            ("# elastomer_base: bonded\n", 7, "without"),
+            ("# elastomer_thickness_tol_mm: 0.1\n", 7, "without"),
+            ("# elastomer_thickness_mm: 5\n# elastomer_thickness_tol_mm: 6\n", 8, "below the thickness"),
+        ] {
+            let e = Recording::parse(&with(bad)).unwrap_err();
+            assert_eq!(e.line, line, "{bad}: {e}");
+            assert!(e.message.contains(what), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn reads_the_documented_example() {

@@ -88,22 +88,22 @@ pub struct FitArgs {
 #[derive(Debug, Clone, Args)]
 pub struct ElastomerArgs {
     /// True Young's modulus of the simulated elastomer, MPa.
-    #[arg(long, default_value_t = 0.33)]
+    #[arg(long, default_value_t = ::sim::defaults::ELASTOMER_E_MPA)]
     pub e1_mpa: f64,
     /// True Poisson's ratio of the simulated elastomer.
-    #[arg(long, default_value_t = 0.39)]
+    #[arg(long, default_value_t = ::sim::defaults::ELASTOMER_NU)]
     pub nu1: f64,
     /// Effective radius of the elastomer's dome, mm (`inf` for flat).
-    #[arg(long, default_value_t = 33.0)]
+    #[arg(long, default_value_t = ::sim::defaults::ELASTOMER_R_MM)]
     pub r1_mm: f64,
     /// Young's modulus of the calibration indenter, MPa.
-    #[arg(long, default_value_t = 1.1)]
+    #[arg(long, default_value_t = ::sim::defaults::INDENTER_E_MPA)]
     pub indenter_e_mpa: f64,
     /// Poisson's ratio of the calibration indenter.
-    #[arg(long, default_value_t = 0.39)]
+    #[arg(long, default_value_t = ::sim::defaults::INDENTER_NU)]
     pub indenter_nu: f64,
     /// Radius of the hemispherical indenter, mm.
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = ::sim::defaults::INDENTER_R_MM)]
     pub indenter_r_mm: f64,
     /// Seed of the simulated measurement noise.
     #[arg(long, default_value_t = 1)]

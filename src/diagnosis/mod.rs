@@ -413,7 +413,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     // Starts: the full-model fit, else the paper's answer, else generic guesses
     // (a recording far from the paper's physics can defeat both fits).
     let mut starts = Vec::new();
-    let (mut sg0, mut st0) = (sg_given.unwrap_or(0.002), 0.02);
+    let (mut sg0, mut st0) = (sg_given.unwrap_or(sim::defaults::GAMMA1_SIGMA_MM), sim::defaults::THETA1_SIGMA_DEG);
     let pos = |v: f64, d: f64| if v.is_finite() && v > 0.0 { v } else { d };
     match calibrate(rec, &fit_opts) {
         Ok(c) => {

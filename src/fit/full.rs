@@ -204,8 +204,8 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
     if !(start.nu1 > 0.01 && start.nu1 < 0.49) {
         start.nu1 = 0.4;
     }
-    let mut sg = opts.gamma1_sigma_mm.unwrap_or(0.002);
-    let mut st = opts.theta1_sigma_deg.unwrap_or(0.02);
+    let mut sg = opts.gamma1_sigma_mm.unwrap_or(sim::defaults::GAMMA1_SIGMA_MM);
+    let mut st = opts.theta1_sigma_deg.unwrap_or(sim::defaults::THETA1_SIGMA_DEG);
     let mut params = start;
     let mut res = None;
     // Pass 1 with nominal noise, pass 2 re-weighted by the noise floor the data show.

@@ -243,7 +243,7 @@ impl Default for TimeoutsSection {
 impl Default for Script {
     fn default() -> Self {
         Self {
-            indenter: Body::new(1.1, 0.39, 5.0),
+            indenter: sim::defaults::indenter(),
             sensor: SensorSection::default(),
             approach: ApproachSection::default(),
             normal: NormalSection::default(),

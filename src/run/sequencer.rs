@@ -518,6 +518,7 @@ where
             sensor: Some(sanitize(self.script.sensor.name.as_deref().unwrap_or(&self.gauge.describe()))),
             indenter: self.script.indenter,
             elastomer_r_mm: self.script.sensor.elastomer_r_mm,
+            layer: None,
             created: Some(rfc3339(SystemTime::now())),
             extra,
         };

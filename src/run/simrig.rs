@@ -14,7 +14,7 @@ use std::time::Duration;
 
 use async_trait::async_trait;
 use devices::motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount};
-use sim::physics::{Body, ContactPair, NormalModel, torsion_at};
+use sim::physics::{ContactPair, NormalModel, torsion_at};
 use sim::rng::Rng;
 
 use super::events::SensorStatus;
@@ -77,7 +77,7 @@ impl Default for SimRigConfig {
     /// The simulator's default elastomer (E1 0.33 MPa, nu1 0.39, R1 33 mm) against the default script's indenter.
     fn default() -> Self {
         Self {
-            pair: ContactPair { elastomer: Body::new(0.33, 0.39, 33.0), indenter: Body::new(1.1, 0.39, 5.0) },
+            pair: sim::defaults::pair(),
             surface_mm: 12.0,
             stage_travel_mm: (0.0, 25.0),
             mount_travel_deg: (-170.0, 170.0),
@@ -87,8 +87,8 @@ impl Default for SimRigConfig {
             move_overhead_s: 0.05,
             frame_rate_hz: 30.0,
             lag_s: 0.05,
-            gamma1_sigma_mm: 0.002,
-            theta1_sigma_deg: 0.02,
+            gamma1_sigma_mm: sim::defaults::GAMMA1_SIGMA_MM,
+            theta1_sigma_deg: sim::defaults::THETA1_SIGMA_DEG,
             seed: 1,
             zero_out_of_contact: false,
             faults: SimFaults::default(),

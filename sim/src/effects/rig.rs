@@ -488,7 +488,7 @@ mod tests {
     use crate::physics::torsion_at;
 
     fn pair() -> ContactPair {
-        ContactPair { elastomer: Body::new(0.33, 0.39, 33.0), indenter: Body::new(1.1, 0.39, 5.0) }
+        crate::defaults::pair()
     }
 
     fn sweep() -> Vec<Command> {

@@ -3,10 +3,10 @@
 //! and the physics numbers the note gives.
 
 use super::*;
-use crate::physics::{Body, ContactPair, NormalModel, torsion_at};
+use crate::physics::{ContactPair, NormalModel, torsion_at};
 
 fn pair() -> ContactPair {
-    ContactPair { elastomer: Body::new(0.33, 0.39, 33.0), indenter: Body::new(1.1, 0.39, 5.0) }
+    crate::defaults::pair()
 }
 
 /// Load 0 -> 3 mm in 0.05 mm steps, 1 s per step, and back.

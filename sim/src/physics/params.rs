@@ -19,6 +19,10 @@ pub enum ParamError {
     Poisson { what: &'static str, value: f64 },
     #[error("{what}: radius must be > 0 mm (inf for flat), got {value}")]
     Radius { what: &'static str, value: f64 },
+    #[error("elastomer layer: thickness must be finite and > 0 mm, got {value}")]
+    Thickness { value: f64 },
+    #[error("elastomer layer: thickness tolerance must be >= 0 and below the thickness {thickness_mm} mm, got {value}")]
+    ThicknessTolerance { value: f64, thickness_mm: f64 },
 }
 
 impl Body {
@@ -57,6 +61,64 @@ impl Body {
         } else {
             (1.0 + self.nu) * (3.0 - 2.0 * self.nu) / (4.0 * std::f64::consts::PI * self.e_mpa * self.r_mm)
         }
+    }
+}
+
+/// How the elastomer layer sits on the sensor's rigid window (docs/physics.md, layer).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LayerBase {
+    /// Glued to the window: no displacement at the base (the usual gel).
+    Bonded,
+    /// Resting on the window: no normal displacement, no shear traction at the base.
+    Sliding,
+}
+
+impl LayerBase {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            LayerBase::Bonded => "bonded",
+            LayerBase::Sliding => "sliding",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<LayerBase> {
+        match s.trim() {
+            "bonded" => Some(LayerBase::Bonded),
+            "sliding" => Some(LayerBase::Sliding),
+            _ => None,
+        }
+    }
+}
+
+/// The elastomer as a layer of finite thickness on a rigid base, as the
+/// sensor's datasheet declares it. Absent, the elastomer is a half-space.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Layer {
+    /// Thickness h of the gel, mm.
+    pub thickness_mm: f64,
+    pub base: LayerBase,
+    /// One standard deviation of the declared thickness, mm, when the datasheet gives one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thickness_tol_mm: Option<f64>,
+}
+
+impl Layer {
+    pub fn bonded(thickness_mm: f64) -> Self {
+        Self { thickness_mm, base: LayerBase::Bonded, thickness_tol_mm: None }
+    }
+
+    /// Reject a thickness or tolerance no real gel has.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        if !(self.thickness_mm.is_finite() && self.thickness_mm > 0.0) {
+            return Err(ParamError::Thickness { value: self.thickness_mm });
+        }
+        if let Some(t) = self.thickness_tol_mm
+            && !(t.is_finite() && t >= 0.0 && t < self.thickness_mm)
+        {
+            return Err(ParamError::ThicknessTolerance { value: t, thickness_mm: self.thickness_mm });
+        }
+        Ok(())
     }
 }
 
