@@ -3,7 +3,8 @@
 //! of a coarser ~200-sample one (the target: <= 100 ms median for 200
 //! samples): a clean recording and one with stage backlash each (the
 //! commanded history of the generator's run, re-read through the true-rig
-//! model with the effect, plus seeded noise).
+//! model with the effect, plus seeded noise). The default recording is also
+//! diagnosed with the serial path, to show what the second core buys.
 
 use std::hint::black_box;
 
@@ -47,6 +48,12 @@ fn bench(c: &mut Criterion) {
         g.bench_function(format!("clean_{n}"), |b| b.iter(|| diagnose(black_box(clean), &opts)));
         g.bench_function(format!("stage_backlash_{n}"), |b| b.iter(|| diagnose(black_box(backlash), &opts)));
     }
+    // The same diagnosis with the candidates fitted one after the other.
+    let serial = DiagnoseOptions { parallel: false, ..Default::default() };
+    let (clean, backlash) = &default;
+    let n = clean.samples.len();
+    g.bench_function(format!("clean_{n}_serial"), |b| b.iter(|| diagnose(black_box(clean), &serial)));
+    g.bench_function(format!("stage_backlash_{n}_serial"), |b| b.iter(|| diagnose(black_box(backlash), &serial)));
     g.finish();
 }
 

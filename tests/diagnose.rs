@@ -346,3 +346,20 @@ fn thin_layers_are_corrected() {
         assert!(covers(ci, h), "h {hf} {ci:?} vs {h}");
     }
 }
+
+/// The candidates fitted on all cores give exactly the serial diagnosis: the
+/// same effects, the same numbers to the last bit, the same prose.
+#[test]
+fn parallel_diagnosis_equals_serial() {
+    let backlash = SimProfile {
+        stage_backlash: Some(stage_backlash::Params { b_mm: 0.008, engaged: true }),
+        ..Default::default()
+    };
+    for (profile, seed) in [(SimProfile::default(), 3), (backlash, 4)] {
+        let rec = record(&profile, seed);
+        let serial = diagnose(&rec, &DiagnoseOptions { parallel: false, ..Default::default() }).unwrap();
+        let parallel = diagnose(&rec, &DiagnoseOptions { parallel: true, ..Default::default() }).unwrap();
+        assert_eq!(serial, parallel, "seed {seed}: the parallel diagnosis differs from the serial one");
+        assert!(!serial.candidates.is_empty(), "seed {seed}: no candidate was tried");
+    }
+}

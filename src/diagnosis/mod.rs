@@ -41,11 +41,15 @@ pub struct DiagnoseOptions {
     pub max_iterations: usize,
     /// Try pairs of effects when the best single one leaves structure.
     pub pairs: bool,
+    /// Fit the candidate effects on all cores (rayon). The result is the same
+    /// as the serial path's: candidates are fitted independently and ranked
+    /// in their fixed order afterwards.
+    pub parallel: bool,
 }
 
 impl Default for DiagnoseOptions {
     fn default() -> Self {
-        Self { noise_um: None, max_iterations: 20, pairs: true }
+        Self { noise_um: None, max_iterations: 20, pairs: true, parallel: true }
     }
 }
 
@@ -376,6 +380,27 @@ fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fitted> {
 const POLISH_ITERATIONS: usize = 200;
 const POLISH_TOLERANCE: f64 = 1e-10;
 
+/// Each candidate added to `from` and fitted, with its score against `from`,
+/// in the order of `cands` (candidates that cannot be fitted are left out).
+/// The fits are independent, so the parallel path returns exactly what the
+/// serial one does.
+fn try_each(model: &Model, from: &Fitted, cands: &[Candidate], parallel: bool) -> Vec<(Fitted, CandidateScore)> {
+    let one = |&c: &Candidate| {
+        let mut f = extend(model, from, c)?;
+        if score(model, &f, from).significant {
+            model.finish(&mut f);
+        }
+        let s = score(model, &f, from);
+        Some((f, s))
+    };
+    if parallel {
+        use rayon::prelude::*;
+        cands.par_iter().filter_map(one).collect()
+    } else {
+        cands.iter().filter_map(one).collect()
+    }
+}
+
 fn score(model: &Model, fit: &Fitted, reference: &Fitted) -> CandidateScore {
     let k = fit.n_params() - reference.n_params();
     let n = model.n_obs() as f64;
@@ -459,12 +484,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     let mut scores = Vec::new();
     let mut best: Option<(Fitted, f64)> = None;
     let mut singles: Vec<(Fitted, f64)> = Vec::new();
-    for c in Candidate::FITTED {
-        let Some(mut f) = extend(&model, &baseline, c) else { continue };
-        if score(&model, &f, &baseline).significant {
-            model.finish(&mut f);
-        }
-        let s = score(&model, &f, &baseline);
+    for (f, s) in try_each(&model, &baseline, &Candidate::FITTED, opts.parallel) {
         if s.significant && best.as_ref().is_none_or(|(_, b)| s.delta_bic < *b) {
             best = Some((f.clone(), s.delta_bic));
         }
@@ -503,15 +523,8 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         let after = locate::locate(rec, &single.readings, &segs, floor_g, floor_t);
         if after.iter().any(|r| r.systematic) {
             let mut best_pair: Option<(Fitted, f64)> = None;
-            for c in Candidate::FITTED {
-                if single.cands.contains(&c) {
-                    continue;
-                }
-                let Some(mut f) = extend(&model, &single, c) else { continue };
-                if score(&model, &f, &single).significant {
-                    model.finish(&mut f);
-                }
-                let s = score(&model, &f, &single);
+            let others: Vec<Candidate> = Candidate::FITTED.into_iter().filter(|c| !single.cands.contains(c)).collect();
+            for (f, s) in try_each(&model, &single, &others, opts.parallel) {
                 if s.significant && best_pair.as_ref().is_none_or(|(_, b)| s.delta_bic < *b) {
                     best_pair = Some((f, s.delta_bic));
                 }
