@@ -4,6 +4,7 @@
 //! error naming the line (and column); nothing is silently dropped. The writer
 //! flushes every row, so a run killed mid-way leaves a readable file.
 
+use std::collections::HashSet;
 use std::fmt;
 use std::io::{self, Write};
 use std::path::Path;
@@ -13,6 +14,17 @@ use serde::Serialize;
 use crate::physics::{Body, Layer, LayerBase};
 
 pub const FORMAT_VERSION: u32 = 1;
+
+/// Limits of the reader (docs/recording-format.md, "Limits"): a calibration has a
+/// few hundred samples and a dozen metadata lines; these bound the work and memory
+/// any file can cause, with room for long logged runs.
+pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
+pub const MAX_LINE_BYTES: usize = 4096;
+pub const MAX_METADATA_LINES: usize = 1000;
+pub const MAX_SAMPLES: usize = 200_000;
+/// Plausible indenter: from the softest gel to steel (MPa), radius (mm).
+pub const INDENTER_E_RANGE_MPA: [f64; 2] = [1e-3, 1e6];
+pub const INDENTER_R_RANGE_MM: [f64; 2] = [0.05, 1000.0];
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -122,6 +134,14 @@ fn parse_meta_number(line: usize, key: &str, value: &str) -> Result<f64, Recordi
 
 impl Recording {
     pub fn read_path(path: &Path) -> Result<Recording, RecordingError> {
+        if let Ok(m) = std::fs::metadata(path)
+            && m.len() > MAX_FILE_BYTES
+        {
+            return Err(err(
+                0,
+                format!("{} is {} bytes; a recording may hold at most {MAX_FILE_BYTES}", path.display(), m.len()),
+            ));
+        }
         let bytes = std::fs::read(path).map_err(|e| err(0, format!("cannot read {}: {e}", path.display())))?;
         let text = String::from_utf8(bytes).map_err(|e| {
             let upto = &e.as_bytes()[..e.utf8_error().valid_up_to()];
@@ -145,12 +165,16 @@ impl Recording {
         let mut thickness_tol: Option<(usize, f64)> = None;
         let mut created = None;
         let mut extra = Vec::new();
-        let mut seen: Vec<String> = Vec::new();
+        let mut seen: HashSet<&str> = HashSet::new();
         let mut header: Option<(usize, &str)> = None;
         let mut last_line = 0;
 
+        let mut meta_lines = 0usize;
         for (n, line) in lines.by_ref() {
             last_line = n;
+            if line.len() > MAX_LINE_BYTES {
+                return Err(err(n, format!("line is {} bytes long; the limit is {MAX_LINE_BYTES}", line.len())));
+            }
             if line.trim().is_empty() {
                 continue;
             }
@@ -164,10 +188,13 @@ impl Recording {
             };
             let key = key.trim();
             let value = value.trim();
-            if seen.iter().any(|k| k == key) {
+            meta_lines += 1;
+            if meta_lines > MAX_METADATA_LINES {
+                return Err(err(n, format!("more than {MAX_METADATA_LINES} metadata lines")));
+            }
+            if !seen.insert(key) {
                 return Err(err(n, format!("metadata key `{key}` appears twice")));
             }
-            seen.push(key.to_string());
             match key {
                 "easycalib-recording" => version = Some((n, value.to_string())),
                 "indenter_E_MPa" => e2 = Some((n, parse_meta_number(n, key, value)?)),
@@ -211,17 +238,22 @@ impl Recording {
         let (e2_line, e2) = need(e2, "indenter_E_MPa")?;
         let (nu2_line, nu2) = need(nu2, "indenter_nu")?;
         let (r2_line, r2) = need(r2, "indenter_R_mm")?;
-        if !(e2.is_finite() && e2 > 0.0) {
-            return Err(err(e2_line, format!("indenter_E_MPa must be > 0, got {e2}")));
+        let [e_lo, e_hi] = INDENTER_E_RANGE_MPA;
+        if !(e_lo..=e_hi).contains(&e2) {
+            return Err(err(
+                e2_line,
+                format!("indenter_E_MPa must lie in [{e_lo}, {e_hi}] MPa (a gel to steel), got {e2}"),
+            ));
         }
         if !(nu2 > 0.0 && nu2 < 0.5) {
             return Err(err(nu2_line, format!("indenter_nu must lie in (0, 0.5), got {nu2}")));
         }
-        if !(r2.is_finite() && r2 > 0.0) {
-            return Err(err(r2_line, format!("indenter_R_mm must be a finite radius > 0, got {r2}")));
+        let [r_lo, r_hi] = INDENTER_R_RANGE_MM;
+        if !(r_lo..=r_hi).contains(&r2) {
+            return Err(err(r2_line, format!("indenter_R_mm must be a radius in [{r_lo}, {r_hi}] mm, got {r2}")));
         }
-        if r1 <= 0.0 {
-            return Err(err(r1_line, format!("elastomer_R_mm must be > 0 (or inf), got {r1}")));
+        if r1 < r_lo {
+            return Err(err(r1_line, format!("elastomer_R_mm must be at least {r_lo} mm (or inf), got {r1}")));
         }
         let layer = layer_from_meta(thickness, base, thickness_tol)?;
 
@@ -244,8 +276,14 @@ impl Recording {
         let mut samples = Vec::new();
         let mut last_t = f64::NEG_INFINITY;
         for (n, line) in lines {
+            if line.len() > MAX_LINE_BYTES {
+                return Err(err(n, format!("line is {} bytes long; the limit is {MAX_LINE_BYTES}", line.len())));
+            }
             if line.trim().is_empty() {
                 continue;
+            }
+            if samples.len() == MAX_SAMPLES {
+                return Err(err(n, format!("more than {MAX_SAMPLES} samples; split the recording")));
             }
             if line.starts_with('#') {
                 return Err(err(n, "metadata line after the header row"));

@@ -5,7 +5,7 @@ use sim::physics::{Body, ContactPair};
 use sim::recording::Recording;
 
 use super::{CliError, ElastomerArgs, FitArgs, SimulateArgs};
-use crate::fit::{FitOptions, calibrate};
+use crate::fit::{FitError, FitOptions, calibrate};
 
 pub use crate::report::json::{CalibrationOutput, calibration_output};
 
@@ -61,8 +61,8 @@ pub fn human_summary(out: &CalibrationOutput, meta: &sim::recording::Metadata) -
         f.noise_floor.torsion_deg,
         f.r2.torsion
     );
-    if !f.converged {
-        s += "  warning: the full-model fit stopped before converging\n";
+    for w in &out.warnings {
+        s += &format!("  warning ({}): {}\n", w.code, w.message);
     }
     s += &format!(
         "\nPaper's method (Eq. 22 over gamma1 {}-{} mm, {} samples; Eq. 38 through the origin, {} samples)\n",
@@ -118,14 +118,17 @@ pub fn fit(args: &FitArgs) -> Result<(), CliError> {
     let rec = Recording::read_path(&args.recording)
         .map_err(|e| CliError::bad_input(format!("{}: {e}", args.recording.display())))?;
     let opts = fit_options(&args.window_mm, args.noise_um)?;
-    let cal = calibrate(&rec, &opts).map_err(|e| CliError::fit_failed(format!("{}: {e}", args.recording.display())))?;
+    let cal = calibrate(&rec, &opts).map_err(|e| match e {
+        FitError::Implausible(_) => CliError::bad_input(format!("{}: {e}", args.recording.display())),
+        e => CliError::fit_failed(format!("{}: {e}", args.recording.display())),
+    })?;
     let out = calibration_output(&rec, &cal, Some(&args.recording), None);
     print_output(&out, &rec, args.json)
 }
 
 fn print_output(out: &CalibrationOutput, rec: &Recording, json: bool) -> Result<(), CliError> {
     if json {
-        let text = serde_json::to_string_pretty(out).map_err(|e| CliError::other(e.to_string()))?;
+        let text = crate::report::json::to_json_explained(out).map_err(|e| CliError::other(e.to_string()))?;
         println!("{text}");
     } else {
         print!("{}", human_summary(out, &rec.meta));

@@ -7,6 +7,7 @@ use sim::recording::Recording;
 
 use super::{CliError, DiagnoseArgs};
 use crate::diagnosis::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose, plot};
+use crate::fit::FitError;
 
 pub fn run(args: &DiagnoseArgs) -> Result<(), CliError> {
     let rec = Recording::read_path(&args.recording)
@@ -14,6 +15,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<(), CliError> {
     let opts = DiagnoseOptions { noise_um: args.noise_um, ..Default::default() };
     let d = diagnose(&rec, &opts).map_err(|e| match e {
         DiagnoseError::Options(m) => CliError::bad_input(m),
+        DiagnoseError::Fit(FitError::Implausible(m)) => {
+            CliError::bad_input(format!("{}: {m}", args.recording.display()))
+        }
         e => CliError::fit_failed(e.to_string()),
     })?;
     if let Some(dir) = &args.plots {
@@ -31,7 +35,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<(), CliError> {
         std::fs::write(path, text).map_err(|e| CliError::other(format!("{}: {e}", path.display())))?;
     }
     if args.json {
-        let text = serde_json::to_string_pretty(&d).map_err(|e| CliError::other(e.to_string()))?;
+        let text = crate::report::json::to_json_explained(&d).map_err(|e| CliError::other(e.to_string()))?;
         println!("{text}");
     } else {
         print!("{}", human(&d));
@@ -95,6 +99,9 @@ pub fn human(d: &Diagnosis) -> String {
         if let Some(m) = g.separate_by {
             let _ = writeln!(s, "  to separate it: {m}");
         }
+    }
+    for w in &d.warnings {
+        let _ = writeln!(s, "Warning ({}): {}", w.code, w.message);
     }
     let _ = writeln!(s, "\n{}", d.verdict);
     s

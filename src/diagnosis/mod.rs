@@ -20,7 +20,7 @@ use sim::effects::{Reading, SimProfile};
 use sim::recording::{Phase, Recording};
 
 use crate::fit::stats::t_quantile_975;
-use crate::fit::{FitError, FitOptions, FullOptions, calibrate, fit_paper};
+use crate::fit::{FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper, plausible};
 use locate::{Floor, Quantity, Segment, SegmentReport};
 use model::{Base, Candidate, Fitted, Model};
 
@@ -32,6 +32,10 @@ pub const VIF_DEGENERATE: f64 = 1000.0;
 /// Explanations whose BIC lies within this of the best cannot be ranked by
 /// the data (a Bayes factor below e^3 ~ 20): none of them is named.
 pub const AMBIGUOUS_BIC: f64 = 6.0;
+
+/// Most samples the diagnosis fits; a longer recording is thinned evenly (with a
+/// warning) so its cost stays bounded. A calibration has a few hundred.
+pub const MAX_DIAGNOSE_SAMPLES: usize = 5000;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DiagnoseOptions {
@@ -210,6 +214,8 @@ pub struct Diagnosis {
     pub segments_after: Vec<SegmentReport>,
     /// The answer in a few sentences.
     pub verdict: String,
+    /// What the reader should know about the inputs and the baseline fit.
+    pub warnings: Vec<Warning>,
     #[serde(skip)]
     pub residuals: Vec<SampleResidual>,
     /// Sim profile reproducing the recording (fitted material, z0, named effects).
@@ -424,8 +430,42 @@ fn full_fit_possible(rec: &Recording) -> bool {
     rec.phase(Phase::Torsion).count() >= 3 && rec.phase(Phase::Normal).filter(|s| s.gamma1_mm != 0.0).count() >= 5
 }
 
-/// Run the whole diagnosis of one recording.
+/// Run the whole diagnosis of one recording: refuse implausible data, thin a
+/// very long recording, then locate, explain and correct.
 pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
+    plausible::check(rec).map_err(FitError::from)?;
+    let Some((thinned, every)) = thin(rec, MAX_DIAGNOSE_SAMPLES) else {
+        return diagnose_all(rec, opts);
+    };
+    let mut d = diagnose_all(&thinned, opts)?;
+    d.warnings.insert(
+        0,
+        Warning::new(
+            "thinned",
+            format!(
+                "the recording has {} samples; the diagnosis used every {every}th ({} samples, limit \
+                 {MAX_DIAGNOSE_SAMPLES})",
+                rec.samples.len(),
+                thinned.samples.len()
+            ),
+        ),
+    );
+    Ok(d)
+}
+
+/// Every `k`-th sample (the smallest k that leaves at most `max`), or `None` when
+/// the recording is within `max` already.
+pub fn thin(rec: &Recording, max: usize) -> Option<(Recording, usize)> {
+    let n = rec.samples.len();
+    if n <= max || max == 0 {
+        return None;
+    }
+    let every = n.div_ceil(max);
+    let samples = rec.samples.iter().step_by(every).copied().collect();
+    Some((Recording { meta: rec.meta.clone(), samples }, every))
+}
+
+fn diagnose_all(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     if let Some(n) = opts.noise_um
         && !(n.is_finite() && n > 0.0)
     {
@@ -440,27 +480,43 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     let mut starts = Vec::new();
     let (mut sg0, mut st0) = (sg_given.unwrap_or(sim::defaults::GAMMA1_SIGMA_MM), sim::defaults::THETA1_SIGMA_DEG);
     let pos = |v: f64, d: f64| if v.is_finite() && v > 0.0 { v } else { d };
+    let mut warnings = Vec::new();
+    let mut fallback = true;
+    let mut pinned_start: Option<Base> = None;
     match calibrate(rec, &fit_opts) {
         Ok(c) => {
+            warnings = c.warnings.clone();
             sg0 = sg_given.unwrap_or(pos(c.full.noise_floor.normal_um * 1e-3, sg0));
             st0 = pos(c.full.noise_floor.torsion_deg, st0);
-            starts.push(Base { e1_mpa: c.full.e1_mpa, nu1: c.full.nu1, z0_mm: c.full.contact_offset_mm });
+            // A fit pinned at a bound of nu1 is a poor start: keep it, but try the others too.
+            fallback = c.warnings.iter().any(|w| w.code == "nu1_at_bound");
+            let start =
+                Base { e1_mpa: c.full.e1_mpa, nu1: c.full.nu1.clamp(0.05, 0.49), z0_mm: c.full.contact_offset_mm };
+            if fallback {
+                pinned_start = Some(start);
+            } else {
+                starts.push(start);
+            }
         }
+        Err(FitError::Implausible(e)) => return Err(FitError::Implausible(e).into()),
         Err(first) => {
-            if let Ok(p) = fit_paper(rec, &fit_opts.paper)
-                && p.e1_mpa.is_finite()
-                && p.e1_mpa > 0.0
-            {
-                starts.push(Base { e1_mpa: p.e1_mpa, nu1: p.nu1.clamp(0.05, 0.49), z0_mm: 0.0 });
-            }
-            let e2 = rec.meta.indenter.e_mpa;
-            for f in [0.3, 1.0, 0.1, 3.0] {
-                starts.push(Base { e1_mpa: f * e2, nu1: 0.4, z0_mm: 0.0 });
-            }
             if !full_fit_possible(rec) {
                 return Err(first.into());
             }
         }
+    }
+    if fallback {
+        if let Ok(p) = fit_paper(rec, &fit_opts.paper)
+            && p.e1_mpa.is_finite()
+            && p.e1_mpa > 0.0
+        {
+            starts.push(Base { e1_mpa: p.e1_mpa, nu1: p.nu1.clamp(0.05, 0.49), z0_mm: 0.0 });
+        }
+        let e2 = rec.meta.indenter.e_mpa;
+        for f in [0.3, 1.0, 0.1, 3.0] {
+            starts.push(Base { e1_mpa: f * e2, nu1: 0.4, z0_mm: 0.0 });
+        }
+        starts.extend(pinned_start);
     }
     let mut model = Model::new(rec, sg0, st0);
     model.max_iterations = opts.max_iterations.max(1);
@@ -677,6 +733,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         segments_before: before,
         segments_after: after,
         verdict: String::new(),
+        warnings,
         residuals,
         profile,
     };

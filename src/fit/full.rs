@@ -13,9 +13,9 @@ use serde::Serialize;
 use sim::physics::{Body, ContactPair, NormalModel, torsion_at};
 use sim::recording::{Phase, Recording};
 
-use super::FitError;
 use super::lm::{self, LmOptions};
 use super::stats::{interval, noise_from_second_differences, r_squared, rms};
+use super::{FitError, Warning};
 
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
 pub struct FullOptions {
@@ -135,6 +135,8 @@ pub struct FullFit {
     pub iterations: usize,
     pub converged: bool,
     pub samples_used: usize,
+    /// What the reader of this estimate should know (a bound reached, no convergence).
+    pub warnings: Vec<Warning>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -149,6 +151,14 @@ pub struct FullCi95 {
 pub struct R2 {
     pub normal: f64,
     pub torsion: f64,
+}
+
+/// Distance from either end of nu1's range (0, 0.5) at which the fit counts as pinned.
+const NU1_EDGE: f64 = 0.005;
+
+/// An interval cut at the parameter's physical range.
+fn clip(ci: [f64; 2], range: [f64; 2]) -> [f64; 2] {
+    [ci[0].max(range[0]), ci[1].min(range[1])]
 }
 
 fn logit(p: f64) -> f64 {
@@ -232,13 +242,23 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
     }
     let out = res.ok_or_else(|| FitError::Model("no fit pass ran".into()))?;
     // nu1 is mapped onto (0, 0.5); an optimum pressed against either end means
-    // the sweeps did not determine it, not that the elastomer is that odd.
-    if !(0.005..=0.4995).contains(&params.nu1) {
-        return Err(FitError::Model(format!(
-            "the fit ran to the edge of the physical range (nu1 = {:.4}): these sweeps do not determine nu1; \
-             check the contact point and the torsion sweep (easycalib diagnose)",
-            params.nu1
-        )));
+    // the sweeps did not determine it, not that the elastomer is that odd: keep
+    // the estimate, say so, and cut its interval at the physical range.
+    let mut warnings = Vec::new();
+    let at_bound = !(NU1_EDGE..=0.5 - NU1_EDGE).contains(&params.nu1);
+    if at_bound {
+        warnings.push(Warning::new(
+            "nu1_at_bound",
+            format!(
+                "the full-model fit ran to the edge of the physical range (nu1 = {:.4}): these sweeps do not \
+                 determine nu1 under this model; check the contact point, the torsion sweep and the declared \
+                 layer (easycalib diagnose)",
+                params.nu1
+            ),
+        ));
+    }
+    if !out.converged {
+        warnings.push(Warning::new("not_converged", "the full-model fit stopped before converging"));
     }
 
     // Covariance in physical parameters: central-difference Jacobian at the optimum.
@@ -279,8 +299,16 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         .try_inverse()
         .ok_or_else(|| FitError::Degenerate("E1, nu1 and z0 cannot be separated by these sweeps".into()))?
         * s2;
-    let se = |i: usize| cov[(i, i)].max(0.0).sqrt();
-    let corr = cov[(0, 1)] / (se(0) * se(1));
+    // A covariance that is not positive definite means the sweeps do not
+    // determine the parameters: no interval can be given, so no answer either.
+    let diag_ok = (0..3).all(|i| cov[(i, i)].is_finite() && cov[(i, i)] > 0.0);
+    let corr = if diag_ok { cov[(0, 1)] / (cov[(0, 0)] * cov[(1, 1)]).sqrt() } else { f64::NAN };
+    if !diag_ok || corr.is_nan() || corr.abs() >= 1.0 || !s2.is_finite() {
+        return Err(FitError::Degenerate(
+            "the covariance of E1, nu1 and z0 is not positive definite: these sweeps cannot separate them".into(),
+        ));
+    }
+    let se = |i: usize| cov[(i, i)].sqrt();
 
     let pred = predict(rec, &params)?;
     let r = residuals(rec, &pred);
@@ -312,8 +340,8 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         nu1_se: se(1),
         contact_offset_se_mm: se(2),
         ci95: FullCi95 {
-            e1_mpa: interval(params.e1_mpa, se(0), dof),
-            nu1: interval(params.nu1, se(1), dof),
+            e1_mpa: clip(interval(params.e1_mpa, se(0), dof), [0.0, f64::INFINITY]),
+            nu1: clip(interval(params.nu1, se(1), dof), [0.0, 0.5]),
             contact_offset_mm: interval(params.contact_offset_mm, se(2), dof),
         },
         corr_e1_nu1: corr,
@@ -327,5 +355,6 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         iterations: out.iterations,
         converged: out.converged,
         samples_used: n_obs,
+        warnings,
     })
 }

@@ -3,6 +3,7 @@
 pub mod full;
 pub mod lm;
 pub mod paper;
+pub mod plausible;
 pub mod stats;
 
 use serde::Serialize;
@@ -10,6 +11,7 @@ use sim::recording::Recording;
 
 pub use full::{FullFit, FullOptions, ModelParams, fit_full, predict};
 pub use paper::{PaperFit, PaperOptions, fit_paper};
+pub use plausible::Implausible;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FitError {
@@ -21,6 +23,21 @@ pub enum FitError {
     Model(String),
     #[error("fit options: {0}")]
     Options(String),
+    #[error(transparent)]
+    Implausible(#[from] Implausible),
+}
+
+/// Something the reader of an estimate should know; `code` is stable for programs.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Warning {
+    pub code: &'static str,
+    pub message: String,
+}
+
+impl Warning {
+    pub fn new(code: &'static str, message: impl Into<String>) -> Self {
+        Self { code, message: message.into() }
+    }
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
@@ -34,37 +51,89 @@ pub struct FitOptions {
 pub struct Calibration {
     pub paper: PaperFit,
     pub full: FullFit,
+    /// Every warning of both fits, the full fit's first.
+    pub warnings: Vec<Warning>,
 }
 
 pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitError> {
+    plausible::check(rec)?;
     let paper = fit_paper(rec, &opts.paper)?;
-    // Start the full fit from the paper's answer where that is plausible; the
-    // paper's method is fragile (a few micrometres of contact error move its
-    // nu1 a lot), so otherwise, or if that start fails, start from typical
-    // elastomers too and keep the best fit.
+    let full = best_full_fit(rec, opts, &paper)?;
+    let mut warnings = full.warnings.clone();
+    if let Some(l) = &rec.meta.layer {
+        warnings.push(Warning::new(
+            "layer_not_modelled",
+            format!(
+                "the recording declares a {} mm {} elastomer layer, but this fit models a half-space: E1 and nu1 \
+                 are biased by the layer (most when the contact radius nears the thickness) and the intervals do \
+                 not include that bias",
+                l.thickness_mm,
+                l.base.as_str()
+            ),
+        ));
+    }
+    warnings.extend(paper_warnings(&paper));
+    Ok(Calibration { paper, full, warnings })
+}
+
+/// The full fit from the paper's answer where that is plausible; the paper's
+/// method is fragile (a few micrometres of contact error move its nu1 a lot), so
+/// otherwise, or if that fit fails or ends on a bound, from typical elastomers
+/// too, keeping the fit with the smallest residuals (an interior one if any).
+fn best_full_fit(rec: &Recording, opts: &FitOptions, paper: &PaperFit) -> Result<FullFit, FitError> {
     let paper_start = ModelParams { e1_mpa: paper.e1_mpa, nu1: paper.nu1, contact_offset_mm: 0.0 };
     let plausible = paper.e1_mpa > 0.0 && (0.1..=0.49).contains(&paper.nu1);
-    let first = plausible.then(|| fit_full(rec, &opts.full, paper_start));
-    if let Some(Ok(full)) = first {
-        return Ok(Calibration { paper, full });
-    }
-    let e2 = rec.meta.indenter.e_mpa;
     let mut best: Option<FullFit> = None;
-    let mut last_err = first.and_then(Result::err);
-    for (e1_mpa, nu1) in [(e2 / 3.0, 0.4), (e2 / 3.0, 0.25), (e2, 0.45), (e2 / 10.0, 0.35)] {
-        match fit_full(rec, &opts.full, ModelParams { e1_mpa, nu1, contact_offset_mm: 0.0 }) {
-            Ok(f) => {
-                if best.as_ref().is_none_or(|b| fit_cost(&f) < fit_cost(b)) {
-                    best = Some(f);
-                }
+    let mut last_err = None;
+    let mut consider = |r: Result<FullFit, FitError>, best: &mut Option<FullFit>| match r {
+        Ok(f) => {
+            if best.as_ref().is_none_or(|b| better(&f, b)) {
+                *best = Some(f);
             }
-            Err(e) => last_err = Some(e),
+        }
+        Err(e) => last_err = Some(e),
+    };
+    if plausible {
+        consider(fit_full(rec, &opts.full, paper_start), &mut best);
+        if best.as_ref().is_some_and(|f| !pinned(f)) {
+            return best.ok_or_else(|| FitError::Model("no start of the full fit converged".into()));
         }
     }
-    match best {
-        Some(full) => Ok(Calibration { paper, full }),
-        None => Err(last_err.unwrap_or_else(|| FitError::Model("no start of the full fit converged".into()))),
+    let e2 = rec.meta.indenter.e_mpa;
+    for (e1_mpa, nu1) in [(e2 / 3.0, 0.4), (e2 / 3.0, 0.25), (e2, 0.45), (e2 / 10.0, 0.35)] {
+        consider(fit_full(rec, &opts.full, ModelParams { e1_mpa, nu1, contact_offset_mm: 0.0 }), &mut best);
     }
+    best.ok_or_else(|| last_err.unwrap_or_else(|| FitError::Model("no start of the full fit converged".into())))
+}
+
+fn pinned(f: &FullFit) -> bool {
+    f.warnings.iter().any(|w| w.code == "nu1_at_bound")
+}
+
+/// An interior optimum beats one on a bound; otherwise the smaller residuals win.
+fn better(a: &FullFit, b: &FullFit) -> bool {
+    match (pinned(a), pinned(b)) {
+        (false, true) => true,
+        (true, false) => false,
+        _ => fit_cost(a) < fit_cost(b),
+    }
+}
+
+/// The paper's closed form can land outside the physical range on data its
+/// reduced relations do not describe; its numbers are kept, flagged.
+fn paper_warnings(p: &PaperFit) -> Vec<Warning> {
+    let mut w = Vec::new();
+    if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && p.nu1 > 0.0 && p.nu1 < 0.5) {
+        w.push(Warning::new(
+            "paper_out_of_range",
+            format!(
+                "the paper's method gives E1 = {:.4} MPa, nu1 = {:.4}, outside the physical range (E1 > 0, \
+                 0 < nu1 < 0.5): its reduced relations do not describe this recording",
+                p.e1_mpa, p.nu1
+            ),
+        ));
+    }
+    w
 }
 
 /// Residual size of a full fit against its own noise floors (smaller is better).

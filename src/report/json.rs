@@ -6,7 +6,7 @@ use std::path::Path;
 use serde::Serialize;
 use sim::recording::{Phase, Recording};
 
-use crate::fit::{Calibration, FullFit, PaperFit};
+use crate::fit::{Calibration, FullFit, PaperFit, Warning};
 
 #[derive(Debug, Clone, Serialize)]
 pub struct CalibrationOutput {
@@ -19,6 +19,8 @@ pub struct CalibrationOutput {
     pub ci95: Ci95Out,
     pub paper: PaperFit,
     pub full: FullFit,
+    /// Everything the reader of the estimate should know (empty when nothing).
+    pub warnings: Vec<Warning>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sim_truth: Option<Truth>,
 }
@@ -58,6 +60,71 @@ pub fn calibration_output(
         ci95: Ci95Out { e1_mpa: cal.full.ci95.e1_mpa, nu1: cal.full.ci95.nu1 },
         paper: cal.paper.clone(),
         full: cal.full.clone(),
+        warnings: cal.warnings.clone(),
         sim_truth: truth,
     }
+}
+
+/// Where a JSON document has no number to give, and why.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Undefined {
+    /// Dotted path of the null value (`full.ci95.nu1[1]`).
+    pub path: String,
+    pub why: &'static str,
+}
+
+/// Why a value named `key` (the innermost object key on its path) can be absent.
+fn why_null(key: &str) -> &'static str {
+    match key {
+        "recording" => "the recording was not read from or written to a file",
+        "vif" => "variance inflation is computed only for effects that improve the fit significantly",
+        "beta" => "the recording has no torsion sample at which to evaluate the torsion depth",
+        k if k.contains("ci95") => {
+            "open interval end: the data bound this parameter on one side only, or leave too few degrees of \
+             freedom for a finite interval"
+        }
+        k if k.starts_with("corr") => "a standard error is zero, so the correlation is undefined",
+        k if k.starts_with("r2") || k == "normal" || k == "torsion" => {
+            "R² is undefined: fewer than two samples, or the observed values do not vary"
+        }
+        k if k.contains("noise") || k.ends_with("_um") || k.ends_with("_deg") => {
+            "too few samples in this group (fewer than five) to estimate it"
+        }
+        k if k.contains("before") || k.contains("after") => "no reading of this kind at this sample",
+        _ => "not a finite number: the computation of this quantity diverged on this recording",
+    }
+}
+
+fn collect_nulls(v: &serde_json::Value, path: &str, key: &str, out: &mut Vec<Undefined>) {
+    use serde_json::Value;
+    match v {
+        Value::Null => out.push(Undefined { path: path.to_string(), why: why_null(key) }),
+        Value::Array(items) => {
+            for (i, x) in items.iter().enumerate() {
+                collect_nulls(x, &format!("{path}[{i}]"), key, out);
+            }
+        }
+        Value::Object(map) => {
+            for (k, x) in map {
+                let p = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
+                collect_nulls(x, &p, k, out);
+            }
+        }
+        _ => {}
+    }
+}
+
+/// Pretty JSON of `value` in which no `null` goes unexplained: serde writes a
+/// non-finite number as `null`, so every null is listed under a top-level
+/// `undefined: [{path, why}]` (absent when there is none; docs/cli.md).
+pub fn to_json_explained<T: Serialize>(value: &T) -> Result<String, serde_json::Error> {
+    let mut doc = serde_json::to_value(value)?;
+    let mut nulls = Vec::new();
+    collect_nulls(&doc, "", "", &mut nulls);
+    if !nulls.is_empty()
+        && let serde_json::Value::Object(map) = &mut doc
+    {
+        map.insert("undefined".to_string(), serde_json::to_value(&nulls)?);
+    }
+    serde_json::to_string_pretty(&doc)
 }

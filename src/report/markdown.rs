@@ -51,6 +51,13 @@ pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &st
         num(f.nu1, 4),
         num(pm(f.ci95.nu1), 4)
     );
+    if !out.warnings.is_empty() {
+        let _ = writeln!(s, "**Warnings**\n");
+        for w in &out.warnings {
+            let _ = writeln!(s, "- `{}`: {}", w.code, w.message);
+        }
+        let _ = writeln!(s);
+    }
     let _ = writeln!(s, "| quantity | method | value | 95 % interval | unit |");
     let _ = writeln!(s, "| --- | --- | ---: | --- | --- |");
     let _ = writeln!(s, "| E1 | full model | {} | {} | MPa |", num(f.e1_mpa, 4), interval(f.ci95.e1_mpa, 4));

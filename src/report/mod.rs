@@ -78,7 +78,7 @@ pub fn write_report_for(
     let normal = render_svg(&normal_plot(rec, cal)?, &NORMAL_TEXT)?;
     let torsion = render_svg(&torsion_plot(rec, cal)?, &TORSION_TEXT)?;
     let out = calibration_output(rec, cal, recording_path, truth);
-    let json = serde_json::to_string_pretty(&out)?;
+    let json = json::to_json_explained(&out)?;
     let md = render_markdown(&out, rec, NORMAL_SVG_FILE, TORSION_SVG_FILE);
     Ok(ReportFiles {
         dir: out_dir.to_path_buf(),

@@ -314,7 +314,7 @@ impl TrueRig {
             None => super::viscoelastic::MAX_STEP_S,
         };
         self.t_prev = Some(t);
-        let n = ((span / super::viscoelastic::MAX_STEP_S).ceil() as usize).max(1);
+        let n = super::viscoelastic::substeps(span);
         let dt = (span / n as f64).max(1e-9);
         let e = (-dt / v.tau_s).exp();
         let w = (1.0 - e) / (dt / v.tau_s);
@@ -395,7 +395,7 @@ impl TrueRig {
         let k = 1.0 - 1.0 / v.rho;
         let span = self.tors_t.map_or(0.0, |tp| (t - tp).max(0.0));
         self.tors_t = Some(t);
-        let n = ((span / super::viscoelastic::MAX_STEP_S).ceil() as usize).max(1);
+        let n = super::viscoelastic::substeps(span);
         let dt = span / n as f64;
         let (e, w) =
             if dt > 0.0 { ((-dt / v.tau_s).exp(), (1.0 - (-dt / v.tau_s).exp()) / (dt / v.tau_s)) } else { (1.0, 1.0) };
@@ -512,6 +512,26 @@ mod tests {
         let rd = rig.read(Command { t_s: 0.0, stage_mm: st.delta_mm, rot_deg: 5.0 }).unwrap();
         let expect = torsion_at(&p, 0.2, 5f64.to_radians()).theta1_rad.to_degrees();
         assert!((rd.theta1_deg - expect).abs() < 1e-9, "{} vs {expect}", rd.theta1_deg);
+    }
+
+    #[test]
+    fn a_huge_time_gap_relaxes_the_creep_in_bounded_steps() {
+        // After a hold far longer than tau the standard linear solid is the
+        // elastic contact at its relaxed modulus; a gap of 1e12 s gets there in at
+        // most MAX_SUBSTEPS steps instead of 5e12.
+        assert_eq!(viscoelastic::substeps(1e12), viscoelastic::MAX_SUBSTEPS);
+        assert_eq!(viscoelastic::substeps(0.0), 1);
+        assert_eq!(viscoelastic::substeps(1.0), 5);
+        let p = pair();
+        let prof =
+            SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.5, tau_s: 5.0 }), ..Default::default() };
+        let mut rig = TrueRig::new(p, &prof).unwrap();
+        let s = 1.5;
+        let first = rig.read(Command { t_s: 0.0, stage_mm: s, rot_deg: 0.0 }).unwrap();
+        let late = rig.read(Command { t_s: 1e12, stage_mm: s, rot_deg: 0.0 }).unwrap();
+        let relaxed = NormalModel::new(p).unwrap().solve(s).unwrap().gamma1_mm;
+        assert!(first.gamma1_mm < relaxed - 1e-3, "{} vs {relaxed}", first.gamma1_mm);
+        assert!((late.gamma1_mm / relaxed - 1.0).abs() < 1e-6, "{} vs {relaxed}", late.gamma1_mm);
     }
 
     #[test]

@@ -54,3 +54,13 @@ impl Params {
 
 /// Longest time step of the hereditary integration, s.
 pub const MAX_STEP_S: f64 = 0.2;
+/// Most sub-steps between two readings: a longer interval is stepped more
+/// coarsely (each step stays exact for a linear force ramp), so the work per
+/// reading is bounded whatever the time stamps say.
+pub const MAX_SUBSTEPS: usize = 2000;
+
+/// Number of sub-steps for an interval of `span_s` seconds.
+pub fn substeps(span_s: f64) -> usize {
+    let n = (span_s / MAX_STEP_S).ceil();
+    if n.is_finite() && n >= 1.0 { (n as usize).min(MAX_SUBSTEPS) } else { 1 }
+}
