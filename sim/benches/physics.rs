@@ -38,5 +38,21 @@ fn forward(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, forward);
+/// The layered solver (issue 13 targets: normal solve <= 50 µs, torsion <= 20 µs).
+fn layered(c: &mut Criterion) {
+    use sim::physics::{Body, ContactPair, Layer, LayeredNormal, LayeredTorsion};
+    let p = ContactPair { elastomer: Body::new(1.0, 0.48, f64::INFINITY), indenter: Body::new(2.0, 0.4, 5.0) };
+    let layer = Layer::bonded(5.0);
+    let model = LayeredNormal::new(&p, &layer, 4.0).expect("valid layer");
+    let torsion = LayeredTorsion::new(&layer, 4.0).expect("valid layer");
+    let delta = model.at_contact_radius(2.5).delta_mm;
+    let mut g = c.benchmark_group("layered");
+    g.bench_function("normal_solve_one_stage_position", |b| b.iter(|| model.solve(black_box(delta))));
+    g.bench_function("normal_at_contact_radius", |b| b.iter(|| model.at_contact_radius(black_box(2.5))));
+    g.bench_function("torsion_stiffness", |b| b.iter(|| torsion.stiffness_factor(black_box(2.5))));
+    g.bench_function("normal_model_setup", |b| b.iter(|| LayeredNormal::new(black_box(&p), &layer, 4.0)));
+    g.finish();
+}
+
+criterion_group!(benches, forward, layered);
 criterion_main!(benches);

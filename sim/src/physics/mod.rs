@@ -3,13 +3,16 @@
 //! says `_deg`. Index 1 is the sensor's elastomer, index 2 the indenter.
 
 pub mod inversion;
+pub mod layer;
 pub mod normal;
 pub mod params;
+pub mod quadrature;
 pub mod torsion;
 
 pub use inversion::{
     ExactInversion, h1_from_materials, h3_from_materials, invert_exact, invert_paper_rounded, reduced_coefficients,
 };
+pub use layer::{LayeredNormal, LayeredTorsion};
 pub use normal::{NormalError, NormalModel, NormalState};
 pub use params::{Body, ContactPair, Layer, LayerBase, ParamError};
 pub use torsion::{TorsionState, rod_correction_factor, torsion_at};
