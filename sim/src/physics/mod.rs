@@ -12,7 +12,7 @@ pub mod torsion;
 pub use inversion::{
     ExactInversion, h1_from_materials, h3_from_materials, invert_exact, invert_paper_rounded, reduced_coefficients,
 };
-pub use layer::{LayeredNormal, LayeredTorsion};
+pub use layer::{LayeredContact, LayeredNormal, LayeredTorsion, Profile};
 pub use normal::{NormalError, NormalModel, NormalState};
 pub use params::{Body, ContactPair, Layer, LayerBase, ParamError};
 pub use torsion::{TorsionState, rod_correction_factor, torsion_at};

@@ -19,7 +19,10 @@
 //!   ψ(t) - (2/π) ∫_0^a ψ(s) L_t(s, t) ds = t,  L_t = (1/2h)[S((s-t)/h) - S((s+t)/h)],
 //! and the torque T = 16 G θ ∫ t ψ(t) dt (Reissner–Sagoci, 16/3 G a³ θ, when h -> infinity).
 
+mod curve;
 pub mod kernel;
+
+pub use curve::LayeredContact;
 
 use std::f64::consts::PI;
 
@@ -36,6 +39,16 @@ fn nodes_for(a_over_h: f64) -> usize {
     (14.0 + 6.0 * a_over_h).ceil().min(96.0) as usize
 }
 
+/// The bodies' shape in the gap condition.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Profile {
+    /// r²/(2R*), Hertz's approximation and the paper's.
+    #[default]
+    Paraboloid,
+    /// R - sqrt(R² - r²) for each curved body: exact spheres (contact radius < R).
+    Sphere,
+}
+
 /// The normal contact of an elastic sphere on an elastomer layer.
 #[derive(Debug, Clone)]
 pub struct LayeredNormal {
@@ -45,6 +58,9 @@ pub struct LayeredNormal {
     e2s: f64,
     es: f64,
     r_star: f64,
+    profile: Profile,
+    /// Radii of the curved bodies (finite ones), for the exact sphere profile.
+    radii: Vec<f64>,
     b1: f64,
     b2: f64,
     /// C(y) of the layer's deficit, y in units of h.
@@ -57,6 +73,17 @@ impl LayeredNormal {
     /// The model for `pair` on `layer`, tabulated for contact radii up to `a_max_mm`.
     /// nu1 may be 0.5 here (an incompressible gel).
     pub fn new(pair: &ContactPair, layer: &Layer, a_max_mm: f64) -> Result<Self, ParamError> {
+        Self::with_profile(pair, layer, a_max_mm, Profile::Paraboloid)
+    }
+
+    /// As [`Self::new`] with the bodies' shape in the gap chosen; with exact
+    /// spheres the contact radius stays below the smaller radius.
+    pub fn with_profile(
+        pair: &ContactPair,
+        layer: &Layer,
+        a_max_mm: f64,
+        profile: Profile,
+    ) -> Result<Self, ParamError> {
         layer.validate()?;
         pair.indenter.validate("indenter")?;
         let el = pair.elastomer;
@@ -68,7 +95,11 @@ impl LayeredNormal {
         }
         let h = layer.thickness_mm;
         let (base, nu) = (layer.base, el.nu);
-        let a_max_mm = a_max_mm.max(1e-3);
+        let radii: Vec<f64> = [el.r_mm, pair.indenter.r_mm].into_iter().filter(|r| r.is_finite()).collect();
+        let mut a_max_mm = a_max_mm.max(1e-3);
+        if profile == Profile::Sphere {
+            a_max_mm = radii.iter().fold(a_max_mm, |m, r| m.min(0.995 * r));
+        }
         let c = kernel::cosine_table(|x| kernel::normal_deficit(base, nu, x), 2.0 * a_max_mm / h);
         let e1s = el.plane_strain_mpa();
         let e2s = pair.indenter.plane_strain_mpa();
@@ -78,6 +109,8 @@ impl LayeredNormal {
             e2s,
             es: 1.0 / (1.0 / e1s + 1.0 / e2s),
             r_star: pair.composite_radius_mm(),
+            profile,
+            radii,
             b1: el.tatara_mm_per_n(),
             b2: pair.indenter.tatara_mm_per_n(),
             c,
@@ -87,6 +120,16 @@ impl LayeredNormal {
 
     pub fn max_contact_radius_mm(&self) -> f64 {
         self.a_max_mm
+    }
+
+    /// The gap's term in the Fredholm equation's right-hand side: the Abel
+    /// transform of the profile, (π/2) A[f](t) — t²/R* for paraboloids,
+    /// Σ (t/2) ln((R+t)/(R-t)) for spheres.
+    fn gap(&self, t: f64) -> f64 {
+        match self.profile {
+            Profile::Paraboloid => t * t / self.r_star,
+            Profile::Sphere => self.radii.iter().map(|r| 0.5 * t * ((r + t) / (r - t)).ln()).sum(),
+        }
     }
 
     fn l(&self, s: f64, t: f64) -> f64 {
@@ -119,7 +162,7 @@ impl LayeredNormal {
             }
         }
         // g = (E*/π)(δ g_c + g_q): unit constant and -t²/R* right-hand sides.
-        let rhs = DMatrix::from_fn(n, 2, |i, k| if k == 0 { 1.0 } else { -s[i] * s[i] / self.r_star });
+        let rhs = DMatrix::from_fn(n, 2, |i, k| if k == 0 { 1.0 } else { -self.gap(s[i]) });
         let Some(sol) = m.lu().solve(&rhs) else {
             return NormalState::NONE;
         };
@@ -127,7 +170,7 @@ impl LayeredNormal {
         let row_a: Vec<f64> = (0..n).map(|j| lam * w[j] * self.l(s[j], a)).collect();
         let row_0: Vec<f64> = (0..n).map(|j| lam * w[j] * self.l(s[j], 0.0)).collect();
         let at = |row: &[f64], k: usize, base: f64| base + (0..n).map(|j| row[j] * sol[(j, k)]).sum::<f64>();
-        let (gc_a, gq_a) = (at(&row_a, 0, 1.0), at(&row_a, 1, -a * a / self.r_star));
+        let (gc_a, gq_a) = (at(&row_a, 0, 1.0), at(&row_a, 1, -self.gap(a)));
         let delta_h = -gq_a / gc_a;
         let scale = self.es / PI;
         let g: DVector<f64> = DVector::from_fn(n, |j, _| scale * (delta_h * sol[(j, 0)] + sol[(j, 1)]));

@@ -6,6 +6,7 @@ use std::f64::consts::PI;
 
 use super::*;
 use crate::physics::NormalModel;
+use crate::physics::Profile;
 use crate::physics::params::{Body, LayerBase};
 
 fn tac3d_pair() -> ContactPair {
@@ -163,4 +164,24 @@ fn a_sliding_base_is_softer_than_a_bonded_one() {
         let (b, s, h) = (bonded.at_contact_radius(a), sliding.at_contact_radius(a), half.at_contact_radius(a));
         assert!(b.force_n > s.force_n && s.force_n > h.force_n, "a {a}: {} {} {}", b.force_n, s.force_n, h.force_n);
     }
+}
+
+#[test]
+fn exact_sphere_profile_is_segedins_solution_on_a_half_space() {
+    // Rigid sphere on a half-space without the paraboloid approximation (Segedin 1957):
+    // delta = (a/2) ln((R+a)/(R-a)), F = (E*/2) [(a² + R²) ln((R+a)/(R-a)) - 2aR].
+    let r = 5.0;
+    let pair = ContactPair { elastomer: Body::new(1.0, 0.45, f64::INFINITY), indenter: Body::new(1e12, 0.3, r) };
+    let m = LayeredNormal::with_profile(&pair, &Layer::bonded(1e7), 5.0, Profile::Sphere).unwrap();
+    let es = pair.elastomer.plane_strain_mpa();
+    for a in [0.5, 2.5, 4.5] {
+        let st = m.at_contact_radius(a);
+        let l = ((r + a) / (r - a)).ln();
+        let (delta, force) = (0.5 * a * l, 0.5 * es * ((a * a + r * r) * l - 2.0 * a * r));
+        assert!(rel(st.gamma1_mm, delta) < 1e-6, "a {a}: {} vs {delta}", st.gamma1_mm);
+        assert!(rel(st.force_n, force) < 1e-6, "a {a}: {} vs {force}", st.force_n);
+    }
+    // Small contacts cannot tell the sphere from its paraboloid.
+    let p = LayeredNormal::new(&pair, &Layer::bonded(1e7), 5.0).unwrap();
+    assert!(rel(m.at_contact_radius(0.05).force_n, p.at_contact_radius(0.05).force_n) < 1e-3);
 }
