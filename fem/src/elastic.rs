@@ -1,0 +1,151 @@
+//! Axisymmetric linear elasticity on a quadrilateral mesh: bilinear isoparametric
+//! elements with selective reduced integration (deviatoric part 2x2 Gauss,
+//! volumetric part one point, so a nearly incompressible gel does not lock).
+//! Stiffness per radian of circumference: forces are 2π times the nodal values.
+
+use crate::FemError;
+use crate::banded::{Banded, Factor};
+use crate::mesh::Mesh;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Material {
+    pub e_mpa: f64,
+    pub nu: f64,
+}
+
+impl Material {
+    fn shear(&self) -> f64 {
+        self.e_mpa / (2.0 * (1.0 + self.nu))
+    }
+    fn bulk(&self) -> f64 {
+        self.e_mpa / (3.0 * (1.0 - 2.0 * self.nu))
+    }
+}
+
+const D_DEV: [[f64; 4]; 4] = [
+    [4.0 / 3.0, -2.0 / 3.0, -2.0 / 3.0, 0.0],
+    [-2.0 / 3.0, 4.0 / 3.0, -2.0 / 3.0, 0.0],
+    [-2.0 / 3.0, -2.0 / 3.0, 4.0 / 3.0, 0.0],
+    [0.0, 0.0, 0.0, 1.0],
+];
+
+/// Element stiffness (8x8, dofs u_r, u_z per node) of one quad.
+fn element_stiffness(p: [[f64; 2]; 4], m: &Material) -> [[f64; 8]; 8] {
+    let (mu, kb) = (m.shear(), m.bulk());
+    let xi_a = [-1.0, 1.0, 1.0, -1.0];
+    let eta_a = [-1.0, -1.0, 1.0, 1.0];
+    let mut ke = [[0.0; 8]; 8];
+    let mut add = |xi: f64, eta: f64, weight: f64, volumetric: bool| {
+        let n: [f64; 4] = std::array::from_fn(|a| 0.25 * (1.0 + xi * xi_a[a]) * (1.0 + eta * eta_a[a]));
+        let dxi: [f64; 4] = std::array::from_fn(|a| 0.25 * xi_a[a] * (1.0 + eta * eta_a[a]));
+        let deta: [f64; 4] = std::array::from_fn(|a| 0.25 * eta_a[a] * (1.0 + xi * xi_a[a]));
+        let (mut j11, mut j12, mut j21, mut j22) = (0.0, 0.0, 0.0, 0.0);
+        for a in 0..4 {
+            j11 += dxi[a] * p[a][0];
+            j12 += dxi[a] * p[a][1];
+            j21 += deta[a] * p[a][0];
+            j22 += deta[a] * p[a][1];
+        }
+        let det = j11 * j22 - j12 * j21;
+        let r: f64 = (0..4).map(|a| n[a] * p[a][0]).sum();
+        if det <= 0.0 || r <= 0.0 {
+            return;
+        }
+        let mut b = [[0.0; 8]; 4];
+        for a in 0..4 {
+            let dndr = (j22 * dxi[a] - j12 * deta[a]) / det;
+            let dndz = (-j21 * dxi[a] + j11 * deta[a]) / det;
+            b[0][2 * a] = dndr;
+            b[1][2 * a + 1] = dndz;
+            b[2][2 * a] = n[a] / r;
+            b[3][2 * a] = dndz;
+            b[3][2 * a + 1] = dndr;
+        }
+        let w = weight * r * det;
+        let mut db = [[0.0; 8]; 4];
+        for (row, dbr) in db.iter_mut().enumerate() {
+            for (c, v) in dbr.iter_mut().enumerate() {
+                *v = if volumetric {
+                    if row < 3 { kb * (b[0][c] + b[1][c] + b[2][c]) } else { 0.0 }
+                } else {
+                    mu * (0..4).map(|q| D_DEV[row][q] * b[q][c]).sum::<f64>()
+                };
+            }
+        }
+        for x in 0..8 {
+            for y in 0..8 {
+                ke[x][y] += w * (0..4).map(|q| b[q][x] * db[q][y]).sum::<f64>();
+            }
+        }
+    };
+    let g = 1.0 / 3f64.sqrt();
+    for (xi, eta) in [(-g, -g), (g, -g), (g, g), (-g, g)] {
+        add(xi, eta, 1.0, false);
+    }
+    add(0.0, 0.0, 4.0, true);
+    ke
+}
+
+/// One elastic body: its mesh, material and factored stiffness with its supports.
+pub struct Body {
+    pub mesh: Mesh,
+    pub material: Material,
+    factor: Factor,
+}
+
+impl Body {
+    /// Assemble and factor the stiffness with the mesh's clamped and axis nodes held.
+    pub fn new(mesh: Mesh, material: Material) -> Result<Self, FemError> {
+        if !(material.e_mpa > 0.0 && material.nu > 0.0 && material.nu < 0.5) {
+            return Err(FemError::Invalid(format!("material E {} MPa, nu {}", material.e_mpa, material.nu)));
+        }
+        let mut k = Banded::zeros(2 * mesh.xy.len(), mesh.bandwidth());
+        for q in &mesh.quads {
+            let p = [mesh.xy[q[0]], mesh.xy[q[1]], mesh.xy[q[2]], mesh.xy[q[3]]];
+            let ke = element_stiffness(p, &material);
+            for (x, &nx) in q.iter().enumerate() {
+                for (y, &ny) in q.iter().enumerate() {
+                    for (cx, cy) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                        let (dx, dy) = (2 * nx + cx, 2 * ny + cy);
+                        if dx >= dy {
+                            k.add(dx, dy, ke[2 * x + cx][2 * y + cy]);
+                        }
+                    }
+                }
+            }
+        }
+        let mut rhs = vec![0.0; k.size()];
+        for &n in &mesh.clamped {
+            k.constrain(&mut rhs, 2 * n, 0.0);
+            k.constrain(&mut rhs, 2 * n + 1, 0.0);
+        }
+        for &n in &mesh.axis {
+            k.constrain(&mut rhs, 2 * n, 0.0);
+        }
+        let factor = k.factor()?;
+        Ok(Self { mesh, material, factor })
+    }
+
+    /// Compliance of the contact surface: entry (i, j) is the vertical displacement
+    /// of surface node i, toward the body, under a unit vertical force per radian
+    /// on node j pressing into the body (mm per N/rad).
+    pub fn surface_compliance(&self) -> Vec<Vec<f64>> {
+        let s = &self.mesh.surface;
+        let n = 2 * self.mesh.xy.len();
+        // Which way "into the body" is: down for the gel (surface on top), up for the indenter.
+        let into = |node: usize| {
+            let z = self.mesh.xy[node][1];
+            let mean = self.mesh.xy.iter().map(|p| p[1]).sum::<f64>() / self.mesh.xy.len() as f64;
+            if mean < z { -1.0 } else { 1.0 }
+        };
+        let sign = into(s[0]);
+        s.iter()
+            .map(|&j| {
+                let mut f = vec![0.0; n];
+                f[2 * j + 1] = sign;
+                let u = self.factor.solve(&f);
+                s.iter().map(|&i| sign * u[2 * i + 1]).collect()
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,33 @@
+//! easycalib's own finite-element reference (docs/physics.md, "Finite-element
+//! reference"): axisymmetric, small-strain, linear elasticity of the sensor's gel
+//! — a cylinder bonded to a rigid window, free on its side — and of the
+//! calibration indenter — a hemisphere whose flat face is held by the platform —
+//! in frictionless contact. It checks the analytical layer model on geometry the
+//! analysis cannot take (a finite gel, a finite hemisphere) and is checked in turn
+//! against what it did not make (Hertz, Segedin, the layer solver).
+//!
+//! Bilinear quadrilaterals with selective reduced integration, a banded Cholesky
+//! factor per body, each body condensed to its contact-surface compliance, and an
+//! active set for the contact.
+
+// Matrix code reads as the algebra it implements: index loops on purpose.
+#![allow(clippy::needless_range_loop)]
+
+pub mod banded;
+pub mod contact;
+pub mod elastic;
+pub mod mesh;
+
+pub use contact::{ContactState, TwoBodyContact};
+pub use elastic::{Body, Material};
+pub use mesh::Mesh;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FemError {
+    #[error("invalid model: {0}")]
+    Invalid(String),
+    #[error("the stiffness matrix is not positive definite at equation {0} (a support is missing)")]
+    NotPositiveDefinite(usize),
+    #[error("the contact iteration did not settle in {0} passes")]
+    ContactNotSettled(usize),
+}
