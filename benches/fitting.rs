@@ -17,7 +17,7 @@ fn fits(c: &mut Criterion) {
     let mut g = c.benchmark_group("fit_200_samples");
     g.bench_function("paper_method", |b| b.iter(|| fit_paper(black_box(&rec), &opts.paper)));
     let paper = fit_paper(&rec, &opts.paper).expect("paper fit");
-    let start = ModelParams { e1_mpa: paper.e1_mpa, nu1: paper.nu1, contact_offset_mm: 0.0 };
+    let start = ModelParams { e1_mpa: paper.e1_mpa, nu1: paper.nu1, contact_offset_mm: 0.0, contact_friction: None };
     g.bench_function("full_model_fit", |b| b.iter(|| fit_full(black_box(&rec), &opts.full, start)));
     g.finish();
 }

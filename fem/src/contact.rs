@@ -37,7 +37,7 @@ pub struct TwoBodyContact {
 }
 
 /// Solve the dense system a x = b (Gaussian elimination with partial pivoting).
-fn dense_solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+pub(crate) fn dense_solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
     let n = b.len();
     for c in 0..n {
         let p = (c..n).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
@@ -84,6 +84,18 @@ impl TwoBodyContact {
         let g_sum =
             (0..n).map(|j| (0..n).map(|i| g_gel[j][i] + g_ind.as_ref().map_or(0.0, |g| g[j][i])).collect()).collect();
         Ok(Self { radius_mm: indenter_radius_mm, r: r_gel[..n].to_vec(), g_gel, g_sum })
+    }
+
+    /// From compliance matrices already on common surface nodes at radii `r`
+    /// (column-major: `g[j][i]` is node i's response to a load on node j).
+    pub fn from_compliances(r: Vec<f64>, g_gel: Vec<Vec<f64>>, g_ind: &[Vec<f64>], indenter_radius_mm: f64) -> Self {
+        let n = r.len();
+        let g_sum = (0..n).map(|j| (0..n).map(|i| g_gel[j][i] + g_ind[j][i]).collect()).collect();
+        Self { radius_mm: indenter_radius_mm, r, g_gel, g_sum }
+    }
+
+    pub fn radii(&self) -> &[f64] {
+        &self.r
     }
 
     fn profile(&self, r: f64) -> f64 {

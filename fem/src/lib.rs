@@ -16,7 +16,9 @@
 pub mod banded;
 pub mod contact;
 pub mod elastic;
+pub mod forward;
 pub mod mesh;
+pub mod torsion;
 
 pub use contact::{ContactState, TwoBodyContact};
 pub use elastic::{Body, Material};

@@ -10,7 +10,7 @@ use std::collections::hash_map::Entry;
 
 use nalgebra::DMatrix;
 use serde::Serialize;
-use sim::physics::{Body, ContactPair, NormalModel, torsion_at};
+use sim::physics::{Body, ContactPair, Layer, LayerBase, NormalModel, torsion_at};
 use sim::recording::{Phase, Recording};
 
 use super::lm::{self, LmOptions};
@@ -33,6 +33,10 @@ pub struct ModelParams {
     pub nu1: f64,
     /// Stage reading at true first contact, mm (true approach = stage - z0).
     pub contact_offset_mm: f64,
+    /// Coulomb friction between indenter and gel in torsion (the FE layer model
+    /// only; `None`: the contact sticks).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contact_friction: Option<f64>,
 }
 
 /// The model's reading for one sample.
@@ -47,6 +51,9 @@ pub struct Prediction {
 
 /// Forward-predict every sample of `rec` with the given parameters.
 pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitError> {
+    if let Some(layer) = fe_layer(rec) {
+        return predict_fe(rec, p, layer);
+    }
     let pair =
         ContactPair { elastomer: Body::new(p.e1_mpa, p.nu1, rec.meta.elastomer_r_mm), indenter: rec.meta.indenter };
     let model = NormalModel::new(pair).map_err(|e| FitError::Model(e.to_string()))?;
@@ -68,6 +75,43 @@ pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitE
             Phase::Torsion => torsion_at(&pair, beta, s.rot_deg.to_radians()).theta1_rad.to_degrees(),
         };
         out.push(Prediction { gamma1_mm: state.gamma1_mm, theta1_deg, beta });
+    }
+    Ok(out)
+}
+
+/// The declared layer when the finite-element model takes it (a bonded base).
+pub fn fe_layer(rec: &Recording) -> Option<Layer> {
+    rec.meta.layer.filter(|l| l.base == LayerBase::Bonded && rec.meta.elastomer_r_mm.is_infinite())
+}
+
+/// The layered contact from the project's own FE reference (docs/physics.md,
+/// "Finite-element reference"): a hemisphere held at its flat face on a bonded gel,
+/// frictionless in the normal sweep, Coulomb friction in torsion.
+fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Result<Vec<Prediction>, FitError> {
+    let ind = rec.meta.indenter;
+    let fw = fem::forward::Forward::cached(layer.thickness_mm, ind.e_mpa, ind.nu, ind.r_mm)
+        .map_err(|e| FitError::Model(e.to_string()))?;
+    if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
+        return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
+    }
+    let model = fw.model(p.e1_mpa, p.nu1);
+    let mu = p.contact_friction.unwrap_or(f64::INFINITY);
+    let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
+    let mut out = Vec::with_capacity(rec.samples.len());
+    for s in &rec.samples {
+        let delta = s.stage_mm - p.contact_offset_mm;
+        let st = match solved.entry(delta.to_bits()) {
+            Entry::Occupied(e) => e.into_mut(),
+            Entry::Vacant(e) => e.insert(model.normal(delta).map_err(|e| FitError::Model(e.to_string()))?),
+        };
+        let theta1_deg = match s.phase {
+            Phase::Normal => 0.0,
+            Phase::Torsion => {
+                let twist = s.rot_deg.to_radians();
+                model.theta1_rad(st, twist.abs(), mu).map_or(0.0, |t| t.to_degrees() * twist.signum())
+            }
+        };
+        out.push(Prediction { gamma1_mm: st.gamma1_mm, theta1_deg, beta: st.gamma2_mm / ind.r_mm });
     }
     Ok(out)
 }
@@ -135,6 +179,11 @@ pub struct FullFit {
     pub iterations: usize,
     pub converged: bool,
     pub samples_used: usize,
+    /// The contact model fitted: `half-space` (the paper's) or `layer-fe` (a declared bonded layer).
+    pub model: &'static str,
+    /// Fitted Coulomb friction in torsion (layer model only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contact_friction: Option<f64>,
     /// What the reader of this estimate should know (a bound reached, no convergence).
     pub warnings: Vec<Warning>,
 }
@@ -153,6 +202,12 @@ pub struct R2 {
     pub torsion: f64,
 }
 
+/// Relative model error of the FE layer model (one standard deviation), added to
+/// the intervals: the RMS error of its recoveries over the finite-element dev set,
+/// whose gel also has normal-contact friction and a coarser radius than ours.
+const LAYER_MODEL_SD_E1: f64 = 0.017;
+const LAYER_MODEL_SD_NU1: f64 = 0.039;
+
 /// Distance from either end of nu1's range (0, 0.5) at which the fit counts as pinned.
 const NU1_EDGE: f64 = 0.005;
 
@@ -168,12 +223,22 @@ fn logistic(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())
 }
 
-/// Internal parametrisation keeps E1 > 0 and 0 < nu1 < 0.5 without bounds.
-fn to_internal(p: &ModelParams) -> [f64; 3] {
-    [p.e1_mpa.ln(), logit(p.nu1 / 0.5), p.contact_offset_mm]
+/// Internal parametrisation keeps E1 > 0, 0 < nu1 < 0.5 (and mu > 0) without bounds.
+fn to_internal(p: &ModelParams) -> Vec<f64> {
+    let mut x = vec![p.e1_mpa.ln(), logit(p.nu1 / 0.5), p.contact_offset_mm];
+    x.extend(p.contact_friction.map(f64::ln));
+    x
 }
 fn from_internal(x: &[f64]) -> ModelParams {
-    ModelParams { e1_mpa: x[0].exp(), nu1: 0.5 * logistic(x[1]), contact_offset_mm: x[2] }
+    ModelParams {
+        e1_mpa: x[0].exp(),
+        nu1: 0.5 * logistic(x[1]),
+        contact_offset_mm: x[2],
+        contact_friction: x.get(3).map(|v| v.exp()),
+    }
+}
+fn from_physical(v: &[f64]) -> ModelParams {
+    ModelParams { e1_mpa: v[0], nu1: v[1], contact_offset_mm: v[2], contact_friction: v.get(3).copied() }
 }
 
 /// Weighted residual vector: gamma1 of every sample (dead band included: it pins z0),
@@ -214,6 +279,8 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
     if !(start.nu1 > 0.01 && start.nu1 < 0.49) {
         start.nu1 = 0.4;
     }
+    // With the FE layer model, torsion carries Coulomb friction as a nuisance parameter.
+    start.contact_friction = fe_layer(rec).map(|_| start.contact_friction.filter(|m| *m > 0.0).unwrap_or(0.5));
     let mut sg = opts.gamma1_sigma_mm.unwrap_or(sim::defaults::GAMMA1_SIGMA_MM);
     let mut st = opts.theta1_sigma_deg.unwrap_or(sim::defaults::THETA1_SIGMA_DEG);
     let mut params = start;
@@ -262,21 +329,22 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
     }
 
     // Covariance in physical parameters: central-difference Jacobian at the optimum.
-    let phys = [params.e1_mpa, params.nu1, params.contact_offset_mm];
+    let mut phys = vec![params.e1_mpa, params.nu1, params.contact_offset_mm];
+    phys.extend(params.contact_friction);
+    let np = phys.len();
     let mut r0 = Vec::new();
     weighted_residuals(rec, &params, sg, st, &mut r0);
     let m = r0.len();
-    let mut jac = DMatrix::zeros(m, 3);
-    let steps = [1e-5 * params.e1_mpa, 1e-5, 1e-6];
-    for j in 0..3 {
-        let mut hi = phys;
-        let mut lo = phys;
+    let mut jac = DMatrix::zeros(m, np);
+    let steps = [1e-5 * params.e1_mpa, 1e-5, 1e-6, 1e-4 * params.contact_friction.unwrap_or(1.0)];
+    for j in 0..np {
+        let mut hi = phys.clone();
+        let mut lo = phys.clone();
         hi[j] += steps[j];
         lo[j] -= steps[j];
         let (mut rp, mut rm) = (Vec::new(), Vec::new());
-        let mk = |v: [f64; 3]| ModelParams { e1_mpa: v[0], nu1: v[1], contact_offset_mm: v[2] };
-        let up = weighted_residuals(rec, &mk(hi), sg, st, &mut rp);
-        let down = weighted_residuals(rec, &mk(lo), sg, st, &mut rm);
+        let up = weighted_residuals(rec, &from_physical(&hi), sg, st, &mut rp);
+        let down = weighted_residuals(rec, &from_physical(&lo), sg, st, &mut rm);
         // Deep sweeps end close to the contact model's turning point, where a
         // step to one side may leave the model's range: difference one-sided then.
         for i in 0..m {
@@ -292,8 +360,22 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
     }
     // Dead-band rows carry no noise: count only noisy readings as observations.
     let n_obs = n_normal_live + rec.phase(Phase::Torsion).filter(|s| s.gamma1_mm != 0.0).count() + n_torsion;
-    let dof = n_obs.saturating_sub(3).max(1);
+    let dof = n_obs.saturating_sub(np).max(1);
     let s2 = r0.iter().map(|v| v * v).sum::<f64>() / dof as f64;
+    // Friction that never limits the twist (the contact sticks throughout) has no
+    // effect on the data: leave it out of the covariance and say so.
+    let mut np = np;
+    if np == 4 {
+        let norm = |j: usize| jac.column(j).norm();
+        if norm(3) * params.contact_friction.unwrap_or(1.0) < 1e-6 * norm(0) * params.e1_mpa {
+            np = 3;
+            warnings.push(Warning::new(
+                "friction_undetermined",
+                "no slip shows in the torsion sweep: the contact sticks, and the friction coefficient is not determined",
+            ));
+        }
+    }
+    let jac = jac.columns(0, np).into_owned();
     let jtj = jac.transpose() * &jac;
     let cov = jtj
         .try_inverse()
@@ -301,17 +383,40 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         * s2;
     // A covariance that is not positive definite means the sweeps do not
     // determine the parameters: no interval can be given, so no answer either.
-    let diag_ok = (0..3).all(|i| cov[(i, i)].is_finite() && cov[(i, i)] > 0.0);
+    let diag_ok = (0..np).all(|i| cov[(i, i)].is_finite() && cov[(i, i)] > 0.0);
     let corr = if diag_ok { cov[(0, 1)] / (cov[(0, 0)] * cov[(1, 1)]).sqrt() } else { f64::NAN };
     if !diag_ok || corr.is_nan() || corr.abs() >= 1.0 || !s2.is_finite() {
         return Err(FitError::Degenerate(
             "the covariance of E1, nu1 and z0 is not positive definite: these sweeps cannot separate them".into(),
         ));
     }
-    let se = |i: usize| cov[(i, i)].sqrt();
+    // The layer model's own approximation error, in quadrature with the noise
+    // (docs/physics.md, "Finite-element reference": the spread of its recoveries
+    // on independent finite-element recordings).
+    let model_sd = if params.contact_friction.is_some() {
+        [LAYER_MODEL_SD_E1 * params.e1_mpa, LAYER_MODEL_SD_NU1 * params.nu1, 0.0]
+    } else {
+        [0.0; 3]
+    };
+    let se = |i: usize| (cov[(i, i)] + model_sd[i] * model_sd[i]).sqrt();
 
     let pred = predict(rec, &params)?;
     let r = residuals(rec, &pred);
+    if let Some(floor) = noise_from_second_differences(&r.normal_mm) {
+        let rms_n = rms(&r.normal_mm);
+        if rms_n > 3.0 * floor.max(1e-4) {
+            warnings.push(Warning::new(
+                "systematic_residuals",
+                format!(
+                    "the model leaves systematic residuals in the normal sweep ({:.1} µm RMS against a noise floor of \
+                     {:.1} µm): physics outside the model (large strain, an effect of the rig); the intervals are \
+                     scaled by the residuals but the estimate may be biased — run `easycalib diagnose`",
+                    rms_n * 1e3,
+                    floor * 1e3
+                ),
+            ));
+        }
+    }
     let live: Vec<(f64, f64)> = rec
         .samples
         .iter()
@@ -355,6 +460,8 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         iterations: out.iterations,
         converged: out.converged,
         samples_used: n_obs,
+        model: if params.contact_friction.is_some() { "layer-fe" } else { "half-space" },
+        contact_friction: params.contact_friction,
         warnings,
     })
 }

@@ -60,15 +60,16 @@ pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitE
     let paper = fit_paper(rec, &opts.paper)?;
     let full = best_full_fit(rec, opts, &paper)?;
     let mut warnings = full.warnings.clone();
-    if let Some(l) = &rec.meta.layer {
+    if let Some(l) = rec.meta.layer.filter(|_| full::fe_layer(rec).is_none()) {
         warnings.push(Warning::new(
             "layer_not_modelled",
             format!(
-                "the recording declares a {} mm {} elastomer layer, but this fit models a half-space: E1 and nu1 \
-                 are biased by the layer (most when the contact radius nears the thickness) and the intervals do \
-                 not include that bias",
+                "the recording declares a {} mm {} elastomer layer{}, which the layer model does not take yet \
+                 (bonded, flat gels only): this fit models a half-space, so E1 and nu1 are biased by the layer and \
+                 the intervals do not include that bias",
                 l.thickness_mm,
-                l.base.as_str()
+                l.base.as_str(),
+                if rec.meta.elastomer_r_mm.is_finite() { " on a domed gel" } else { "" }
             ),
         ));
     }
@@ -81,7 +82,8 @@ pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitE
 /// otherwise, or if that fit fails or ends on a bound, from typical elastomers
 /// too, keeping the fit with the smallest residuals (an interior one if any).
 fn best_full_fit(rec: &Recording, opts: &FitOptions, paper: &PaperFit) -> Result<FullFit, FitError> {
-    let paper_start = ModelParams { e1_mpa: paper.e1_mpa, nu1: paper.nu1, contact_offset_mm: 0.0 };
+    let paper_start =
+        ModelParams { e1_mpa: paper.e1_mpa, nu1: paper.nu1, contact_offset_mm: 0.0, contact_friction: None };
     let plausible = paper.e1_mpa > 0.0 && (0.1..=0.49).contains(&paper.nu1);
     let mut best: Option<FullFit> = None;
     let mut last_err = None;
@@ -101,7 +103,8 @@ fn best_full_fit(rec: &Recording, opts: &FitOptions, paper: &PaperFit) -> Result
     }
     let e2 = rec.meta.indenter.e_mpa;
     for (e1_mpa, nu1) in [(e2 / 3.0, 0.4), (e2 / 3.0, 0.25), (e2, 0.45), (e2 / 10.0, 0.35)] {
-        consider(fit_full(rec, &opts.full, ModelParams { e1_mpa, nu1, contact_offset_mm: 0.0 }), &mut best);
+        let start = ModelParams { e1_mpa, nu1, contact_offset_mm: 0.0, contact_friction: None };
+        consider(fit_full(rec, &opts.full, start), &mut best);
     }
     best.ok_or_else(|| last_err.unwrap_or_else(|| FitError::Model("no start of the full fit converged".into())))
 }

@@ -1,0 +1,45 @@
+//! The tabulated forward model against the dev recordings at their truth.
+use fem::forward::Forward;
+use sim::recording::{Phase, Recording};
+
+fn main() {
+    let root = "/work/shared/data/fem-dev";
+    for set in ["linear", "nonlinear"] {
+        let truth = std::fs::read_to_string(format!("{root}/{set}/truth.csv")).unwrap();
+        for line in truth.lines().skip(1) {
+            let f: Vec<&str> = line.split(',').collect();
+            let rec = Recording::read_path(std::path::Path::new(&format!("{root}/{set}/{}", f[0]))).unwrap();
+            let (e1, nu1): (f64, f64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
+            let ind = rec.meta.indenter;
+            let t = std::time::Instant::now();
+            let fw = Forward::new(5.0, ind.e_mpa, ind.nu, ind.r_mm).unwrap();
+            let setup = t.elapsed();
+            let t = std::time::Instant::now();
+            let m = fw.model(e1, nu1);
+            let mut rn = vec![];
+            let mut rt = vec![];
+            for s in &rec.samples {
+                let st = m.normal(s.stage_mm).unwrap();
+                match s.phase {
+                    Phase::Normal => rn.push((s.gamma1_mm - st.gamma1_mm) * 1e3),
+                    Phase::Torsion => {
+                        if s.rot_deg > 0.0 {
+                            let th = m.theta1_rad(&st, s.rot_deg.to_radians(), 0.4).unwrap().to_degrees();
+                            rt.push(s.theta1_deg - th);
+                        }
+                    }
+                }
+            }
+            let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+            println!(
+                "{set}/{:32} setup {setup:.2?} eval {:.2?}: normal rms {:.1} um last {:+.1} | torsion rms {:.4} deg last {:+.4} (mu 0.4)",
+                f[0],
+                t.elapsed(),
+                rms(&rn),
+                rn[rn.len() - 1],
+                rms(&rt),
+                rt[rt.len() - 1]
+            );
+        }
+    }
+}

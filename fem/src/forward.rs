@@ -1,0 +1,222 @@
+//! The FE reference as a forward model a fit can afford (docs/physics.md,
+//! "Finite-element reference"): each body reduced once to its contact-surface
+//! compliance — the indenter for its own E2, nu2, R2; the gel for unit modulus at
+//! a few Poisson's ratios, interpolated in nu1 and scaled by 1/E1 — so one
+//! parameter set costs a small dense contact problem per stage position.
+
+use std::collections::HashMap;
+use std::f64::consts::PI;
+use std::sync::{Arc, Mutex, OnceLock};
+
+use crate::FemError;
+use crate::contact::{ContactState, TwoBodyContact, dense_solve};
+use crate::elastic::{Body, Material};
+use crate::mesh::Mesh;
+use crate::torsion::TorsionBody;
+
+/// Element size at the contact, mm, and the gel's radius in thicknesses (wide
+/// enough to stand for the unbounded layer the analysis assumes: < 0.7 % in force
+/// between 3 and 12 thicknesses at a/h = 0.6).
+const FINE_MM: f64 = 0.06;
+const GEL_RADIUS_IN_H: f64 = 4.0;
+/// Poisson's ratios at which the gel is tabulated (Chebyshev points on [0, 0.5]).
+const NU_NODES: usize = 9;
+
+fn nu_nodes() -> Vec<f64> {
+    (0..NU_NODES).map(|k| 0.25 - 0.25 * (PI * (k as f64 + 0.5) / NU_NODES as f64).cos()).collect()
+}
+
+/// Lagrange weights of the nu nodes at `nu`.
+fn lagrange(nodes: &[f64], nu: f64) -> Vec<f64> {
+    (0..nodes.len())
+        .map(|k| (0..nodes.len()).filter(|&m| m != k).map(|m| (nu - nodes[m]) / (nodes[k] - nodes[m])).product())
+        .collect()
+}
+
+/// The gel of one thickness, for unit modulus, at the tabulated Poisson's ratios.
+struct GelTables {
+    /// Surface radii (all gel surface nodes), mm.
+    r: Vec<f64>,
+    nu: Vec<f64>,
+    /// Normal compliance per nu node (E1 = 1), column-major.
+    normal: Vec<Vec<Vec<f64>>>,
+    /// Torsion compliance for unit shear modulus.
+    torsion: Vec<Vec<f64>>,
+}
+
+fn gel_mesh(h: f64) -> Result<Mesh, FemError> {
+    Mesh::gel((GEL_RADIUS_IN_H * h).max(12.0), h, FINE_MM, 6.0, 1.5)
+}
+
+impl GelTables {
+    fn build(h: f64) -> Result<Self, FemError> {
+        let mesh = gel_mesh(h)?;
+        let r = mesh.surface_radii();
+        let torsion = TorsionBody::new(&mesh)?.surface_compliance(&mesh.surface);
+        let nu = nu_nodes();
+        let normal = nu
+            .iter()
+            .map(|&v| {
+                Body::new(mesh.clone(), Material { e_mpa: 1.0, nu: v.min(0.4999) }).map(|b| b.surface_compliance())
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self { r, nu, normal, torsion })
+    }
+
+    /// Shared per thickness: the tables take seconds and every fit of a gel reuses them.
+    fn cached(h: f64) -> Result<Arc<Self>, FemError> {
+        static CACHE: OnceLock<Mutex<HashMap<u64, Arc<GelTables>>>> = OnceLock::new();
+        let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
+        if let Some(t) = cache.lock().ok().and_then(|c| c.get(&h.to_bits()).cloned()) {
+            return Ok(t);
+        }
+        let t = Arc::new(Self::build(h)?);
+        if let Ok(mut c) = cache.lock() {
+            c.insert(h.to_bits(), t.clone());
+        }
+        Ok(t)
+    }
+}
+
+/// The indenter (a hemisphere held at its flat face) against a bonded gel of one thickness.
+pub struct Forward {
+    gel: Arc<GelTables>,
+    n: usize,
+    radius_mm: f64,
+    ind_normal: Vec<Vec<f64>>,
+    ind_torsion: Vec<Vec<f64>>,
+}
+
+/// One parameter set (E1, nu1) of the forward model.
+pub struct Model {
+    contact: TwoBodyContact,
+    torsion_gel: Vec<Vec<f64>>,
+    torsion_sum: Vec<Vec<f64>>,
+}
+
+impl Forward {
+    /// Shared per (thickness, indenter): built once per process.
+    pub fn cached(
+        thickness_mm: f64,
+        indenter_e_mpa: f64,
+        indenter_nu: f64,
+        indenter_r_mm: f64,
+    ) -> Result<Arc<Self>, FemError> {
+        type Key = [u64; 4];
+        static CACHE: OnceLock<Mutex<HashMap<Key, Arc<Forward>>>> = OnceLock::new();
+        let key = [thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm].map(f64::to_bits);
+        let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
+        if let Some(f) = cache.lock().ok().and_then(|c| c.get(&key).cloned()) {
+            return Ok(f);
+        }
+        let f = Arc::new(Self::new(thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm)?);
+        if let Ok(mut c) = cache.lock() {
+            c.insert(key, f.clone());
+        }
+        Ok(f)
+    }
+
+    pub fn new(thickness_mm: f64, indenter_e_mpa: f64, indenter_nu: f64, indenter_r_mm: f64) -> Result<Self, FemError> {
+        if !(thickness_mm > 0.0 && thickness_mm.is_finite() && indenter_r_mm > 0.0 && indenter_r_mm < 100.0) {
+            return Err(FemError::Invalid(format!("layer {thickness_mm} mm, indenter radius {indenter_r_mm} mm")));
+        }
+        let gel = GelTables::cached(thickness_mm)?;
+        let rs: Vec<f64> = gel.r.iter().copied().filter(|&r| r < 0.97 * indenter_r_mm).collect();
+        let hemi = Mesh::hemisphere(indenter_r_mm, &rs, 30)?;
+        let g2 = indenter_e_mpa / (2.0 * (1.0 + indenter_nu));
+        let ind_torsion = TorsionBody::new(&hemi)?
+            .surface_compliance(&hemi.surface)
+            .into_iter()
+            .map(|c| c.into_iter().map(|v| v / g2).collect())
+            .collect();
+        let ind_normal = Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance();
+        Ok(Self { gel, n: rs.len(), radius_mm: indenter_r_mm, ind_normal, ind_torsion })
+    }
+
+    /// The model at elastomer modulus `e1_mpa` and Poisson's ratio `nu1` (0..0.5).
+    pub fn model(&self, e1_mpa: f64, nu1: f64) -> Model {
+        let n = self.n;
+        let w = lagrange(&self.gel.nu, nu1.clamp(0.0, 0.5));
+        let g_gel: Vec<Vec<f64>> = (0..n)
+            .map(|j| {
+                (0..n)
+                    .map(|i| w.iter().zip(&self.gel.normal).map(|(wk, g)| wk * g[j][i]).sum::<f64>() / e1_mpa)
+                    .collect()
+            })
+            .collect();
+        let g1 = e1_mpa / (2.0 * (1.0 + nu1));
+        let torsion_gel: Vec<Vec<f64>> =
+            (0..n).map(|j| (0..n).map(|i| self.gel.torsion[j][i] / g1).collect()).collect();
+        let torsion_sum =
+            (0..n).map(|j| (0..n).map(|i| torsion_gel[j][i] + self.ind_torsion[j][i]).collect()).collect();
+        let contact =
+            TwoBodyContact::from_compliances(self.gel.r[..n].to_vec(), g_gel, &self.ind_normal, self.radius_mm);
+        Model { contact, torsion_gel, torsion_sum }
+    }
+}
+
+impl Model {
+    /// The normal contact at platform approach `delta_mm`.
+    pub fn normal(&self, delta_mm: f64) -> Result<ContactState, FemError> {
+        self.contact.solve(delta_mm)
+    }
+
+    /// theta1 for a mount twist `twist_rad` (monotone from 0) at normal state `st`:
+    /// the contact sticks where |τ| < mu p and slips at mu p beyond (Coulomb;
+    /// `mu = inf` sticks everywhere). theta1 is the area-weighted least-squares
+    /// twist of the gel's surface over the contact.
+    pub fn theta1_rad(&self, st: &ContactState, twist_rad: f64, mu: f64) -> Option<f64> {
+        let r = self.contact.radii();
+        let last = (0..r.len()).rev().find(|&i| st.nodal_force[i] > 0.0)?;
+        // Node 0 is on the axis (no twist displacement); unknowns are nodes 1..=last.
+        let nodes: Vec<usize> = (1..=last).collect();
+        if nodes.is_empty() {
+            return None;
+        }
+        let cap: Vec<f64> = nodes.iter().map(|&i| mu * st.nodal_force[i]).collect();
+        let mut slip = vec![false; nodes.len()];
+        let mut t = vec![0.0; nodes.len()];
+        for _ in 0..=nodes.len() {
+            let stick: Vec<usize> = (0..nodes.len()).filter(|&k| !slip[k]).collect();
+            // Stuck nodes: Σ_stick G T + Σ_slip G cap = θ r.
+            let a: Vec<Vec<f64>> =
+                stick.iter().map(|&k| stick.iter().map(|&l| self.torsion_sum[nodes[l]][nodes[k]]).collect()).collect();
+            let b: Vec<f64> = stick
+                .iter()
+                .map(|&k| {
+                    twist_rad * r[nodes[k]]
+                        - (0..nodes.len())
+                            .filter(|&l| slip[l])
+                            .map(|l| self.torsion_sum[nodes[l]][nodes[k]] * cap[l])
+                            .sum::<f64>()
+                })
+                .collect();
+            let x = if stick.is_empty() { Vec::new() } else { dense_solve(a, b)? };
+            for (k, v) in t.iter_mut().enumerate() {
+                *v = if slip[k] { cap[k] } else { 0.0 };
+            }
+            for (m, &k) in stick.iter().enumerate() {
+                t[k] = x[m];
+            }
+            // Stuck nodes past the friction limit slip (the slip annulus grows inward).
+            let over: Vec<usize> = (0..nodes.len()).filter(|&k| !slip[k] && t[k] > cap[k]).collect();
+            if over.is_empty() {
+                break;
+            }
+            for k in over {
+                slip[k] = true;
+            }
+        }
+        let mut num = 0.0;
+        let mut den = 0.0;
+        for &i in &nodes {
+            let u: f64 = nodes.iter().enumerate().map(|(l, &j)| self.torsion_gel[j][i] * t[l]).sum();
+            let lo = 0.5 * (r[i - 1] + r[i]);
+            let hi = if i == last { r[i] } else { 0.5 * (r[i] + r[i + 1]) };
+            let w = 0.5 * (hi * hi - lo * lo);
+            num += w * r[i] * u;
+            den += w * r[i] * r[i];
+        }
+        Some(num / den)
+    }
+}
