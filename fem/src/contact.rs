@@ -109,6 +109,7 @@ impl TwoBodyContact {
         let need: Vec<f64> = self.r.iter().map(|&r| delta_mm - self.profile(r)).collect();
         let mut active: Vec<bool> = need.iter().map(|&d| d > 0.0).collect();
         let mut p = vec![0.0; n];
+        let mut passes_releasing = 0;
         for _ in 0..4 * n + 10 {
             let idx: Vec<usize> = (0..n).filter(|&i| active[i]).collect();
             let a: Vec<Vec<f64>> = idx.iter().map(|&i| idx.iter().map(|&j| self.g_sum[j][i]).collect()).collect();
@@ -119,11 +120,16 @@ impl TwoBodyContact {
             for (k, &i) in idx.iter().enumerate() {
                 p[i] = x[k];
             }
-            // A pulling node lets go (the most negative first).
-            if let Some((worst, _)) =
-                idx.iter().map(|&i| (i, p[i])).filter(|(_, v)| *v < 0.0).min_by(|a, b| a.1.total_cmp(&b.1))
-            {
-                active[worst] = false;
+            // Pulling nodes let go: all at once while that converges, then the most
+            // negative one at a time.
+            let pulling: Vec<usize> = idx.iter().copied().filter(|&i| p[i] < 0.0).collect();
+            if !pulling.is_empty() {
+                passes_releasing += 1;
+                if passes_releasing <= 8 {
+                    pulling.iter().for_each(|&i| active[i] = false);
+                } else if let Some(&worst) = pulling.iter().min_by(|&&a, &&b| p[a].total_cmp(&p[b])) {
+                    active[worst] = false;
+                }
                 continue;
             }
             // A free node that would pass through the indenter touches.
