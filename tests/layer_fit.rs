@@ -44,3 +44,22 @@ fn the_dev_sets_linear_recordings_are_recovered() {
     println!("worst: E1 {worst_e:.2} %, nu1 {worst_nu:.2} %");
     assert!(worst_e < 3.0 && worst_nu < 7.5, "E1 {worst_e} %, nu1 {worst_nu} %");
 }
+
+#[test]
+fn diagnose_starts_from_the_layer_model_and_agrees_with_fit() {
+    use easycalib::diagnosis::{DiagnoseOptions, diagnose};
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev");
+    // A linear recording is explained to its noise; a large-strain one is not.
+    for (file, explained) in
+        [("linear/tableI_6_E2-2.0_nu2-0.35.csv", true), ("nonlinear/tableI_6_E2-2.0_nu2-0.35.csv", false)]
+    {
+        let rec = Recording::read_path(&dir.join(file)).unwrap();
+        let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+        let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        println!("{file}: {}", d.verdict);
+        assert_eq!((d.e1_mpa, d.nu1), (cal.full.e1_mpa, cal.full.nu1));
+        assert!(d.effects.is_empty());
+        assert_eq!(d.unexplained, !explained, "{file}");
+        assert!(d.warnings.iter().any(|w| w.code == "layer_effects_not_searched"));
+    }
+}

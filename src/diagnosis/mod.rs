@@ -11,6 +11,7 @@
 //!    flag effects that trade off against E1/nu1 instead of picking them.
 //! 4. *report*: what the CLI prints, writes as JSON, plots and turns into a profile.
 
+mod layered;
 pub mod locate;
 pub mod model;
 pub mod plot;
@@ -434,6 +435,14 @@ fn full_fit_possible(rec: &Recording) -> bool {
 /// very long recording, then locate, explain and correct.
 pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     plausible::check(rec).map_err(FitError::from)?;
+    if crate::fit::full::fe_layer(rec).is_some() {
+        if let Some(n) = opts.noise_um
+            && !(n.is_finite() && n > 0.0)
+        {
+            return Err(DiagnoseError::Options(format!("--noise-um must be > 0, got {n}")));
+        }
+        return layered::diagnose_layered(rec, opts.noise_um);
+    }
     let Some((thinned, every)) = thin(rec, MAX_DIAGNOSE_SAMPLES) else {
         return diagnose_all(rec, opts);
     };
