@@ -116,3 +116,21 @@ fn impossible_parameters_are_refused() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("0.7"));
     assert!(!dir.path().join("x.csv").exists(), "nothing is written for impossible parameters");
 }
+
+/// Issue 11: absurd durations are refused before anything listens or moves.
+#[test]
+fn absurd_durations_are_refused_with_the_flag_named() {
+    let out = easycalib(&["sensor", "watch", "--tac3d", "0", "--timeout-s", "1e300"]);
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--timeout-s"));
+    let dir = tempfile::tempdir().unwrap();
+    let script = dir.path().join("s.toml");
+    std::fs::write(&script, "[timeouts]\nmove_s = 1e20\n").unwrap();
+    let out = easycalib(&["script", "--check", script.to_str().unwrap()]);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("timeouts.move_s"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -318,7 +318,7 @@ fn tac3d_sensor_over_loopback_udp_reads_the_emulated_press() {
         })
         .await
         .unwrap();
-        assert_eq!(rig.spec().sensor, SensorSpec::Tac3d { bind: to });
+        assert_eq!(rig.spec().sensor, SensorSpec::Tac3d { bind: to, source: None });
         assert_eq!(rig.device_lines()[2], format!("sensor udp://{to}"));
         let link = open_sensor(&rig.spec().sensor).await.unwrap();
         let mut gauge = SensorGauge::new(link, measure_frame, "tac3d");

@@ -152,6 +152,7 @@ async fn tac3d_stream_over_loopback() {
         reassembly_timeout: Duration::from_millis(100),
         queue_capacity: 1024,
         serial_filter: None,
+        source: None,
     };
     let mut rx = Tac3dReceiver::bind(cfg).await.unwrap();
     let link: &mut dyn SensorLink = &mut rx;
@@ -446,4 +447,69 @@ async fn link_receiver_opens_a_serial_device_by_path() {
     let f = rx.next_frame(WAIT).await.unwrap();
     assert_eq!((f.index, f.marker_count()), (9, 400));
     assert_eq!(f.displacements[0], [0.0, 0.0, f64::from(-0.2f32)]);
+}
+
+/// Issue 11's reproducer: one 24 KB datagram of 12,000 nested brackets used to
+/// overflow the stack of the receive task. Now it is a bad frame, counted, and
+/// the link keeps delivering the sensor's frames.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_deeply_nested_header_is_a_bad_frame_not_a_crash() {
+    let cfg = Tac3dReceiverConfig { bind: lo(), reassembly_timeout: Duration::from_millis(100), ..Default::default() };
+    let mut rx = Tac3dReceiver::bind(cfg).await.unwrap();
+    let to = rx.local_addr().unwrap();
+    let sock = tokio::net::UdpSocket::bind(lo()).await.unwrap();
+    let d = 12_000;
+    let mut dgram = Vec::new();
+    dgram.extend_from_slice(&5u32.to_le_bytes());
+    dgram.extend_from_slice(&0u16.to_le_bytes());
+    dgram.extend_from_slice(&0u16.to_le_bytes());
+    dgram.extend_from_slice(b"index: 1\nSN: x\ntimestamp: 0.5\ndata: ");
+    dgram.extend(std::iter::repeat_n(b'[', d));
+    dgram.extend(std::iter::repeat_n(b']', d));
+    dgram.push(b'\n');
+    sock.send_to(&dgram, to).await.unwrap();
+    // A good frame after it still arrives.
+    let link: &mut dyn SensorLink = &mut rx;
+    link.start().await.unwrap();
+    let good = Tac3dFrame::from_sensor_frame(&Emulated::new(1).frame(), "SN-OK");
+    for d in encode_frame(&good, 1400).unwrap() {
+        sock.send_to(&d, to).await.unwrap();
+    }
+    let f = link.next_frame(Duration::from_secs(5)).await.unwrap();
+    assert_eq!(f.index, 1);
+    let stats = link.stats();
+    assert!(stats.bad_total() >= 1, "{stats:?}");
+}
+
+/// Only the configured sensor address is heard; other senders are counted.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn datagrams_from_another_address_are_dropped_and_counted() {
+    let cfg = Tac3dReceiverConfig {
+        bind: lo(),
+        reassembly_timeout: Duration::from_millis(100),
+        source: Some("127.0.0.2".parse().unwrap()),
+        ..Default::default()
+    };
+    let mut rx = Tac3dReceiver::bind(cfg).await.unwrap();
+    let to = rx.local_addr().unwrap();
+    let stranger = tokio::net::UdpSocket::bind(lo()).await.unwrap();
+    let good = Tac3dFrame::from_sensor_frame(&Emulated::new(1).frame(), "SN-OK");
+    let link: &mut dyn SensorLink = &mut rx;
+    link.start().await.unwrap();
+    for d in encode_frame(&good, 1400).unwrap() {
+        stranger.send_to(&d, to).await.unwrap();
+    }
+    assert!(link.next_frame(Duration::from_millis(300)).await.is_err());
+    assert!(link.stats().bad_total() >= 1);
+    // The configured address is heard.
+    let sensor = tokio::net::UdpSocket::bind("127.0.0.2:0").await.unwrap();
+    for d in encode_frame(&good, 1400).unwrap() {
+        sensor.send_to(&d, to).await.unwrap();
+    }
+    assert_eq!(link.next_frame(Duration::from_secs(5)).await.unwrap().index, 1);
+}
+
+#[test]
+fn the_default_receiver_listens_on_loopback_only() {
+    assert!(Tac3dReceiverConfig::default().bind.ip().is_loopback());
 }

@@ -34,7 +34,8 @@ impl VirtualClock {
 
     /// Wall time that corresponds to `rig_s` seconds of rig time.
     pub fn wall_for(&self, rig_s: f64) -> Duration {
-        Duration::from_secs_f64((rig_s / self.speedup).max(0.0))
+        // Bounded (a day of wall time) so no rig time, however absurd, panics here.
+        Duration::from_secs_f64((rig_s / self.speedup).clamp(0.0, 86_400.0))
     }
 
     /// Sleep for `rig_s` seconds of rig time.

@@ -34,6 +34,10 @@ pub struct WatchArgs {
     /// Receive the Tac3D main program's UDP stream on this local port (it sends to 9988 by default).
     #[arg(long, value_name = "PORT")]
     pub tac3d: Option<u16>,
+    /// With --tac3d: the local address to listen on (default 127.0.0.1, this
+    /// computer only; 0.0.0.0 hears every interface — docs/hardening.md).
+    #[arg(long, value_name = "ADDR", requires = "tac3d")]
+    pub bind: Option<std::net::IpAddr>,
     /// easycalib link protocol: a serial device path, or udp://HOST:PORT of the device.
     #[arg(long, value_name = "PATH")]
     pub link: Option<String>,
@@ -198,8 +202,8 @@ where
 
 async fn open(args: &WatchArgs) -> Result<(Box<dyn SensorLink>, String), CliError> {
     if let Some(port) = args.tac3d {
-        let cfg =
-            Tac3dReceiverConfig { bind: SocketAddr::from(([0, 0, 0, 0], port)), ..Tac3dReceiverConfig::default() };
+        let ip = args.bind.unwrap_or(std::net::IpAddr::from([127, 0, 0, 1]));
+        let cfg = Tac3dReceiverConfig { bind: SocketAddr::new(ip, port), ..Tac3dReceiverConfig::default() };
         let rx = Tac3dReceiver::bind(cfg)
             .await
             .map_err(|e| CliError::bad_input(format!("cannot listen for Tac3D frames on UDP port {port}: {e}")))?;
@@ -233,9 +237,15 @@ pub fn run(args: &SensorArgs) -> Result<(), CliError> {
     }
 }
 
+/// Longest wait for a frame, s: an hour (a longer one is a typo, not a wish).
+const MAX_TIMEOUT_S: f64 = 3600.0;
+
 fn watch(args: &WatchArgs) -> Result<(), CliError> {
-    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0) {
-        return Err(CliError::bad_input(format!("--timeout-s must be > 0, got {}", args.timeout_s)));
+    if !(args.timeout_s > 0.0 && args.timeout_s <= MAX_TIMEOUT_S) {
+        return Err(CliError::bad_input(format!(
+            "--timeout-s must lie in (0, {MAX_TIMEOUT_S}] s, got {}",
+            args.timeout_s
+        )));
     }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -13,6 +13,8 @@
 //! [sensor]
 //! kind = "tac3d"                    # "tac3d", "link-serial" or "link-udp"
 //! udp_port = 9988
+//! # bind = "0.0.0.0"                # tac3d: listen beyond this computer (default 127.0.0.1)
+//! # source = "192.168.1.20"         # tac3d: only hear the sensor's computer
 //! ```
 
 use std::net::SocketAddr;
@@ -71,8 +73,12 @@ pub struct SensorConfig {
     pub path: Option<PathBuf>,
     /// link-serial: baud rate (default 115200).
     pub baud: Option<u32>,
-    /// link-udp: local address to bind (default `0.0.0.0:0`).
-    pub bind: Option<SocketAddr>,
+    /// link-udp: local address to bind (default `0.0.0.0:0`, or loopback for a
+    /// loopback device); tac3d: the local IP address to listen on (default
+    /// 127.0.0.1), given as `ADDR` or `ADDR:PORT`.
+    pub bind: Option<String>,
+    /// tac3d: only accept datagrams from this IP address (the sensor's computer).
+    pub source: Option<std::net::IpAddr>,
     /// link-udp: the device's address.
     pub device: Option<SocketAddr>,
 }
@@ -175,14 +181,21 @@ impl RigConfig {
                 unused("sensor.path", s.path.is_some())?;
                 unused("sensor.baud", s.baud.is_some())?;
                 unused("sensor.device", s.device.is_some())?;
-                unused("sensor.bind", s.bind.is_some())?;
                 let port = s.udp_port.unwrap_or(devices::sensor::tac3d::DEFAULT_PORT);
-                SensorSpec::Tac3d { bind: SocketAddr::from(([0, 0, 0, 0], port)) }
+                let ip = match s.bind.as_deref() {
+                    None => std::net::IpAddr::from([127, 0, 0, 1]),
+                    Some(b) => b
+                        .parse::<std::net::IpAddr>()
+                        .or_else(|_| b.parse::<SocketAddr>().map(|a| a.ip()))
+                        .map_err(|_| invalid("sensor.bind", format!("`{b}` is not an IP address")))?,
+                };
+                SensorSpec::Tac3d { bind: SocketAddr::new(ip, port), source: s.source }
             }
             "link-serial" => {
                 unused("sensor.udp_port", s.udp_port.is_some())?;
                 unused("sensor.device", s.device.is_some())?;
                 unused("sensor.bind", s.bind.is_some())?;
+                unused("sensor.source", s.source.is_some())?;
                 let path = s
                     .path
                     .clone()
@@ -193,9 +206,17 @@ impl RigConfig {
                 unused("sensor.udp_port", s.udp_port.is_some())?;
                 unused("sensor.path", s.path.is_some())?;
                 unused("sensor.baud", s.baud.is_some())?;
+                unused("sensor.source", s.source.is_some())?;
                 let device =
                     s.device.ok_or_else(|| invalid("sensor.device", "a link-udp sensor needs the device's address"))?;
-                SensorSpec::LinkUdp { bind: s.bind.unwrap_or(SocketAddr::from(([0, 0, 0, 0], 0))), device }
+                let bind = match s.bind.as_deref() {
+                    Some(b) => b
+                        .parse::<SocketAddr>()
+                        .map_err(|_| invalid("sensor.bind", format!("`{b}` is not an ADDR:PORT socket address")))?,
+                    None if device.ip().is_loopback() => SocketAddr::from(([127, 0, 0, 1], 0)),
+                    None => SocketAddr::from(([0, 0, 0, 0], 0)),
+                };
+                SensorSpec::LinkUdp { bind, device }
             }
             other => {
                 return Err(invalid(
@@ -223,7 +244,7 @@ mod tests {
             matches!(&spec.stage, StageSpec::Apt { path, cfg } if path == Path::new("/dev/easycalib-stage") && cfg.travel == (0.0, 25.0))
         );
         assert_eq!(spec.rotation.path, Path::new("/dev/easycalib-rotation"));
-        assert_eq!(spec.sensor, SensorSpec::Tac3d { bind: "0.0.0.0:9988".parse().unwrap() });
+        assert_eq!(spec.sensor, SensorSpec::Tac3d { bind: "127.0.0.1:9988".parse().unwrap(), source: None });
         let grbl = RigConfig::read_path(&Path::new(ROOT).join("examples/rig-grbl.toml")).unwrap();
         let spec = grbl.to_spec().unwrap();
         assert!(
@@ -253,5 +274,19 @@ mod tests {
         assert!(e.to_string().contains("speed"), "{e}");
         let e = RigConfig::from_toml(&base().replace("[rotation]", "actuator = \"z999\"\n[rotation]")).unwrap_err();
         assert!(e.to_string().contains("stage.actuator"), "{e}");
+    }
+
+    #[test]
+    fn tac3d_listens_on_loopback_unless_opened_wider() {
+        let spec = RigConfig::from_toml(&base()).unwrap().to_spec().unwrap();
+        assert_eq!(spec.sensor, SensorSpec::Tac3d { bind: "127.0.0.1:9988".parse().unwrap(), source: None });
+        let wide = base() + "bind = \"0.0.0.0\"\nsource = \"192.168.1.20\"\nudp_port = 9000\n";
+        let spec = RigConfig::from_toml(&wide).unwrap().to_spec().unwrap();
+        assert_eq!(
+            spec.sensor,
+            SensorSpec::Tac3d { bind: "0.0.0.0:9000".parse().unwrap(), source: Some("192.168.1.20".parse().unwrap()) }
+        );
+        let e = RigConfig::from_toml(&(base() + "bind = \"nowhere\"\n")).unwrap_err();
+        assert!(e.to_string().contains("sensor.bind"), "{e}");
     }
 }

@@ -52,7 +52,8 @@ pub enum SensorSpec {
     /// easycalib's link protocol over UDP: bind locally, talk to `device`.
     LinkUdp { bind: SocketAddr, device: SocketAddr },
     /// The Tac3D main program's UDP stream, received at `bind`.
-    Tac3d { bind: SocketAddr },
+    /// Listen on `bind`; hear only `source` when given.
+    Tac3d { bind: SocketAddr, source: Option<std::net::IpAddr> },
 }
 
 impl SensorSpec {
@@ -61,7 +62,7 @@ impl SensorSpec {
         match self {
             SensorSpec::LinkSerial { path, .. } => format!("link {}", path.display()),
             SensorSpec::LinkUdp { device, .. } => format!("link udp://{device}"),
-            SensorSpec::Tac3d { bind } => format!("tac3d udp://{bind}"),
+            SensorSpec::Tac3d { bind, .. } => format!("tac3d udp://{bind}"),
         }
     }
 }
@@ -346,9 +347,13 @@ pub async fn open_sensor(spec: &SensorSpec) -> Result<SensorDriver, ConnectError
             let link = LinkReceiver::udp(*bind, *device, link_cfg()).await.map_err(|e| err(e.to_string()))?;
             Ok(SensorDriver::Link(link))
         }
-        SensorSpec::Tac3d { bind } => {
-            let cfg =
-                Tac3dReceiverConfig { bind: *bind, queue_capacity: GAUGE_QUEUE, ..Tac3dReceiverConfig::default() };
+        SensorSpec::Tac3d { bind, source } => {
+            let cfg = Tac3dReceiverConfig {
+                bind: *bind,
+                source: *source,
+                queue_capacity: GAUGE_QUEUE,
+                ..Tac3dReceiverConfig::default()
+            };
             let rx = Tac3dReceiver::bind(cfg).await.map_err(|e| err(e.to_string()))?;
             Ok(SensorDriver::Tac3d(rx))
         }

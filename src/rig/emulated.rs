@@ -198,7 +198,7 @@ impl EmulatedRig {
         };
         let sensor = match &self.sensor_endpoint {
             SensorEndpoint::Pty(path) => SensorSpec::LinkSerial { path: path.clone(), baud: 115_200 },
-            SensorEndpoint::Udp(to) => SensorSpec::Tac3d { bind: *to },
+            SensorEndpoint::Udp(to) => SensorSpec::Tac3d { bind: *to, source: None },
         };
         RigSpec { stage, rotation, sensor, sensor_name: "sim-sensor".into() }
     }

@@ -264,6 +264,18 @@ pub enum ScriptError {
     Invalid { field: &'static str, message: String },
 }
 
+/// Bounds of every count, step and duration (docs/hardening.md): beyond them a
+/// value is a typo, and would cost hours of rig time or a panic after homing.
+pub const MAX_DURATION_S: f64 = 3600.0;
+pub const MAX_READINGS: usize = 10_000;
+pub const MAX_STEPS: f64 = 20_000.0;
+pub const MIN_STEP_MM: f64 = 1e-4;
+
+/// A validated duration in seconds as a `Duration` (clamped: never panics).
+fn duration(s: f64) -> Duration {
+    Duration::from_secs_f64(if s.is_finite() { s.clamp(0.0, MAX_DURATION_S) } else { MAX_DURATION_S })
+}
+
 fn invalid(field: &'static str, message: impl Into<String>) -> ScriptError {
     ScriptError::Invalid { field, message: message.into() }
 }
@@ -301,8 +313,27 @@ impl Script {
         positive("approach.step_mm", a.step_mm)?;
         positive("approach.contact_sigmas", a.contact_sigmas)?;
         positive("approach.contact_min_mm", a.contact_min_mm)?;
-        if a.noise_readings < 3 {
-            return Err(invalid("approach.noise_readings", format!("need at least 3, got {}", a.noise_readings)));
+        if !(3..=MAX_READINGS).contains(&a.noise_readings) {
+            return Err(invalid(
+                "approach.noise_readings",
+                format!("must be 3..={MAX_READINGS}, got {}", a.noise_readings),
+            ));
+        }
+        // Step sizes bounded below through the number of moves they imply.
+        let approach_steps =
+            (a.start_mm - self.limits.stage_min_mm).abs().max(self.limits.stage_max_mm - a.start_mm) / a.step_mm;
+        if approach_steps.is_nan() || approach_steps > MAX_STEPS || a.step_mm < MIN_STEP_MM {
+            return Err(invalid(
+                "approach.step_mm",
+                format!(
+                    "{} mm gives up to {approach_steps:.0} moves across the stage window (limit {MAX_STEPS:.0}, \
+                     smallest step {MIN_STEP_MM} mm)",
+                    a.step_mm
+                ),
+            ));
+        }
+        if a.refine_steps > MAX_READINGS {
+            return Err(invalid("approach.refine_steps", format!("must be <= {MAX_READINGS}, got {}", a.refine_steps)));
         }
         if !(a.refine_from_gamma1_mm.is_finite()
             && a.refine_from_gamma1_mm >= 0.0
@@ -321,6 +352,17 @@ impl Script {
         }
         let n = &self.normal;
         positive("normal.step_mm", n.step_mm)?;
+        let normal_steps = (self.limits.stage_max_mm - self.limits.stage_min_mm) / n.step_mm;
+        if normal_steps.is_nan() || normal_steps > MAX_STEPS || n.step_mm < MIN_STEP_MM {
+            return Err(invalid(
+                "normal.step_mm",
+                format!(
+                    "{} mm gives up to {normal_steps:.0} steps across the stage window (limit {MAX_STEPS:.0}, smallest \
+                     step {MIN_STEP_MM} mm)",
+                    n.step_mm
+                ),
+            ));
+        }
         if !(n.target_beta > 0.0 && n.target_beta <= 0.3) {
             return Err(invalid("normal.target_beta", format!("must lie in (0, 0.3], got {}", n.target_beta)));
         }
@@ -373,21 +415,30 @@ impl Script {
         positive("settle.tol_theta1_deg", s.tol_theta1_deg)?;
         positive("settle.timeout_s", s.timeout_s)?;
         let o = &self.timeouts;
-        positive("timeouts.read_s", o.read_s)?;
-        positive("timeouts.sensor_dropout_s", o.sensor_dropout_s)?;
-        positive("timeouts.move_s", o.move_s)?;
-        positive("timeouts.home_s", o.home_s)?;
+        for (key, v) in [
+            ("settle.timeout_s", s.timeout_s),
+            ("timeouts.read_s", o.read_s),
+            ("timeouts.sensor_dropout_s", o.sensor_dropout_s),
+            ("timeouts.move_s", o.move_s),
+            ("timeouts.home_s", o.home_s),
+        ] {
+            positive(key, v)?;
+            if v > MAX_DURATION_S {
+                return Err(invalid(key, format!("{v} s exceeds the limit of {MAX_DURATION_S} s (one hour)")));
+            }
+        }
         Ok(())
     }
 
     pub fn read_timeout(&self) -> Duration {
-        Duration::from_secs_f64(self.timeouts.read_s)
+        // validate() bounds every duration; the clamp keeps a caller that skipped it from panicking.
+        duration(self.timeouts.read_s)
     }
     pub fn move_timeout(&self) -> Duration {
-        Duration::from_secs_f64(self.timeouts.move_s)
+        duration(self.timeouts.move_s)
     }
     pub fn home_timeout(&self) -> Duration {
-        Duration::from_secs_f64(self.timeouts.home_s)
+        duration(self.timeouts.home_s)
     }
     /// Consecutive read timeouts that make a sensor dropout.
     pub fn dropout_reads(&self) -> u32 {
@@ -434,6 +485,14 @@ mod tests {
             ("[torsion]\namplitude_deg = 12.0\n", "torsion.amplitude_deg"),
             ("[indenter]\ne_mpa = 1.1\nnu = 0.7\nr_mm = 5.0\n", "indenter"),
             ("[settle]\nreadings = 0\n", "settle.readings"),
+            // Issue 11's reproducers: accepted once, they panicked or ran for minutes after homing.
+            ("[timeouts]\nmove_s = 1e20\n", "timeouts.move_s"),
+            ("[timeouts]\nread_s = 1e300\n", "timeouts.read_s"),
+            ("[settle]\ntimeout_s = 1e9\n", "settle.timeout_s"),
+            ("[approach]\nnoise_readings = 1000000000\n", "approach.noise_readings"),
+            ("[approach]\nstep_mm = 1e-7\n", "approach.step_mm"),
+            ("[normal]\nstep_mm = 1e-6\n", "normal.step_mm"),
+            ("[approach]\nrefine_steps = 100000000\n", "approach.refine_steps"),
         ];
         for (text, field) in cases {
             match Script::from_toml(text) {

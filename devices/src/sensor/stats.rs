@@ -45,6 +45,8 @@ pub enum BadReason {
     Stale,
     /// Decoded frames arrived faster than the consumer read them; the oldest was discarded.
     Overrun,
+    /// A datagram from an address other than the configured sensor's.
+    Foreign,
 }
 
 impl fmt::Display for BadReason {
@@ -66,6 +68,7 @@ impl fmt::Display for BadReason {
             BadReason::Initializing => "initializing",
             BadReason::Stale => "stale",
             BadReason::Overrun => "overrun",
+            BadReason::Foreign => "foreign sender",
         };
         f.write_str(s)
     }

@@ -208,6 +208,8 @@ pub enum Tac3dError {
     TooManyPackets { serial: u32, last: u16, limit: u16 },
     #[error("frame serial {serial}: packet {index} received twice")]
     DuplicatePacket { serial: u32, index: u16 },
+    #[error("frame serial {serial}: {bytes} bytes exceed the limit of {limit} per frame")]
+    FrameTooLarge { serial: u32, bytes: usize, limit: usize },
     #[error("frame header is not ASCII (byte {at})")]
     NotAscii { at: usize },
     #[error("frame header YAML, line {line}: {what}")]
@@ -233,6 +235,7 @@ impl Tac3dError {
             Tac3dError::PacketIndex { .. } | Tac3dError::PacketCount { .. } | Tac3dError::TooManyPackets { .. } => {
                 BadReason::PacketIndex
             }
+            Tac3dError::FrameTooLarge { .. } => BadReason::Length,
             Tac3dError::DuplicatePacket { .. } => BadReason::DuplicatePacket,
             Tac3dError::NotAscii { .. } | Tac3dError::Yaml { .. } => BadReason::Yaml,
             Tac3dError::MissingField { .. } | Tac3dError::BadField { .. } => BadReason::MissingField,
@@ -545,6 +548,8 @@ struct Partial {
     last: u16,
     parts: Vec<Option<Vec<u8>>>,
     got: usize,
+    /// Payload bytes held.
+    bytes: usize,
     /// When the latest packet of this frame arrived (the client's rule).
     touched: Instant,
 }
@@ -558,9 +563,17 @@ pub struct Tac3dReassembler {
     timeout: Duration,
     max_packets: u16,
     max_pending: usize,
+    /// Payload bytes held across all partial frames, and the budget for them.
+    bytes: usize,
+    max_bytes: usize,
     /// Partials pushed out to make room, not yet reported by `expire`.
     evicted: usize,
 }
+
+/// Largest frame accepted, bytes (a 20x20 frame of four matrices is ~39 kB).
+pub const MAX_FRAME_BYTES: usize = 1 << 20;
+/// Payload bytes held for incomplete frames at once (docs/hardening.md).
+pub const MAX_BYTES_IN_FLIGHT: usize = 4 << 20;
 
 impl Tac3dReassembler {
     /// `timeout` ~1 s as in the vendor's client.
@@ -572,6 +585,8 @@ impl Tac3dReassembler {
             max_packets: 4096,
             // Frames in flight at once; bounds memory against a flood of serials.
             max_pending: 32,
+            bytes: 0,
+            max_bytes: MAX_BYTES_IN_FLIGHT,
             evicted: 0,
         }
     }
@@ -579,6 +594,30 @@ impl Tac3dReassembler {
     /// Frames waiting for packets.
     pub fn pending(&self) -> usize {
         self.partial.len()
+    }
+
+    /// Payload bytes held for frames waiting for packets.
+    pub fn bytes_in_flight(&self) -> usize {
+        self.bytes
+    }
+
+    fn drop_partial(&mut self, serial: u32) -> Option<Partial> {
+        let p = self.partial.remove(&serial)?;
+        self.bytes -= p.bytes;
+        Some(p)
+    }
+
+    /// Push out the stalest partial (not `keep`); false when there is none.
+    fn evict_stalest(&mut self, keep: u32) -> bool {
+        let oldest = self.partial.iter().filter(|(k, _)| **k != keep).min_by_key(|(_, p)| p.touched).map(|(k, _)| *k);
+        match oldest {
+            Some(k) => {
+                self.drop_partial(k);
+                self.evicted += 1;
+                true
+            }
+            None => false,
+        }
     }
 
     /// Take one datagram. `Ok(Some(frame))` when it completed a frame.
@@ -594,20 +633,26 @@ impl Tac3dReassembler {
         }
         if !self.partial.contains_key(&h.serial) && self.partial.len() >= self.max_pending {
             // Make room by dropping the stalest partial; expire() would drop it soon anyway.
-            if let Some(oldest) = self.partial.iter().min_by_key(|(_, p)| p.touched).map(|(k, _)| *k) {
-                self.partial.remove(&oldest);
-                self.evicted += 1;
-            }
+            self.evict_stalest(h.serial);
         }
+        let payload = datagram.len() - HEADER_LEN;
+        let held = self.partial.get(&h.serial).map_or(0, |p| p.bytes);
+        if held + payload > MAX_FRAME_BYTES {
+            self.drop_partial(h.serial);
+            return Err(Tac3dError::FrameTooLarge { serial: h.serial, bytes: held + payload, limit: MAX_FRAME_BYTES });
+        }
+        // Memory in flight stays within the budget: the stalest other frames go first.
+        while self.bytes + payload > self.max_bytes && self.evict_stalest(h.serial) {}
         let p = self.partial.entry(h.serial).or_insert_with(|| Partial {
             last: h.last,
             parts: vec![None; usize::from(h.last) + 1],
             got: 0,
+            bytes: 0,
             touched: now,
         });
         if p.last != h.last {
             let expected = p.last;
-            self.partial.remove(&h.serial);
+            self.drop_partial(h.serial);
             return Err(Tac3dError::PacketCount { serial: h.serial, expected, got: h.last });
         }
         let slot = &mut p.parts[usize::from(h.this)];
@@ -616,11 +661,13 @@ impl Tac3dReassembler {
         }
         *slot = Some(datagram[HEADER_LEN..].to_vec());
         p.got += 1;
+        p.bytes += payload;
         p.touched = now;
+        self.bytes += payload;
         if p.got < p.parts.len() {
             return Ok(None);
         }
-        let Some(p) = self.partial.remove(&h.serial) else {
+        let Some(p) = self.drop_partial(h.serial) else {
             return Ok(None);
         };
         let mut parts = p.parts.into_iter().flatten();
@@ -637,6 +684,7 @@ impl Tac3dReassembler {
         let before = self.partial.len();
         let timeout = self.timeout;
         self.partial.retain(|_, p| now.saturating_duration_since(p.touched) <= timeout);
+        self.bytes = self.partial.values().map(|p| p.bytes).sum();
         before - self.partial.len() + std::mem::take(&mut self.evicted)
     }
 }
@@ -652,15 +700,21 @@ pub struct Tac3dReceiverConfig {
     pub queue_capacity: usize,
     /// Only accept frames from this sensor serial number (`None`: any sensor).
     pub serial_filter: Option<String>,
+    /// Only accept datagrams from this address (`None`: any sender). Others are
+    /// counted as bad (`foreign`) and never decoded.
+    pub source: Option<std::net::IpAddr>,
 }
 
 impl Default for Tac3dReceiverConfig {
     fn default() -> Self {
         Self {
-            bind: SocketAddr::from(([0, 0, 0, 0], DEFAULT_PORT)),
+            // Loopback unless told otherwise (docs/hardening.md): the main program
+            // usually runs on the same computer.
+            bind: SocketAddr::from(([127, 0, 0, 1], DEFAULT_PORT)),
             reassembly_timeout: Duration::from_secs(1),
             queue_capacity: 8,
             serial_filter: None,
+            source: None,
         }
     }
 }
@@ -744,6 +798,12 @@ async fn receive_loop(socket: Arc<UdpSocket>, inbox: Arc<Inbox>, peer: Arc<Mutex
                 return;
             }
         };
+        if let Some(want) = cfg.source
+            && from.ip() != want
+        {
+            inbox.bad(BadReason::Foreign);
+            continue;
+        }
         let frame = match re.push(&buf[..n], now) {
             Ok(None) => continue,
             Ok(Some(f)) => f,
@@ -931,5 +991,46 @@ impl Tac3dSender {
     /// Datagrams from the client that were neither `$C` nor `$Q`.
     pub fn unknown_commands(&self) -> u64 {
         self.unknown_commands
+    }
+}
+
+#[cfg(test)]
+mod bound_tests {
+    use super::*;
+
+    /// Issue 11: four never-completed frames of 4,095 x 65,000-byte packets pinned
+    /// 768 MB. Memory in flight now stays within the budget, whatever arrives.
+    #[test]
+    fn memory_in_flight_is_bounded() {
+        let mut re = Tac3dReassembler::new(Duration::from_secs(60));
+        let now = Instant::now();
+        let payload = vec![b'x'; 65_000];
+        let mut peak = 0;
+        for serial in 0..4u32 {
+            for index in 0..200u16 {
+                let mut d = Vec::with_capacity(HEADER_LEN + payload.len());
+                d.extend_from_slice(&serial.to_le_bytes());
+                d.extend_from_slice(&4094u16.to_le_bytes());
+                d.extend_from_slice(&index.to_le_bytes());
+                d.extend_from_slice(&payload);
+                let _ = re.push(&d, now);
+                peak = peak.max(re.bytes_in_flight());
+            }
+        }
+        assert!(peak <= MAX_BYTES_IN_FLIGHT, "{peak}");
+        // Expiry releases everything.
+        assert!(re.expire(now + Duration::from_secs(120)) > 0);
+        assert_eq!(re.bytes_in_flight(), 0);
+    }
+
+    #[test]
+    fn nesting_is_bounded_in_both_readers() {
+        let deep_flow =
+            format!("index: 1\nSN: x\ntimestamp: 0.5\ndata: {}{}\n", "[".repeat(12_000), "]".repeat(12_000));
+        let e = decode_frame(deep_flow.as_bytes(), &[]).unwrap_err();
+        assert!(e.to_string().contains("nesting"), "{e}");
+        let deep_block: String = (0..200).map(|i| format!("{}k{i}:\n", " ".repeat(i))).collect();
+        let e = decode_frame(deep_block.as_bytes(), &[]).unwrap_err();
+        assert!(e.to_string().contains("nesting"), "{e}");
     }
 }

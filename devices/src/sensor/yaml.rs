@@ -31,6 +31,13 @@ impl fmt::Display for YamlError {
     }
 }
 
+/// Limits (docs/hardening.md): a Tac3D header is a few kilobytes, nested four
+/// levels deep, with a dozen keys; anything far beyond is refused before it can
+/// cost stack or time. Nesting is bounded in both the block and the flow reader.
+pub(crate) const MAX_DEPTH: usize = 16;
+pub(crate) const MAX_HEADER_BYTES: usize = 256 * 1024;
+pub(crate) const MAX_ENTRIES: usize = 4096;
+
 fn err<T>(line: usize, what: impl Into<String>) -> Result<T, YamlError> {
     Err(YamlError { line, what: what.into() })
 }
@@ -137,13 +144,16 @@ fn lines(text: &str) -> Result<Vec<Line<'_>>, YamlError> {
 
 /// Parse a header document. An empty document is an error: a frame header is never empty.
 pub(crate) fn parse(text: &str) -> Result<Yaml, YamlError> {
+    if text.len() > MAX_HEADER_BYTES {
+        return err(1, format!("header of {} bytes exceeds the limit of {MAX_HEADER_BYTES}", text.len()));
+    }
     let mut ls = lines(text)?;
     if ls.is_empty() {
         return err(1, "empty document");
     }
     let mut pos = 0;
     let indent = ls[0].indent;
-    let v = block(&mut ls, &mut pos, indent)?;
+    let v = block(&mut ls, &mut pos, indent, 0)?;
     if let Some(l) = ls.get(pos) {
         return err(l.no, format!("unexpected indentation {}", l.indent));
     }
@@ -154,27 +164,37 @@ fn is_seq_item(s: &str) -> bool {
     s == "-" || s.starts_with("- ")
 }
 
-fn block(ls: &mut [Line<'_>], pos: &mut usize, indent: usize) -> Result<Yaml, YamlError> {
+fn too_deep<T>(no: usize) -> Result<T, YamlError> {
+    err(no, format!("nesting deeper than {MAX_DEPTH} levels"))
+}
+
+fn block(ls: &mut [Line<'_>], pos: &mut usize, indent: usize, depth: usize) -> Result<Yaml, YamlError> {
     let first = ls[*pos].clone();
+    if depth >= MAX_DEPTH {
+        return too_deep(first.no);
+    }
     if first.indent != indent {
         return err(first.no, format!("expected indentation {indent}"));
     }
     if is_seq_item(first.text) {
-        return sequence(ls, pos, indent);
+        return sequence(ls, pos, indent, depth);
     }
     if split_key(first.text).is_none() {
         // A lone scalar or flow collection.
         *pos += 1;
-        return value(first.text, first.no);
+        return value(first.text, first.no, depth);
     }
-    mapping(ls, pos, indent)
+    mapping(ls, pos, indent, depth)
 }
 
-fn sequence(ls: &mut [Line<'_>], pos: &mut usize, indent: usize) -> Result<Yaml, YamlError> {
+fn sequence(ls: &mut [Line<'_>], pos: &mut usize, indent: usize, depth: usize) -> Result<Yaml, YamlError> {
     let mut items = Vec::new();
     while let Some(l) = ls.get(*pos).cloned() {
         if l.indent < indent || !is_seq_item(l.text) {
             break;
+        }
+        if items.len() == MAX_ENTRIES {
+            return err(l.no, format!("more than {MAX_ENTRIES} items in a sequence"));
         }
         if l.indent > indent {
             return err(l.no, "unexpected indentation in sequence");
@@ -185,7 +205,7 @@ fn sequence(ls: &mut [Line<'_>], pos: &mut usize, indent: usize) -> Result<Yaml,
             match ls.get(*pos) {
                 Some(n) if n.indent > indent => {
                     let ni = n.indent;
-                    items.push(block(ls, pos, ni)?);
+                    items.push(block(ls, pos, ni, depth + 1)?);
                 }
                 _ => items.push(Yaml::Scalar { text: String::new(), quoted: false }),
             }
@@ -194,12 +214,12 @@ fn sequence(ls: &mut [Line<'_>], pos: &mut usize, indent: usize) -> Result<Yaml,
         // `- key: value` opens a mapping whose keys line up with `key`.
         let col = indent + (l.text.len() - rest.len());
         ls[*pos] = Line { no: l.no, indent: col, text: rest };
-        items.push(block(ls, pos, col)?);
+        items.push(block(ls, pos, col, depth + 1)?);
     }
     Ok(Yaml::Seq(items))
 }
 
-fn mapping(ls: &mut [Line<'_>], pos: &mut usize, indent: usize) -> Result<Yaml, YamlError> {
+fn mapping(ls: &mut [Line<'_>], pos: &mut usize, indent: usize, depth: usize) -> Result<Yaml, YamlError> {
     let mut entries: Vec<(String, Yaml)> = Vec::new();
     while let Some(l) = ls.get(*pos).cloned() {
         if l.indent < indent {
@@ -214,24 +234,27 @@ fn mapping(ls: &mut [Line<'_>], pos: &mut usize, indent: usize) -> Result<Yaml, 
         let Some((k, v)) = split_key(l.text) else {
             return err(l.no, format!("expected `key: value`, found `{}`", l.text));
         };
-        let key = match value(k, l.no)? {
+        let key = match value(k, l.no, depth)? {
             Yaml::Scalar { text, .. } => text,
             _ => return err(l.no, "collection used as a key"),
         };
+        if entries.len() == MAX_ENTRIES {
+            return err(l.no, format!("more than {MAX_ENTRIES} keys in a mapping"));
+        }
         if entries.iter().any(|(e, _)| *e == key) {
             return err(l.no, format!("duplicate key `{key}`"));
         }
         *pos += 1;
         let val = if !v.is_empty() {
-            value(v, l.no)?
+            value(v, l.no, depth + 1)?
         } else {
             match ls.get(*pos) {
                 Some(n) if n.indent > indent => {
                     let ni = n.indent;
-                    block(ls, pos, ni)?
+                    block(ls, pos, ni, depth + 1)?
                 }
                 // YAML lets a sequence under a key sit at the key's own indentation.
-                Some(n) if n.indent == indent && is_seq_item(n.text) => sequence(ls, pos, indent)?,
+                Some(n) if n.indent == indent && is_seq_item(n.text) => sequence(ls, pos, indent, depth + 1)?,
                 _ => Yaml::Scalar { text: String::new(), quoted: false },
             }
         };
@@ -273,10 +296,10 @@ fn split_key(s: &str) -> Option<(&str, &str)> {
 }
 
 /// A value written on one line: a scalar or a flow collection.
-fn value(s: &str, no: usize) -> Result<Yaml, YamlError> {
+fn value(s: &str, no: usize, depth: usize) -> Result<Yaml, YamlError> {
     let s = s.trim();
     if s.starts_with('{') || s.starts_with('[') {
-        let mut p = Flow { b: s.as_bytes(), s, i: 0, no };
+        let mut p = Flow { b: s.as_bytes(), s, i: 0, no, depth };
         let v = p.node()?;
         p.ws();
         if p.i != p.b.len() {
@@ -349,6 +372,8 @@ struct Flow<'a> {
     b: &'a [u8],
     i: usize,
     no: usize,
+    /// Nesting of the collection being read (block levels included).
+    depth: usize,
 }
 
 impl Flow<'_> {
@@ -360,6 +385,19 @@ impl Flow<'_> {
 
     fn node(&mut self) -> Result<Yaml, YamlError> {
         self.ws();
+        if matches!(self.b.get(self.i), Some(b'{') | Some(b'[')) {
+            if self.depth >= MAX_DEPTH {
+                return too_deep(self.no);
+            }
+            self.depth += 1;
+            let v = self.collection();
+            self.depth -= 1;
+            return v;
+        }
+        self.scalar(false)
+    }
+
+    fn collection(&mut self) -> Result<Yaml, YamlError> {
         match self.b.get(self.i) {
             Some(b'{') => {
                 self.i += 1;
@@ -380,6 +418,9 @@ impl Flow<'_> {
                     }
                     self.i += 1;
                     let v = self.node()?;
+                    if entries.len() == MAX_ENTRIES {
+                        return err(self.no, format!("more than {MAX_ENTRIES} keys in a mapping"));
+                    }
                     entries.push((key, v));
                     self.sep(b'}')?;
                 }
@@ -392,6 +433,9 @@ impl Flow<'_> {
                     if self.b.get(self.i) == Some(&b']') {
                         self.i += 1;
                         return Ok(Yaml::Seq(items));
+                    }
+                    if items.len() == MAX_ENTRIES {
+                        return err(self.no, format!("more than {MAX_ENTRIES} items in a sequence"));
                     }
                     items.push(self.node()?);
                     self.sep(b']')?;
