@@ -130,6 +130,10 @@ pub struct RunArgs {
     /// Folder for the recording and the report (default: runs/<UTC time>-<sensor>).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
+    /// Write into an --out folder that already holds files (they are replaced;
+    /// symbolic links among them are removed, never followed).
+    #[arg(long)]
+    pub overwrite: bool,
     /// Print the report's JSON document on stdout (progress goes to stderr).
     #[arg(long)]
     pub json: bool,

@@ -103,6 +103,8 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
         Some(d) => d.clone(),
         None => default_run_dir(Path::new("runs"), Some(&spec.sensor_name), SystemTime::now()),
     };
+    // Before anything moves: the folder is new, empty, or explicitly overwritten.
+    crate::run::outdir::prepare(&out_dir, args.overwrite).map_err(|e| CliError::bad_input(e.to_string()))?;
     if let Some(rig) = &emulated {
         eprintln!(
             "easycalib run: emulated rig at {}x real time ({}), real drivers over {}",
@@ -129,14 +131,7 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
             }
         })
     };
-    let ctrl_c = {
-        let ctl = ctl_tx.clone();
-        tokio::spawn(async move {
-            while tokio::signal::ctrl_c().await.is_ok() {
-                let _ = ctl.send(RunControl::Abort);
-            }
-        })
-    };
+    let ctrl_c = tokio::spawn(abort_on_signals(ctl_tx.clone()));
     let rig_note = match (&args.rig, &emulated) {
         (Some(p), _) => format!("rig file {}", p.display()),
         (None, Some(rig)) => format!(
@@ -163,9 +158,65 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
     report(args, &result, truth)
 }
 
+/// `aborted.json` beside the recording: why the run ended and where the stage is
+/// (docs/run.md). Best effort: the exit code and message carry the same.
+fn write_abort_report(o: &crate::run::RunOutcome, info: &crate::run::AbortInfo) {
+    use crate::run::Backoff;
+    let backoff = match &info.backoff {
+        Backoff::To(mm) => serde_json::json!({ "to_mm": mm }),
+        Backoff::NotHomed => serde_json::json!({ "not_homed": true }),
+        Backoff::Failed(e) => serde_json::json!({ "failed": e }),
+    };
+    let doc = serde_json::json!({
+        "aborted": {
+            "culprit": info.culprit.as_str(),
+            "message": info.message,
+            "backoff": backoff,
+            "samples": o.samples,
+            "rig_time_s": o.rig_time_s,
+            "recording": o.recording.display().to_string(),
+        }
+    });
+    let path = o.recording.with_file_name(ABORT_REPORT_FILE);
+    let written = crate::run::outdir::create_nofollow(&path)
+        .and_then(|mut f| std::io::Write::write_all(&mut f, format!("{doc:#}\n").as_bytes()));
+    if let Err(e) = written {
+        eprintln!("warning: cannot write {}: {e}", path.display());
+    }
+}
+
+/// The abort report's file name, beside the recording.
+pub const ABORT_REPORT_FILE: &str = "aborted.json";
+
+/// Every terminating signal (INT, TERM, HUP) asks the sequencer to abort: stop,
+/// back off to the approach position, flush and report (docs/run.md). Further
+/// signals while it backs off ask again; the back-off is not skipped.
+async fn abort_on_signals(ctl: tokio::sync::mpsc::UnboundedSender<RunControl>) {
+    use tokio::signal::unix::{SignalKind, signal};
+    let (Ok(mut int), Ok(mut term), Ok(mut hup)) =
+        (signal(SignalKind::interrupt()), signal(SignalKind::terminate()), signal(SignalKind::hangup()))
+    else {
+        // Without handlers the default action stands; the run cannot catch signals.
+        eprintln!("warning: cannot install signal handlers; a signal ends the run without a back-off");
+        return;
+    };
+    loop {
+        let which = tokio::select! {
+            _ = int.recv() => "SIGINT",
+            _ = term.recv() => "SIGTERM",
+            _ = hup.recv() => "SIGHUP",
+        };
+        eprintln!("{which}: aborting — the stage backs off before the program ends");
+        if ctl.send(RunControl::Abort).is_err() {
+            return;
+        }
+    }
+}
+
 fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<(), CliError> {
     let o = &result.outcome;
     if let RunStatus::Aborted(info) = &o.status {
+        write_abort_report(o, info);
         return Err(CliError {
             code: EXIT_ABORTED,
             message: format!(

@@ -47,7 +47,11 @@ pub struct ReportFiles {
 }
 
 fn write(path: PathBuf, text: &str) -> Result<PathBuf, ReportError> {
-    std::fs::write(&path, text).map_err(|source| ReportError::Io { path: path.clone(), source })?;
+    use std::io::Write;
+    // Never through a symbolic link planted at the report's name (docs/run.md).
+    crate::run::outdir::create_nofollow(&path)
+        .and_then(|mut f| f.write_all(text.as_bytes()))
+        .map_err(|source| ReportError::Io { path: path.clone(), source })?;
     Ok(path)
 }
 

@@ -4,6 +4,7 @@
 
 pub mod events;
 pub mod gauge;
+pub mod outdir;
 pub mod safety;
 pub mod script;
 pub mod sequencer;

@@ -510,7 +510,7 @@ where
         if let Some(dir) = self.recording_path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| fail(e, &self.recording_path))?;
         }
-        let file = File::create(&self.recording_path).map_err(|e| fail(e, &self.recording_path))?;
+        let file = super::outdir::create_nofollow(&self.recording_path).map_err(|e| fail(e, &self.recording_path))?;
         let mut extra =
             vec![("stage".to_string(), sanitize(&self.stage_name)), ("mount".to_string(), sanitize(&self.mount_name))];
         extra.extend(self.extra_meta.iter().map(|(k, v)| (sanitize(k), sanitize(v))));
