@@ -25,7 +25,7 @@ pub enum OutDirError {
 pub fn prepare(dir: &Path, overwrite: bool) -> Result<(), OutDirError> {
     let shown = || dir.display().to_string();
     match std::fs::symlink_metadata(dir) {
-        Ok(m) if m.file_type().is_symlink() => return Err(OutDirError::Symlink { path: shown() }),
+        Ok(m) if m.file_type().is_symlink() => Err(OutDirError::Symlink { path: shown() }),
         Ok(_) => {
             let entries = std::fs::read_dir(dir).map_err(|source| OutDirError::Io { path: shown(), source })?;
             for e in entries {
