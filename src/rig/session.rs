@@ -63,6 +63,12 @@ pub fn fit_and_report(
     Ok((cal, files))
 }
 
+/// Test facility (docs/hardening.md): `EASYCALIB_TEST_PANIC_AFTER_SAMPLES=N`
+/// makes the run panic after N samples, to prove the panic path end to end.
+fn test_panic_after_samples() -> Option<usize> {
+    std::env::var("EASYCALIB_TEST_PANIC_AFTER_SAMPLES").ok().and_then(|v| v.parse().ok())
+}
+
 /// Open the rig, run the script, fit and report. Events go to `events`
 /// (ending with `Finished` or `Aborted`), operator controls come from
 /// `controls`. A device that cannot be opened is an `Err` before anything
@@ -84,7 +90,8 @@ pub async fn run_calibration(
     let mut seq = Sequencer::new(req.script.clone(), devices.stage, devices.rotation, devices.gauge, &recording)?
         .with_events(events.clone())
         .with_controls(controls)
-        .with_metadata(meta);
+        .with_metadata(meta)
+        .with_panic_after_samples(test_panic_after_samples());
     let outcome = seq.run().await;
     // Close the devices (stop keep-alives, release the ports) before fitting.
     drop(seq);

@@ -9,6 +9,7 @@
 //! Any failure ends in [`Sequencer::abort`]: stop both axes, back the stage
 //! off to the retract position, say which device did what.
 
+use futures_util::FutureExt;
 use std::fmt;
 use std::fs::File;
 use std::io::BufWriter;
@@ -38,6 +39,8 @@ pub enum Culprit {
     Recording,
     /// The procedure could not go on (no contact found, depth not reached).
     Procedure,
+    /// easycalib itself failed (a panic in the run): the same safe path.
+    Internal,
 }
 
 impl Culprit {
@@ -50,6 +53,7 @@ impl Culprit {
             Culprit::Safety => "safety",
             Culprit::Recording => "recording",
             Culprit::Procedure => "procedure",
+            Culprit::Internal => "internal error",
         }
     }
 }
@@ -174,6 +178,8 @@ pub struct Sequencer<S, R, G> {
     events: Option<UnboundedSender<RunEvent>>,
     controls: Option<UnboundedReceiver<RunControl>>,
     extra_meta: Vec<(String, String)>,
+    /// Test facility: panic after this many samples (proves the panic path).
+    panic_after_samples: Option<usize>,
     guard: SafetyGuard,
     // Run state.
     stage_name: String,
@@ -320,6 +326,7 @@ where
             events: None,
             controls: None,
             extra_meta: Vec::new(),
+            panic_after_samples: None,
             guard,
             stage_name: "stage".into(),
             mount_name: "rotation mount".into(),
@@ -365,6 +372,14 @@ where
     /// Extra `# key: value` metadata for the recording (e.g. a simulation's truth).
     pub fn with_metadata(mut self, extra: Vec<(String, String)>) -> Self {
         self.extra_meta = extra;
+        self
+    }
+
+    /// Test facility (docs/hardening.md): panic inside the run after `n`
+    /// samples, to prove that a panic ends in the same safe path as any fault.
+    #[doc(hidden)]
+    pub fn with_panic_after_samples(mut self, n: Option<usize>) -> Self {
+        self.panic_after_samples = n;
         self
     }
 
@@ -424,9 +439,21 @@ where
     /// trouble: every failure is an [`AbortInfo`] in the outcome.
     pub async fn run(&mut self) -> RunOutcome {
         let wall = Instant::now();
-        let status = match self.procedure().await {
-            Ok(()) => RunStatus::Completed,
-            Err(halt) => RunStatus::Aborted(self.abort(halt).await),
+        // A panic anywhere in the procedure is caught here and ends like any
+        // fault: stop, back off, keep the recording (docs/hardening.md).
+        let result = std::panic::AssertUnwindSafe(self.procedure()).catch_unwind().await;
+        let status = match result {
+            Ok(Ok(())) => RunStatus::Completed,
+            Ok(Err(halt)) => RunStatus::Aborted(self.abort(halt).await),
+            Err(panic) => {
+                let what = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "unknown panic".into());
+                let halt = Halt { culprit: Culprit::Internal, message: format!("internal error (panic): {what}") };
+                RunStatus::Aborted(self.abort(halt).await)
+            }
         };
         RunOutcome {
             recording: self.recording_path.clone(),
@@ -990,6 +1017,9 @@ where
         })?;
         self.samples.push(sample);
         self.emit(RunEvent::Sample(sample));
+        if self.panic_after_samples == Some(self.samples.len()) {
+            panic!("injected test panic after {} samples", self.samples.len());
+        }
         let fit = FitUpdate::estimate(&self.samples, &self.script.indenter);
         if fit.is_some() && fit != self.last_fit {
             self.last_fit = fit;
