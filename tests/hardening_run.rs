@@ -133,7 +133,7 @@ mod in_process {
     use easycalib::rig::emulated::{EmulatedRig, EmulatedRigOptions, EmulatedSensor};
     use easycalib::rig::{RunRequest, run_calibration};
     use easycalib::run::events::RunEvent;
-    use easycalib::run::{Backoff, RunStatus, Script};
+    use easycalib::run::{Backoff, Culprit, RunStatus, Script};
     use sim::recording::Recording;
     use tokio::sync::mpsc::unbounded_channel;
 
@@ -189,6 +189,8 @@ mod in_process {
                 if samples == at {
                     match kind {
                         "sensor-lost" => rig.silence_sensor(true),
+                        // The rotation mount's cable: the stage can still back off.
+                        "rotation-cut" => rig.rotation().cut(),
                         _ => {
                             for d in garbage() {
                                 let _ = attacker.send_to(&d, to).await;
@@ -212,8 +214,8 @@ mod in_process {
         let retract = Script::default().limits.retract_mm;
         let approach = Script::default().approach.start_mm;
         let mut lines = Vec::new();
-        for n in 0..26 {
-            let kind = if n % 2 == 0 { "sensor-lost" } else { "datagrams" };
+        for n in 0..27 {
+            let kind = ["sensor-lost", "datagrams", "rotation-cut"][n % 3];
             // The default run records ~300 samples: anywhere in the sweeps.
             let at = 2 + (lcg(&mut seed) * 280.0) as usize;
             let dir = tmp.path().join(format!("f{n}"));
@@ -226,6 +228,10 @@ mod in_process {
                     assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{info:?}")
                 }
                 ("sensor-lost", RunStatus::Completed) if at > 260 => {}
+                ("rotation-cut", RunStatus::Aborted(info)) => {
+                    assert_eq!(info.culprit, Culprit::Mount, "{info:?}");
+                    assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{info:?}")
+                }
                 // Malformed datagrams are counted and dropped: the run goes on.
                 ("datagrams", RunStatus::Completed) => {}
                 other => panic!("trial {n}: {other:?}"),
