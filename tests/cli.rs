@@ -5,7 +5,13 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 fn easycalib(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_easycalib")).args(args).output().expect("easycalib binary runs")
+    // The history goes to a folder of the test's, never the user's.
+    Command::new(env!("CARGO_BIN_EXE_easycalib"))
+        .args(args)
+        .env("EASYCALIB_HOME", std::env::temp_dir().join("easycalib-test-home"))
+        .env_remove("EASYCALIB_DB")
+        .output()
+        .expect("easycalib binary runs")
 }
 
 fn simulate(dir: &Path, extra: &[&str]) -> std::path::PathBuf {

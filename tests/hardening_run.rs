@@ -15,7 +15,10 @@ const SPEEDUP: &str = "150";
 
 fn easycalib() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_easycalib"));
-    c.stdin(Stdio::null());
+    // The history goes to a folder of the test's, never the user's.
+    c.stdin(Stdio::null())
+        .env("EASYCALIB_HOME", std::env::temp_dir().join("easycalib-test-home"))
+        .env_remove("EASYCALIB_DB");
     c
 }
 

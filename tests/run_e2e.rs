@@ -273,7 +273,7 @@ fn ctrl_c_aborts_the_cli_run_backs_off_and_keeps_the_recording() {
     let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
     let dir = tempfile::tempdir().unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_easycalib"))
-        .args(["run", "--out", dir.path().to_str().unwrap()])
+        .args(["run", "--no-history", "--out", dir.path().to_str().unwrap()])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()

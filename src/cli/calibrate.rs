@@ -1,5 +1,6 @@
 //! `easycalib fit`, `easycalib simulate` and the simulated `easycalib run`.
 
+use history::Source;
 use sim::generator::{GeneratorConfig, generate};
 use sim::physics::{Body, ContactPair};
 use sim::recording::Recording;
@@ -123,7 +124,24 @@ pub fn fit(args: &FitArgs) -> Result<(), CliError> {
         e => CliError::fit_failed(format!("{}: {e}", args.recording.display())),
     })?;
     let out = calibration_output(&rec, &cal, Some(&args.recording), None);
-    print_output(&out, &rec, args.json)
+    print_output(&out, &rec, args.json)?;
+    if args.record {
+        let lines =
+            super::history::record(&args.db, &args.recording, &rec, super::history::outcome_of_fit(&out, Source::Fit));
+        print_history(&lines, args.json);
+    }
+    Ok(())
+}
+
+/// The history's lines: on stdout after a human report, on stderr beside JSON.
+pub fn print_history(lines: &[String], json: bool) {
+    for l in lines {
+        if json {
+            eprintln!("{l}");
+        } else {
+            println!("{l}");
+        }
+    }
 }
 
 fn print_output(out: &CalibrationOutput, rec: &Recording, json: bool) -> Result<(), CliError> {

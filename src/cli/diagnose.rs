@@ -40,7 +40,44 @@ pub fn run(args: &DiagnoseArgs) -> Result<(), CliError> {
     } else {
         print!("{}", human(&d));
     }
+    if args.record {
+        let lines = super::history::record(&args.db, &args.recording, &rec, history_outcome(&rec, &d));
+        super::calibrate::print_history(&lines, args.json);
+    }
     Ok(())
+}
+
+/// What the history keeps of a diagnosis: the corrected values and the effects named.
+fn history_outcome(rec: &Recording, d: &Diagnosis) -> super::history::Outcome {
+    use history::{EffectParam, EffectRecord, Source, WarningRecord};
+    let c = &d.corrected;
+    super::history::Outcome {
+        source: Source::Diagnose,
+        model: if crate::fit::full::fe_layer(rec).is_some() { "layer-fe" } else { "half-space" }.to_string(),
+        e1_mpa: c.e1_mpa,
+        e1_ci95: c.ci95.e1_mpa,
+        nu1: c.nu1,
+        nu1_ci95: c.ci95.nu1,
+        effects: d
+            .explanation
+            .iter()
+            .map(|e| EffectRecord {
+                name: e.effect.to_string(),
+                params: e
+                    .params
+                    .iter()
+                    .map(|p| EffectParam { name: p.name.to_string(), value: p.value, unit: p.unit.to_string() })
+                    .collect(),
+            })
+            .collect(),
+        warnings: d
+            .warnings
+            .iter()
+            .map(|w| WarningRecord { code: w.code.into(), message: w.message.clone() })
+            .collect(),
+        rig: None,
+        script: None,
+    }
 }
 
 /// The human report.

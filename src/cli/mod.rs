@@ -3,6 +3,7 @@
 mod calibrate;
 pub mod devices;
 mod diagnose;
+pub mod history;
 pub mod run;
 mod script;
 pub mod sensor;
@@ -40,6 +41,8 @@ pub enum Command {
     Script(ScriptArgs),
     /// Locate and explain a mismatch between the model and a recording (docs/diagnosis.md).
     Diagnose(DiagnoseArgs),
+    /// Per-sensor calibration history: list, plot, import, export, sync (docs/history.md).
+    History(history::HistoryArgs),
 }
 
 #[derive(Debug, Args)]
@@ -68,6 +71,11 @@ pub struct DiagnoseArgs {
     /// Noise of the gamma1 readings, µm (estimated from the data if not given).
     #[arg(long)]
     pub noise_um: Option<f64>,
+    /// Write the corrected calibration to the history (docs/history.md).
+    #[arg(long)]
+    pub record: bool,
+    #[command(flatten)]
+    pub db: history::DbArg,
 }
 
 #[derive(Debug, Args)]
@@ -83,6 +91,11 @@ pub struct FitArgs {
     /// Noise of the gamma1 readings, µm (estimated from the data if not given).
     #[arg(long)]
     pub noise_um: Option<f64>,
+    /// Write the calibration to the history (docs/history.md).
+    #[arg(long)]
+    pub record: bool,
+    #[command(flatten)]
+    pub db: history::DbArg,
 }
 
 #[derive(Debug, Clone, Args)]
@@ -151,6 +164,11 @@ pub struct RunArgs {
     /// reproduces the recording it was diagnosed from.
     #[arg(long, value_name = "PROFILE.toml", conflicts_with = "rig")]
     pub profile: Option<PathBuf>,
+    /// Do not write the calibration to the history (docs/history.md).
+    #[arg(long)]
+    pub no_history: bool,
+    #[command(flatten)]
+    pub db: history::DbArg,
     /// The simulated elastomer and indenter (emulated rig only).
     #[command(flatten)]
     pub elastomer: ElastomerArgs,
@@ -172,6 +190,7 @@ pub fn main() -> ExitCode {
         Command::Script(a) => script::script(a),
         Command::Diagnose(a) => diagnose::run(a),
         Command::Sim(a) => sim::run(a),
+        Command::History(a) => history::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -57,10 +57,43 @@ pub fn run(args: &RunArgs) -> Result<(), CliError> {
         .enable_all()
         .build()
         .map_err(|e| CliError::other(format!("cannot start the async runtime: {e}")))?;
-    rt.block_on(run_async(args))
+    let done = rt.block_on(run_async(args))?;
+    // The history is written outside the async runtime (its PostgreSQL client blocks).
+    drop(rt);
+    if let Some(done) = done {
+        write_history(args, done);
+    }
+    Ok(())
 }
 
-async fn run_async(args: &RunArgs) -> Result<(), CliError> {
+/// What the history needs of a completed run.
+struct Completed {
+    result: RunResult,
+    truth: Option<Truth>,
+    rig_note: String,
+    script_toml: Option<String>,
+}
+
+fn write_history(args: &RunArgs, done: Completed) {
+    if args.no_history {
+        return;
+    }
+    let Some(cal) = &done.result.calibration else { return };
+    let o = &done.result.outcome;
+    match Recording::read_path(&o.recording) {
+        Ok(rec) => {
+            let out = calibration_output(&rec, cal, Some(&o.recording), done.truth);
+            let mut outcome = super::history::outcome_of_fit(&out, history::Source::Run);
+            outcome.rig = Some(done.rig_note);
+            outcome.script = done.script_toml;
+            let lines = super::history::record(&args.db, &o.recording, &rec, outcome);
+            super::calibrate::print_history(&lines, args.json);
+        }
+        Err(e) => eprintln!("history: not recorded: cannot read back {}: {e}", o.recording.display()),
+    }
+}
+
+async fn run_async(args: &RunArgs) -> Result<Option<Completed>, CliError> {
     // The rig and the script.
     let rig_cfg = match &args.rig {
         Some(p) => Some(RigConfig::read_path(p).map_err(|e| CliError::bad_input(e.to_string()))?),
@@ -141,7 +174,8 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
         ),
         (None, None) => "unknown".into(),
     };
-    let metadata = vec![("rig".to_string(), rig_note)];
+    let metadata = vec![("rig".to_string(), rig_note.clone())];
+    let script_toml = script.to_toml().ok();
     let req = RunRequest { spec, script, out_dir: out_dir.clone(), truth, metadata };
     let result = run_calibration(req, ev_tx, ctl_rx).await;
     let display_result = display.await;
@@ -155,7 +189,8 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
         eprintln!("warning: the display failed: {e}");
     }
     drop(emulated);
-    report(args, &result, truth)
+    report(args, &result, truth)?;
+    Ok(Some(Completed { result, truth, rig_note, script_toml }))
 }
 
 /// `aborted.json` beside the recording: why the run ended and where the stage is

@@ -1,0 +1,67 @@
+//! Issue 16's targets: recording one calibration on SQLite (<= 5 ms) and
+//! `history SENSOR` over 10,000 calibrations (<= 50 ms): read, one value per
+//! recording, every calibration assessed against the ones before it, trends.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use history::change::{self, Quantity, Settings};
+use history::{CalibrationRecord, Indenter, Source, Target, sha256_hex};
+
+fn record(i: usize, sensor: &str) -> (CalibrationRecord, Vec<u8>) {
+    let bytes = format!("# easycalib-recording: 1\n# sensor: {sensor}\n# run {i}\n").repeat(200).into_bytes();
+    let e1 = 0.33 * (1.0 + 1e-4 * (i % 17) as f64);
+    let t = 1.7e9 + i as f64 * 3600.0;
+    let rec = CalibrationRecord {
+        sensor: sensor.into(),
+        time_utc: history::record::format_rfc3339(t),
+        time_unix_s: t,
+        source: Source::Run,
+        rig: Some("bench rig".into()),
+        indenter: Indenter { e_mpa: 2.0, nu: 0.4, r_mm: 5.0 },
+        script: Some("[approach]\nstart_mm = 10\n".into()),
+        model: "half-space".into(),
+        e1_mpa: e1,
+        e1_ci95: Some([e1 - 0.001, e1 + 0.001]),
+        nu1: 0.39,
+        nu1_ci95: Some([0.387, 0.393]),
+        effects: vec![],
+        warnings: vec![],
+        software_version: "bench".into(),
+        recording_path: Some(format!("runs/{i}/recording.csv")),
+        recording_sha256: sha256_hex(&bytes),
+    };
+    (rec, bytes)
+}
+
+fn benches(c: &mut Criterion) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut store = history::open(&Target::Sqlite(dir.path().join("h.sqlite"))).expect("open");
+    let mut i = 0;
+    c.bench_function("sqlite: record one calibration", |b| {
+        b.iter(|| {
+            i += 1;
+            let (rec, bytes) = record(1_000_000 + i, "bench-write");
+            store.record(&rec, &bytes).expect("record")
+        })
+    });
+    for k in 0..10_000 {
+        let (rec, bytes) = record(k, "fleet-0001");
+        store.record(&rec, &bytes).expect("record");
+    }
+    let settings = Settings::default();
+    c.bench_function("history SENSOR over 10,000 calibrations", |b| {
+        b.iter(|| {
+            let rows = store.list(Some("fleet-0001")).expect("list");
+            let s = change::series(&rows, "fleet-0001", "half-space");
+            let a = change::assess_all(&s, &settings);
+            let t = change::trend(&s, Quantity::E1, &settings);
+            (a.len(), t.map(|t| t.n))
+        })
+    });
+}
+
+criterion_group! {
+    name = history;
+    config = Criterion::default().sample_size(20);
+    targets = benches
+}
+criterion_main!(history);
