@@ -184,6 +184,16 @@ fn finished_screen_shows_the_result() {
     assert!(s.contains("nu1 = 0.388  95% [0.381, 0.395]"));
     assert!(s.contains("recording: runs/x/recording.csv"));
     assert!(s.contains("100%  elapsed 42.0s  ETA 0.0s"), "{s}");
+    // The history's verdict arrives after the result and joins the final panel.
+    st.apply(&RunEvent::History {
+        lines: vec![
+            "history: gel-A — calibration 7 of 7 (half-space model)".into(),
+            "  E1  +2.10 % against the 6 before (z step +6.10): CHANGED beyond the repeatability".into(),
+        ],
+    });
+    let s = render(&st);
+    assert!(s.contains("calibration 7 of 7"), "{s}");
+    assert!(s.contains("E1  +2.10 % against the 6 before"), "{s}");
 }
 
 #[test]

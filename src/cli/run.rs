@@ -57,43 +57,33 @@ pub fn run(args: &RunArgs) -> Result<(), CliError> {
         .enable_all()
         .build()
         .map_err(|e| CliError::other(format!("cannot start the async runtime: {e}")))?;
-    let done = rt.block_on(run_async(args))?;
-    // The history is written outside the async runtime (its PostgreSQL client blocks).
-    drop(rt);
-    if let Some(done) = done {
-        write_history(args, done);
-    }
-    Ok(())
+    rt.block_on(run_async(args))
 }
 
 /// What the history needs of a completed run.
 struct Completed {
-    result: RunResult,
+    recording: PathBuf,
+    calibration: crate::fit::Calibration,
     truth: Option<Truth>,
     rig_note: String,
     script_toml: Option<String>,
 }
 
-fn write_history(args: &RunArgs, done: Completed) {
-    if args.no_history {
-        return;
-    }
-    let Some(cal) = &done.result.calibration else { return };
-    let o = &done.result.outcome;
-    match Recording::read_path(&o.recording) {
+/// Write a completed run to the history; the lines say what happened.
+fn write_history(db: &super::history::DbArg, done: Completed) -> Vec<String> {
+    match Recording::read_path(&done.recording) {
         Ok(rec) => {
-            let out = calibration_output(&rec, cal, Some(&o.recording), done.truth);
+            let out = calibration_output(&rec, &done.calibration, Some(&done.recording), done.truth);
             let mut outcome = super::history::outcome_of_fit(&out, history::Source::Run);
             outcome.rig = Some(done.rig_note);
             outcome.script = done.script_toml;
-            let lines = super::history::record(&args.db, &o.recording, &rec, outcome);
-            super::calibrate::print_history(&lines, args.json);
+            super::history::record(db, &done.recording, &rec, outcome)
         }
-        Err(e) => eprintln!("history: not recorded: cannot read back {}: {e}", o.recording.display()),
+        Err(e) => vec![format!("history: not recorded: cannot read back {}: {e}", done.recording.display())],
     }
 }
 
-async fn run_async(args: &RunArgs) -> Result<Option<Completed>, CliError> {
+async fn run_async(args: &RunArgs) -> Result<(), CliError> {
     // The rig and the script.
     let rig_cfg = match &args.rig {
         Some(p) => Some(RigConfig::read_path(p).map_err(|e| CliError::bad_input(e.to_string()))?),
@@ -177,7 +167,28 @@ async fn run_async(args: &RunArgs) -> Result<Option<Completed>, CliError> {
     let metadata = vec![("rig".to_string(), rig_note.clone())];
     let script_toml = script.to_toml().ok();
     let req = RunRequest { spec, script, out_dir: out_dir.clone(), truth, metadata };
+    let history_tx = ev_tx.clone();
     let result = run_calibration(req, ev_tx, ctl_rx).await;
+    // The history, while the display still shows the result (its verdict goes
+    // into the final panel). Its PostgreSQL client blocks: off the async workers.
+    let mut history_lines = vec![];
+    if let Ok(r) = &result
+        && let (Some(cal), false) = (&r.calibration, args.no_history)
+    {
+        let done = Completed {
+            recording: r.outcome.recording.clone(),
+            calibration: cal.clone(),
+            truth,
+            rig_note: rig_note.clone(),
+            script_toml: script_toml.clone(),
+        };
+        let db = args.db.clone();
+        history_lines = tokio::task::spawn_blocking(move || write_history(&db, done))
+            .await
+            .unwrap_or_else(|e| vec![format!("history: not recorded: {e}")]);
+        let _ = history_tx.send(crate::run::events::RunEvent::History { lines: history_lines.clone() });
+    }
+    drop(history_tx);
     let display_result = display.await;
     ctrl_c.abort();
     drop(ctl_tx);
@@ -190,7 +201,9 @@ async fn run_async(args: &RunArgs) -> Result<Option<Completed>, CliError> {
     }
     drop(emulated);
     report(args, &result, truth)?;
-    Ok(Some(Completed { result, truth, rig_note, script_toml }))
+    // The display is gone: the verdict with the summary (on stderr beside JSON).
+    super::calibrate::print_history(&history_lines, args.json);
+    Ok(())
 }
 
 /// `aborted.json` beside the recording: why the run ended and where the stage is

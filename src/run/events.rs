@@ -236,6 +236,11 @@ pub enum RunEvent {
     Finished {
         summary: RunSummary,
     },
+    /// After a completed run: what the calibration history made of it
+    /// (recorded or queued; changed or not; the trend). docs/history.md.
+    History {
+        lines: Vec<String>,
+    },
 }
 
 /// What an observer may ask of a running sequencer.
@@ -342,6 +347,7 @@ impl ProgressLine {
             RunEvent::Resumed => Some(format!("{} resumed", self.prefix())),
             RunEvent::Aborted { reason } => Some(format!("{} ABORTED: {}", self.prefix(), reason)),
             RunEvent::Finished { summary } => Some(summary_line(summary)),
+            RunEvent::History { lines } => Some(lines.join("\n")),
         }
     }
 }

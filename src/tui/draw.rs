@@ -335,7 +335,7 @@ fn draw_footer(state: &State, frame: &mut Frame, area: Rect) {
     frame.render_widget(Paragraph::new(Line::from(spans)), area);
 }
 
-fn summary_lines(s: &RunSummary) -> Vec<Line<'static>> {
+fn summary_lines(s: &RunSummary, history: &[String]) -> Vec<Line<'static>> {
     let ci = |c: Option<[f64; 2]>, d: usize| match c {
         Some([lo, hi]) => format!("  95% [{lo:.d$}, {hi:.d$}]"),
         None => String::new(),
@@ -355,6 +355,10 @@ fn summary_lines(s: &RunSummary) -> Vec<Line<'static>> {
     }
     if let Some(r) = &s.report {
         l.push(Line::from(format!("report: {r}")));
+    }
+    for h in history {
+        let alarm = h.contains("CHANGE");
+        l.push(Line::from(if alarm { h.trim().to_string().bold().red() } else { h.trim().to_string().into() }));
     }
     l.push(Line::from("press q or Enter to leave".italic()));
     l
@@ -377,7 +381,7 @@ fn draw_banner(state: &State, frame: &mut Frame, area: Rect) {
                 Line::from("press q or Enter to leave".italic()),
             ],
         ),
-        RunStatus::Finished(s) => (" RUN FINISHED ", Style::new().fg(Color::Cyan), summary_lines(s)),
+        RunStatus::Finished(s) => (" RUN FINISHED ", Style::new().fg(Color::Cyan), summary_lines(s, state.history())),
         RunStatus::Idle | RunStatus::Running => return,
     };
     let height = (lines.len() as u16 + 2).min(area.height);

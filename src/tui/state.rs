@@ -78,6 +78,8 @@ pub struct State {
     quit: bool,
     /// The operator asked to quit again while the first request was pending.
     force_quit: bool,
+    /// What the calibration history made of the finished run.
+    history: Vec<String>,
 }
 
 impl Default for State {
@@ -90,6 +92,7 @@ impl State {
     pub fn new() -> Self {
         Self {
             status: RunStatus::Idle,
+            history: Vec::new(),
             step: None,
             progress: None,
             devices: None,
@@ -147,6 +150,7 @@ impl State {
                 self.pending = None;
                 self.push_log(LogLevel::Error, format!("aborted: {reason}"));
             }
+            RunEvent::History { lines } => self.history = lines.clone(),
             RunEvent::Finished { summary } => {
                 self.status = RunStatus::Finished(summary.clone());
                 self.pending = None;
@@ -223,6 +227,10 @@ impl State {
 
     pub fn status(&self) -> &RunStatus {
         &self.status
+    }
+    /// The history's verdict on the finished run (empty until it arrives).
+    pub fn history(&self) -> &[String] {
+        &self.history
     }
     pub fn step(&self) -> Option<&StepInfo> {
         self.step.as_ref()
