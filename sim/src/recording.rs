@@ -1,4 +1,4 @@
-//! Calibration recordings, format v1 (`shared/docs/recording-format.md`):
+//! Calibration recordings, format v1 (docs/recording-format.md):
 //! `# key: value` metadata lines, a CSV header row, then one row per settled
 //! sample. The reader rejects anything it cannot take at face value with an
 //! error naming the line (and column); nothing is silently dropped. The writer
