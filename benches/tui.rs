@@ -21,7 +21,7 @@ fn full_state() -> State {
     st.apply(&RunEvent::DeviceStatus(DeviceStatus {
         stage: axis(1.4321, false),
         rotation: axis(2.5, true),
-        sensor: SensorStatus { rate_hz: 30.0, frames: 2400, dropped: 2 },
+        sensor: SensorStatus { rate_hz: 30.0, frames: 2400, dropped: 2, ..SensorStatus::default() },
     }));
     for s in &rec.samples {
         st.apply(&RunEvent::Sample(*s));

@@ -51,7 +51,7 @@ fn devices() -> DeviceStatus {
     DeviceStatus {
         stage: axis(1.2345, true, true),
         rotation: axis(0.0, false, false),
-        sensor: SensorStatus { rate_hz: 29.7, frames: 1234, dropped: 3 },
+        sensor: SensorStatus { rate_hz: 29.7, frames: 1234, dropped: 3, skipped: 5000, unmeasured: 0 },
     }
 }
 
@@ -113,7 +113,8 @@ fn mid_normal_sweep_shows_step_gauges_devices_points_and_fit() {
     assert!(s.contains("1.2345 mm"), "{s}");
     assert!(s.contains("moving") && s.contains("homed") && s.contains("not homed"));
     assert!(s.contains("29.7 Hz"));
-    assert!(s.contains("frames 1234  dropped 3"));
+    assert!(s.contains("frames 1234  lost 3"), "{s}");
+    assert!(s.contains("skipped 5000  unmeasured 0"), "{s}");
     // Chart title counts the points; the running fit is shown by value.
     assert!(s.contains(&format!("normal sweep: gamma2 vs gamma1 ({n} pts)")), "{s}");
     assert!(s.contains(&format!("H1 {:>9}", format!("{:.4}", fit.h1.unwrap()))), "{s}");

@@ -67,8 +67,16 @@ pub struct SensorStatus {
     pub rate_hz: f64,
     /// Frames received since the run started.
     pub frames: u64,
-    /// Frames lost (sequence gaps, bad frames) since the run started.
+    /// Frames lost on the link: gaps in the sensor's frame counter, and input
+    /// rejected as malformed (the link's fault, shown as a warning).
     pub dropped: u64,
+    /// Good frames the consumer did not take: replaced in a full queue while
+    /// the run was busy, or late repeats. Normal on a fast sensor; not a fault.
+    #[serde(default)]
+    pub skipped: u64,
+    /// Frames taken but not measurable (no contact pattern the estimator accepts).
+    #[serde(default)]
+    pub unmeasured: u64,
 }
 
 /// A snapshot of every device.

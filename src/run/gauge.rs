@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use async_trait::async_trait;
 use devices::motion::{DeviceFault, FaultKind};
-use devices::sensor::{SensorError, SensorFrame, SensorLink};
+use devices::sensor::{BadReason, SensorError, SensorFrame, SensorLink};
 
 use super::events::SensorStatus;
 
@@ -78,7 +78,7 @@ pub struct SensorGauge<L: SensorLink, F: Measure> {
     link: L,
     measure: F,
     name: String,
-    /// Frames that arrived but could not be measured; shown as dropped.
+    /// Frames that arrived but could not be measured.
     unmeasured: u64,
 }
 
@@ -129,7 +129,15 @@ impl<L: SensorLink, F: Measure> Gauge for SensorGauge<L, F> {
 
     fn link_stats(&self) -> SensorStatus {
         let s = self.link.stats();
-        SensorStatus { rate_hz: s.rate_hz, frames: s.frames, dropped: s.dropped + s.bad_total() + self.unmeasured }
+        // The consumer's own skips are not losses of the link.
+        let skipped = s.bad_count(BadReason::Overrun) + s.bad_count(BadReason::Stale);
+        SensorStatus {
+            rate_hz: s.rate_hz,
+            frames: s.frames,
+            dropped: s.dropped + s.bad_total() - skipped,
+            skipped,
+            unmeasured: self.unmeasured,
+        }
     }
 
     fn describe(&self) -> String {
@@ -167,7 +175,8 @@ mod tests {
             Ok(())
         }
         fn stats(&self) -> LinkStats {
-            LinkStats { frames: 7, rate_hz: 30.0, dropped: 2, ..Default::default() }
+            let bad = [(BadReason::Overrun, 40), (BadReason::Stale, 1), (BadReason::Checksum, 1)].into_iter().collect();
+            LinkStats { frames: 7, rate_hz: 30.0, dropped: 2, bad }
         }
     }
 
@@ -207,7 +216,9 @@ mod tests {
         let e = g.read(Duration::from_millis(5)).await.unwrap_err();
         assert!(matches!(e, GaugeError::Timeout { .. }));
         let st = g.link_stats();
-        assert_eq!((st.frames, st.dropped), (7, 3), "2 gaps + 1 unmeasured");
+        // Lost on the link: 2 gaps + 1 bad checksum; skipped by the consumer:
+        // 40 overrun + 1 stale; not measurable: 1.
+        assert_eq!((st.frames, st.dropped, st.skipped, st.unmeasured), (7, 3, 41, 1));
         assert_eq!(g.describe(), "sim-sensor");
         let link = g.into_link();
         assert!(link.started && link.tared);

@@ -443,7 +443,7 @@ impl Gauge for SimGauge {
     }
     fn link_stats(&self) -> SensorStatus {
         let st = self.rig.state();
-        SensorStatus { rate_hz: st.cfg.frame_rate_hz, frames: st.frames, dropped: 0 }
+        SensorStatus { rate_hz: st.cfg.frame_rate_hz, frames: st.frames, ..SensorStatus::default() }
     }
     fn describe(&self) -> String {
         "sim-gauge".into()

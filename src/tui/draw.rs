@@ -260,9 +260,12 @@ fn draw_devices(state: &State, frame: &mut Frame, area: Rect) {
             let mut l = axis_lines("stage", "mm", &d.stage);
             l.extend(axis_lines("rotation", "deg", &d.rotation));
             let s = d.sensor;
-            let dropped = if s.dropped > 0 { format!("{}", s.dropped).red() } else { "0".green() };
+            // Only frames lost on the link are a fault; frames the run did not
+            // need (a full queue while it was busy) are shown plain.
+            let lost = if s.dropped > 0 { format!("{}", s.dropped).red() } else { "0".green() };
             l.push(Line::from(vec![format!("{:<9}", "sensor").bold(), format!("{:>10.1} Hz", s.rate_hz).into()]));
-            l.push(Line::from(vec![format!("  frames {}  dropped ", s.frames).into(), dropped]));
+            l.push(Line::from(vec![format!("  frames {}  lost ", s.frames).into(), lost]));
+            l.push(Line::from(format!("  skipped {}  unmeasured {}", s.skipped, s.unmeasured)));
             l
         }
     };
