@@ -138,6 +138,25 @@ fn default_run_through_the_real_drivers_recovers_the_truth() {
         assert_eq!(v["sim_truth"]["E1_MPa"].as_f64(), Some(truth.e1_mpa));
         assert_eq!(v["E1_MPa"].as_f64(), Some(e1));
         assert!(std::fs::read_to_string(&files.markdown).unwrap().contains("normal_sweep.svg"));
+        // The report's timings: every phase took rig time, they add up to the
+        // run's, and homing holds the K10CR1's travel home from its power-on
+        // angle (365 deg at 5 deg/s = 73 s).
+        let run = &v["run"];
+        assert_eq!(run["rig_time_s"].as_f64(), Some(r.outcome.rig_time_s));
+        let phases: Vec<(&str, f64)> = run["phases"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| (p["phase"].as_str().unwrap(), p["rig_time_s"].as_f64().unwrap()))
+            .collect();
+        eprintln!("rig time per phase: {phases:?}");
+        let names: Vec<&str> = phases.iter().map(|p| p.0).collect();
+        assert_eq!(names, ["homing", "approach", "normal", "torsion", "retract"]);
+        assert!(phases.iter().all(|p| p.1 > 0.0), "{phases:?}");
+        let sum: f64 = phases.iter().map(|p| p.1).sum();
+        assert!((sum - r.outcome.rig_time_s).abs() < 1e-6 * sum, "{sum} vs {}", r.outcome.rig_time_s);
+        assert!(phases[0].1 > 365.0 / 5.0, "homing {} s", phases[0].1);
+        assert!(std::fs::read_to_string(&files.markdown).unwrap().contains("| run | rig time"));
         assert!(std::fs::read_to_string(&files.torsion_svg).unwrap().starts_with("<svg"));
         // The run ended with the summary, and the stage is back at the retract position.
         assert!(matches!(events.last(), Some(RunEvent::Finished { summary }) if summary.e1_mpa == Some(e1)));

@@ -23,6 +23,18 @@ pub struct CalibrationOutput {
     pub warnings: Vec<Warning>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sim_truth: Option<Truth>,
+    /// How long the run took, when a run made the recording (docs/run.md).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub run: Option<RunTimings>,
+}
+
+/// A run's timings: rig time (the sensor's clock, homing included), wall
+/// time, and rig time per phase of the procedure.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunTimings {
+    pub rig_time_s: f64,
+    pub wall_time_s: f64,
+    pub phases: Vec<crate::run::PhaseTime>,
 }
 
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -62,6 +74,7 @@ pub fn calibration_output(
         full: cal.full.clone(),
         warnings: cal.warnings.clone(),
         sim_truth: truth,
+        run: None,
     }
 }
 

@@ -40,7 +40,18 @@ pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &st
         meta.indenter.e_mpa, meta.indenter.nu, meta.indenter.r_mm
     );
     let r1 = if meta.elastomer_r_mm.is_infinite() { "flat".to_string() } else { format!("{} mm", meta.elastomer_r_mm) };
-    let _ = writeln!(s, "| elastomer radius R1 | {r1} |\n");
+    let _ = writeln!(s, "| elastomer radius R1 | {r1} |");
+    if let Some(t) = &out.run {
+        let phases: Vec<String> = t.phases.iter().map(|p| format!("{} {:.1} s", p.phase, p.rig_time_s)).collect();
+        let _ = writeln!(
+            s,
+            "| run | rig time {:.1} s ({}), wall time {:.1} s |",
+            t.rig_time_s,
+            phases.join(", "),
+            t.wall_time_s
+        );
+    }
+    let _ = writeln!(s);
 
     let _ = writeln!(s, "## Result\n");
     let _ = writeln!(

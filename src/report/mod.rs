@@ -13,7 +13,7 @@ use sim::recording::{Recording, RecordingError};
 
 use crate::fit::{Calibration, FitError};
 
-pub use json::{CalibrationOutput, Truth, calibration_output};
+pub use json::{CalibrationOutput, RunTimings, Truth, calibration_output};
 pub use markdown::render_markdown;
 pub use plot::{NORMAL_TEXT, PlotText, SweepPlot, TORSION_TEXT, normal_plot, render_svg, torsion_plot};
 
@@ -65,7 +65,20 @@ pub fn write_report(
 ) -> Result<ReportFiles, ReportError> {
     let rec = Recording::read_path(recording_path)
         .map_err(|source| ReportError::Recording { path: recording_path.to_path_buf(), source })?;
-    write_report_for(out_dir, &rec, Some(recording_path), cal, truth)
+    write_report_for(out_dir, &rec, Some(recording_path), cal, truth, None)
+}
+
+/// [`write_report`] for a run: the report also carries the run's timings.
+pub fn write_run_report(
+    out_dir: &Path,
+    recording_path: &Path,
+    cal: &Calibration,
+    truth: Option<Truth>,
+    timings: RunTimings,
+) -> Result<ReportFiles, ReportError> {
+    let rec = Recording::read_path(recording_path)
+        .map_err(|source| ReportError::Recording { path: recording_path.to_path_buf(), source })?;
+    write_report_for(out_dir, &rec, Some(recording_path), cal, truth, Some(timings))
 }
 
 /// Write the report of `cal`, fitted to `rec`, into `out_dir` (created if
@@ -76,12 +89,14 @@ pub fn write_report_for(
     recording_path: Option<&Path>,
     cal: &Calibration,
     truth: Option<Truth>,
+    timings: Option<RunTimings>,
 ) -> Result<ReportFiles, ReportError> {
     std::fs::create_dir_all(out_dir).map_err(|source| ReportError::Io { path: out_dir.to_path_buf(), source })?;
     // Figures first: a model that cannot be evaluated fails before any file is written.
     let normal = render_svg(&normal_plot(rec, cal)?, &NORMAL_TEXT)?;
     let torsion = render_svg(&torsion_plot(rec, cal)?, &TORSION_TEXT)?;
-    let out = calibration_output(rec, cal, recording_path, truth);
+    let mut out = calibration_output(rec, cal, recording_path, truth);
+    out.run = timings;
     let json = json::to_json_explained(&out)?;
     let md = render_markdown(&out, rec, NORMAL_SVG_FILE, TORSION_SVG_FILE);
     Ok(ReportFiles {

@@ -8,7 +8,7 @@ use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
 use super::connect::{ConnectError, RigSpec, open_rig};
 use crate::fit::{Calibration, FitOptions, calibrate};
-use crate::report::{ReportFiles, Truth, write_report};
+use crate::report::{ReportFiles, RunTimings, Truth, write_run_report};
 use crate::run::events::{LogLevel, RunControl, RunEvent};
 use crate::run::{RunOutcome, Script, ScriptError, Sequencer};
 
@@ -55,11 +55,13 @@ pub fn fit_and_report(
     recording: &Path,
     out_dir: &Path,
     truth: Option<Truth>,
+    timings: RunTimings,
 ) -> Result<(Calibration, ReportFiles), String> {
     let rec = sim::recording::Recording::read_path(recording)
         .map_err(|e| format!("cannot read the recording {}: {e}", recording.display()))?;
     let cal = calibrate(&rec, &FitOptions::default()).map_err(|e| format!("cannot fit the recording: {e}"))?;
-    let files = write_report(out_dir, recording, &cal, truth).map_err(|e| format!("cannot write the report: {e}"))?;
+    let files = write_run_report(out_dir, recording, &cal, truth, timings)
+        .map_err(|e| format!("cannot write the report: {e}"))?;
     Ok((cal, files))
 }
 
@@ -98,7 +100,12 @@ pub async fn run_calibration(
     if !outcome.completed() {
         return Ok(RunResult { outcome, calibration: None, report: None, fit_error: None });
     }
-    match fit_and_report(&outcome.recording, &req.out_dir, req.truth) {
+    let timings = RunTimings {
+        rig_time_s: outcome.rig_time_s,
+        wall_time_s: outcome.wall_time_s,
+        phases: outcome.phase_rig_time_s.clone(),
+    };
+    match fit_and_report(&outcome.recording, &req.out_dir, req.truth, timings) {
         Ok((cal, files)) => {
             let mut summary = outcome.summary(Some(&cal));
             summary.report = Some(files.json.display().to_string());

@@ -13,5 +13,5 @@ pub mod simrig;
 pub use gauge::{Gauge, GaugeError, GaugeReading, SensorGauge};
 pub use safety::{LimitViolation, SafetyGuard, SoftLimits};
 pub use script::{DEFAULT_SCRIPT_TOML, Script, ScriptError};
-pub use sequencer::{AbortInfo, Backoff, Culprit, RunOutcome, RunStatus, Sequencer};
+pub use sequencer::{AbortInfo, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus, Sequencer};
 pub use simrig::{SimFault, SimFaults, SimRig, SimRigConfig};

@@ -95,6 +95,25 @@ pub enum RunStatus {
     Aborted(AbortInfo),
 }
 
+/// Rig time of one phase of the procedure.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PhaseTime {
+    pub phase: &'static str,
+    pub rig_time_s: f64,
+}
+
+/// Durations between phase marks; the last phase runs to `end_s`.
+fn phase_times(marks: &[(&'static str, f64)], end_s: f64) -> Vec<PhaseTime> {
+    marks
+        .iter()
+        .enumerate()
+        .map(|(i, &(phase, t))| {
+            let next = marks.get(i + 1).map_or(end_s, |m| m.1);
+            PhaseTime { phase, rig_time_s: (next - t).max(0.0) }
+        })
+        .collect()
+}
+
 /// What a run leaves behind. The caller fits the recording.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunOutcome {
@@ -111,6 +130,9 @@ pub struct RunOutcome {
     pub noise_gamma1_mm: Option<f64>,
     /// beta = gamma2 / R2 held during the torsion sweep.
     pub torsion_beta: Option<f64>,
+    /// Rig time per phase of the procedure, in order (`homing`, `approach`,
+    /// `normal`, `torsion`, `retract`), by the sensor's clock.
+    pub phase_rig_time_s: Vec<PhaseTime>,
     pub status: RunStatus,
 }
 
@@ -205,6 +227,8 @@ pub struct Sequencer<S, R, G> {
     live_noise: Option<(f64, f64)>,
     t0: Option<f64>,
     t_last: f64,
+    /// Where each phase began on the sensor's clock.
+    phase_marks: Vec<(&'static str, f64)>,
     writer: Option<RecordingWriter<BufWriter<File>>>,
     samples: Vec<Sample>,
     contact_mm: Option<f64>,
@@ -342,6 +366,7 @@ where
             live_noise: None,
             t0: None,
             t_last: 0.0,
+            phase_marks: Vec::new(),
             writer: None,
             samples: Vec::new(),
             contact_mm: None,
@@ -463,6 +488,7 @@ where
             contact_mm: self.contact_mm,
             noise_gamma1_mm: (self.noise_gamma1 > 0.0).then_some(self.noise_gamma1),
             torsion_beta: self.torsion_beta,
+            phase_rig_time_s: phase_times(&self.phase_marks, self.t_last),
             status,
         }
     }
@@ -471,18 +497,24 @@ where
         self.step(0, "connect and identify", RunPhase::Setup);
         self.connect().await?;
         self.step(1, "home", RunPhase::Setup);
+        self.mark_phase("homing").await?;
         self.home().await?;
         self.step(2, "approach and find contact", RunPhase::Approach);
+        self.mark_phase("approach").await?;
         self.approach().await?;
         let reps = self.script.normal.repeats;
         let mut crossing = None;
         for rep in 0..reps {
             self.step(3 + rep as usize, format!("normal sweep {}/{}", rep + 1, reps), RunPhase::Normal);
+            if rep == 0 {
+                self.mark_phase("normal").await?;
+            }
             self.device_status().await?;
             crossing = Some(self.normal_sweep(rep).await?);
         }
         let base = 3 + reps as usize;
         self.step(base, "return to torsion depth", RunPhase::Torsion);
+        self.mark_phase("torsion").await?;
         let crossing =
             crossing.ok_or_else(|| Halt { culprit: Culprit::Procedure, message: "no normal sweep ran".into() })?;
         self.torsion_depth(crossing).await?;
@@ -490,7 +522,9 @@ where
         self.device_status().await?;
         self.torsion_sweep().await?;
         self.step(base + 2, "retract", RunPhase::Retract);
+        self.mark_phase("retract").await?;
         self.retract().await?;
+        self.mark_end().await;
         self.cursor = Cursor::Done;
         self.progress();
         self.log(
@@ -863,6 +897,22 @@ where
     }
 
     // ---- sensing -----------------------------------------------------------
+
+    /// Timestamp the end of the procedure, best effort: the run is complete
+    /// whatever the sensor says now.
+    async fn mark_end(&mut self) {
+        if let (Ok(r), Some(t0)) = (self.gauge.read(self.script.read_timeout()).await, self.t0) {
+            self.t_last = (r.t_s - t0).max(self.t_last);
+        }
+    }
+
+    /// Timestamp the start of a phase with one reading (the sensor's clock is
+    /// the rig's; without a reading the stretch would have no time).
+    async fn mark_phase(&mut self, phase: &'static str) -> Step<()> {
+        self.read().await?;
+        self.phase_marks.push((phase, self.t_last));
+        Ok(())
+    }
 
     /// One reading; read timeouts adding up to the dropout timeout abort.
     async fn read(&mut self) -> Step<GaugeReading> {
