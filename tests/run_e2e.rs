@@ -359,3 +359,41 @@ fn tac3d_sensor_over_loopback_udp_reads_the_emulated_press() {
         assert!(gauge.link_stats().frames > 0);
     });
 }
+
+#[test]
+fn a_second_calibration_on_homed_devices_skips_homing_and_says_so() {
+    one_at_a_time(async {
+        let rig = rig(false).await;
+        let homing_s = |r: &RunResult| {
+            let v: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&r.report.as_ref().unwrap().json).unwrap()).unwrap();
+            v["run"]["phases"][0]["rig_time_s"].as_f64().unwrap()
+        };
+        let logs = |events: &[RunEvent]| -> Vec<String> {
+            events
+                .iter()
+                .filter_map(|e| if let RunEvent::Log { message, .. } = e { Some(message.clone()) } else { None })
+                .collect()
+        };
+        let first = tempfile::tempdir().unwrap();
+        let (r1, ev1) = run_on(&rig, first.path(), |_| {}, usize::MAX, |_| {}).await;
+        assert_eq!(r1.outcome.status, RunStatus::Completed);
+        assert!(logs(&ev1).iter().any(|m| m.starts_with("homed:")), "{:?}", logs(&ev1));
+        // The same powered rig again: both controllers still report homed.
+        let second = tempfile::tempdir().unwrap();
+        let (r2, ev2) = run_on(&rig, second.path(), |_| {}, usize::MAX, |_| {}).await;
+        assert_eq!(r2.outcome.status, RunStatus::Completed);
+        assert!(logs(&ev2).iter().any(|m| m.starts_with("already homed, homing skipped")), "{:?}", logs(&ev2));
+        let (h1, h2) = (homing_s(&r1), homing_s(&r2));
+        eprintln!(
+            "homing: first run {h1:.1} s, second {h2:.1} s; rig time {:.1} s -> {:.1} s",
+            r1.outcome.rig_time_s, r2.outcome.rig_time_s
+        );
+        // The K10CR1 alone needs 73 s to come home from its power-on angle.
+        assert!(h1 > 73.0 && h2 < 5.0, "{h1} {h2}");
+        // And the answer is the same calibration.
+        let truth = rig.truth();
+        let cal = r2.calibration.as_ref().unwrap();
+        assert!((cal.full.e1_mpa / truth.e1_mpa - 1.0).abs() < 0.01 && (cal.full.nu1 / truth.nu1 - 1.0).abs() < 0.02);
+    });
+}

@@ -590,16 +590,27 @@ where
 
     async fn home(&mut self) -> Step<()> {
         self.checkpoint().await?;
+        // Devices that report homed have kept their position since they were
+        // homed (the controller's own flag, cleared at power loss): trusted,
+        // and homing again would only cost time (the K10CR1 homes at 5 deg/s).
+        let stage = LinearStage::status(&mut self.stage).await.map_err(|e| self.stage_fault("status", e))?;
+        let mount = RotationMount::status(&mut self.mount).await.map_err(|e| self.mount_fault("status", e))?;
+        let trusted = stage.homed && mount.homed;
         let t = self.script.home_timeout();
-        LinearStage::home(&mut self.stage, t).await.map_err(|e| self.stage_fault("homing", e))?;
+        if !trusted {
+            LinearStage::home(&mut self.stage, t).await.map_err(|e| self.stage_fault("homing", e))?;
+        }
         self.stage_homed = true;
         self.stage_mm = self.stage.position_mm().await.map_err(|e| self.stage_fault("position", e))?;
         // Inside the declared clear zone nothing touches the sensor.
         self.g1_bound = if self.stage_mm <= self.guard.limits().clear_until_mm { 0.0 } else { f64::NAN };
-        RotationMount::home(&mut self.mount, t).await.map_err(|e| self.mount_fault("homing", e))?;
+        if !trusted {
+            RotationMount::home(&mut self.mount, t).await.map_err(|e| self.mount_fault("homing", e))?;
+        }
         self.mount_homed = true;
         self.mount_deg = self.mount.position_deg().await.map_err(|e| self.mount_fault("position", e))?;
-        self.log(LogLevel::Info, format!("homed: stage {:.3} mm, mount {:.3} deg", self.stage_mm, self.mount_deg));
+        let what = if trusted { "already homed, homing skipped" } else { "homed" };
+        self.log(LogLevel::Info, format!("{what}: stage {:.3} mm, mount {:.3} deg", self.stage_mm, self.mount_deg));
         self.device_status().await
     }
 
