@@ -325,6 +325,21 @@ mod tests {
     }
 
     #[test]
+    fn a_repeatability_floor_explains_what_the_intervals_alone_do_not() {
+        let reference = pts(&[(0.0, 1.0), (86_400.0, 1.0005), (2.0 * 86_400.0, 0.9995)], 0.001);
+        let new = Point { t: 3.0 * 86_400.0, x: 1.006, s: 0.001 };
+        let bare = Settings::default();
+        let v = verdict_of(Quantity::E1, &reference, new, &bare, bare.z_critical()).unwrap();
+        // 0.6 % against fits good to 0.1 %: a change.
+        assert!(v.alarm && v.z_step > 5.0, "{v:?}");
+        let floored = Settings { repeatability_floor: [0.005, 0.005], ..bare };
+        let v = verdict_of(Quantity::E1, &reference, new, &floored, floored.z_critical()).unwrap();
+        // With a rig that scatters 0.5 % between calibrations it is not.
+        assert!(!v.alarm && v.z_step < 1.5, "{v:?}");
+        assert!((v.repeatability_sd - (0.001f64.powi(2) + 0.00503f64.powi(2)).sqrt()).abs() < 1e-4, "{v:?}");
+    }
+
+    #[test]
     fn the_critical_value_is_the_bonferroni_normal_quantile() {
         // alpha = 0.2 % over four tests: 0.05 % each, two-sided: z = 3.4808.
         assert!((Settings::default().z_critical() - 3.4808).abs() < 1e-3);

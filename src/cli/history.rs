@@ -58,9 +58,20 @@ pub struct DbArg {
     /// (default: history.sqlite in the platform's data folder, or in EASYCALIB_HOME).
     #[arg(long, env = "EASYCALIB_DB", value_name = "PATH|URL", global = true)]
     pub db: Option<String>,
+    /// The rig's repeatability between calibrations, percent of the value (a
+    /// floor under the history's own estimate; it alone counts until a sensor
+    /// has 4 calibrations). Default 0: the fits' intervals only.
+    #[arg(long, env = "EASYCALIB_REPEATABILITY_PCT", value_name = "PCT", global = true)]
+    pub repeatability_pct: Option<f64>,
 }
 
 impl DbArg {
+    /// The change test's settings, with the repeatability floor given.
+    pub fn settings(&self) -> Settings {
+        let floor = self.repeatability_pct.filter(|p| p.is_finite() && *p > 0.0).map_or(0.0, |p| p / 100.0);
+        Settings { repeatability_floor: [floor, floor], ..Settings::default() }
+    }
+
     pub fn target(&self) -> Target {
         match &self.db {
             Some(s) => Target::parse(s),
@@ -174,7 +185,7 @@ pub fn record(db: &DbArg, path: &Path, rec: &Recording, outcome: Outcome) -> Vec
                 store.describe()
             )];
             match store.list(Some(&record.sensor)) {
-                Ok(rows) => lines.extend(verdict_lines(&rows, &record)),
+                Ok(rows) => lines.extend(verdict_lines(&rows, &record, &db.settings())),
                 Err(e) => lines.push(format!("history: cannot read the sensor's history back: {e}")),
             }
             lines
@@ -194,12 +205,11 @@ pub fn record(db: &DbArg, path: &Path, rec: &Recording, outcome: Outcome) -> Vec
 }
 
 /// The change verdict of `new` against the sensor's earlier calibrations, and the trend.
-fn verdict_lines(rows: &[CalibrationRecord], new: &CalibrationRecord) -> Vec<String> {
-    let settings = Settings::default();
+fn verdict_lines(rows: &[CalibrationRecord], new: &CalibrationRecord, settings: &Settings) -> Vec<String> {
     let series = change::series(rows, &new.sensor, &new.model);
     let mut lines = vec![];
     let Some(k) = series.iter().position(|r| r.recording_sha256 == new.recording_sha256) else { return lines };
-    let a = change::assess(&series, k, &settings);
+    let a = change::assess(&series, k, settings);
     lines.push(format!("history: {} — calibration {} of {} ({} model)", new.sensor, k + 1, series.len(), new.model));
     if a.e1.is_none() && a.nu1.is_none() {
         lines.push("history: the first calibration with intervals: nothing to compare with yet".into());
@@ -223,7 +233,7 @@ fn verdict_lines(rows: &[CalibrationRecord], new: &CalibrationRecord) -> Vec<Str
             100.0 * a.false_alarm_rate
         ));
     }
-    for t in [Quantity::E1, Quantity::Nu1].iter().filter_map(|&q| change::trend(&series[..=k], q, &settings)) {
+    for t in [Quantity::E1, Quantity::Nu1].iter().filter_map(|&q| change::trend(&series[..=k], q, settings)) {
         lines.push(trend_line(&t));
     }
     lines
@@ -395,7 +405,7 @@ fn list(target: &Target, args: &HistoryArgs) -> Result<(), CliError> {
             None => format!("no calibration in {}", store.describe()),
         }));
     }
-    let settings = Settings::default();
+    let settings = args.db.settings();
     let mut keys: Vec<(&str, &str)> = rows.iter().map(|r| (r.sensor.as_str(), r.model.as_str())).collect();
     keys.sort();
     keys.dedup();
@@ -417,6 +427,7 @@ fn list(target: &Target, args: &HistoryArgs) -> Result<(), CliError> {
             "db": store.describe(),
             "false_alarm_rate": settings.false_alarm_rate,
             "z_critical": settings.z_critical(),
+            "repeatability_floor_pct": 100.0 * settings.repeatability_floor[0],
             "sensors": out,
         });
         println!("{doc:#}");
