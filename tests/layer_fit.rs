@@ -1,9 +1,10 @@
 //! A declared bonded layer is fitted with the project's FE reference (hemisphere
-//! indenter on a bonded gel, Coulomb friction in torsion): checked on the
-//! independent finite-element recordings of the dev set, which it did not make.
-//! Issue 13 asks for E1 within 1 % and nu1 within 2 %; what this model reaches is
-//! printed and asserted at the level it holds today, with intervals that cover the
-//! truth (the model error is part of them).
+//! indenter on a bonded gel, Coulomb friction between them while pressing and
+//! twisting): checked on the independent finite-element recordings of the dev
+//! set, which it did not make. Issue 13 asks for E1 within 1 % and nu1 within
+//! 2 %; what this model reaches is printed and asserted at the level it holds
+//! today (nu1 within 2.1 %, E1 within 1.9 %), with intervals that cover the truth
+//! (the model error is part of them).
 
 use std::path::PathBuf;
 
@@ -38,11 +39,15 @@ fn the_dev_sets_linear_recordings_are_recovered() {
         assert_eq!(full.model, "layer-fe");
         assert!(full.ci95.e1_mpa[0] <= e1 && e1 <= full.ci95.e1_mpa[1], "{}: E1 interval misses {e1}", f[0]);
         assert!(full.ci95.nu1[0] <= nu1 && nu1 <= full.ci95.nu1[1], "{}: nu1 interval misses {nu1}", f[0]);
+        // The dev model's interface has Coulomb friction 0.4 (its README): the
+        // torsion sweep's slip, with the normal sweep's grip, recovers it.
+        let mu = full.contact_friction.unwrap();
+        assert!((0.3..0.55).contains(&mu), "{}: friction {mu}", f[0]);
         worst_e = worst_e.max(de.abs());
         worst_nu = worst_nu.max(dn.abs());
     }
     println!("worst: E1 {worst_e:.2} %, nu1 {worst_nu:.2} %");
-    assert!(worst_e < 3.0 && worst_nu < 7.5, "E1 {worst_e} %, nu1 {worst_nu} %");
+    assert!(worst_e < 2.0 && worst_nu < 2.5, "E1 {worst_e} %, nu1 {worst_nu} %");
 }
 
 #[test]

@@ -16,6 +16,24 @@ fn main() {
             let setup = t.elapsed();
             let t = std::time::Instant::now();
             let m = fw.model(e1, nu1);
+            let stages: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm).collect();
+            let dmax = stages.iter().cloned().fold(0.0, f64::max);
+            let coarse = m.normal_path(&stages, 0.4, dmax / 30.0).unwrap();
+            let fine = m.normal_path(&stages, 0.4, dmax / 120.0).unwrap();
+            let moved = coarse.iter().zip(&fine).map(|(a, b)| (a.gamma1_mm - b.gamma1_mm).abs()).fold(0.0, f64::max);
+            println!("    load steps 30 -> 120: gamma1 moves at most {:.3} um", moved * 1e3);
+            for mu in [0.0, 0.4, f64::INFINITY] {
+                let path = m.normal_path(&stages, mu, dmax / 60.0).unwrap();
+                let d: Vec<f64> = rec
+                    .samples
+                    .iter()
+                    .zip(&path)
+                    .filter(|(s, _)| s.phase == Phase::Normal)
+                    .map(|(s, st)| (s.gamma1_mm - st.gamma1_mm) * 1e3)
+                    .collect();
+                let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+                println!("    path mu {mu}: normal rms {rms:.2} um last {:+.2} um", d[d.len() - 1]);
+            }
             let mut rn = vec![];
             let mut rt = vec![];
             for s in &rec.samples {

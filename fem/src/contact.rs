@@ -9,7 +9,7 @@
 use std::f64::consts::PI;
 
 use crate::FemError;
-use crate::elastic::Body;
+use crate::elastic::{Body, SurfaceCompliance};
 
 /// One solved contact.
 #[derive(Debug, Clone, PartialEq)]
@@ -26,6 +26,9 @@ pub struct ContactState {
     pub contact_radius_mm: [f64; 2],
     /// Nodal forces per radian at the surface nodes, N/rad.
     pub nodal_force: Vec<f64>,
+    /// Radial friction forces per radian on the gel's surface nodes (outward
+    /// positive), N/rad; zero in frictionless contact.
+    pub nodal_shear: Vec<f64>,
 }
 
 /// The gel and the indenter (rigid when `None`), condensed onto their common surface nodes.
@@ -145,6 +148,7 @@ impl TwoBodyContact {
                     gamma1_mm: gamma1,
                     gamma2_mm: delta_mm - gamma1,
                     contact_radius_mm: [self.r[last], self.r.get(last + 1).copied().unwrap_or(self.r[last])],
+                    nodal_shear: vec![0.0; n],
                     nodal_force: p,
                 });
             }
@@ -153,5 +157,257 @@ impl TwoBodyContact {
             }
         }
         Err(FemError::ContactNotSettled(4 * n + 10))
+    }
+}
+
+/// A node's state in frictional contact.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Node {
+    Free,
+    Stick,
+    /// Slipping; the friction force on the gel is `-mu p d` (d = direction of the
+    /// gel's slip relative to the indenter, +1 outward).
+    Slip(f64),
+}
+
+/// Normal contact with Coulomb friction between the indenter and the gel
+/// (docs/physics.md, "Finite-element reference"). Each body is its surface
+/// compliance in (r, z); on the nodes in contact the gap is closed, and each
+/// node either sticks (its relative radial displacement keeps the value it had
+/// at the previous load step) or slips with |q| = mu p against the slip. Friction
+/// makes the answer depend on the path, so the contact is followed through the
+/// approach in steps.
+pub struct FrictionalContact {
+    radius_mm: f64,
+    r: Vec<f64>,
+    gel: SurfaceCompliance,
+    sum: SurfaceCompliance,
+}
+
+impl FrictionalContact {
+    /// Both bodies on common surface nodes at radii `r` (the gel's first nodes).
+    pub fn new(r: Vec<f64>, gel: SurfaceCompliance, indenter: &SurfaceCompliance, indenter_radius_mm: f64) -> Self {
+        let n = r.len();
+        let add = |a: &Vec<Vec<f64>>, b: &Vec<Vec<f64>>| -> Vec<Vec<f64>> {
+            (0..n).map(|j| (0..n).map(|i| a[j][i] + b[j][i]).collect()).collect()
+        };
+        let sum = SurfaceCompliance {
+            rr: add(&gel.rr, &indenter.rr),
+            rz: add(&gel.rz, &indenter.rz),
+            zr: add(&gel.zr, &indenter.zr),
+            zz: add(&gel.zz, &indenter.zz),
+        };
+        Self { radius_mm: indenter_radius_mm, r, gel, sum }
+    }
+
+    pub fn radii(&self) -> &[f64] {
+        &self.r
+    }
+
+    fn profile(&self, r: f64) -> f64 {
+        let big = self.radius_mm;
+        big - (big * big - r * r).max(0.0).sqrt()
+    }
+
+    /// Gap closure and relative radial slip at every node for normal forces `p`
+    /// and friction forces `q` on the gel: (gap + delta - f(r), slip).
+    fn kinematics(&self, p: &[f64], q: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let n = self.r.len();
+        let mut w = vec![0.0; n];
+        let mut s = vec![0.0; n];
+        for j in 0..n {
+            if p[j] == 0.0 && q[j] == 0.0 {
+                continue;
+            }
+            for i in 0..n {
+                w[i] += self.sum.zz[j][i] * p[j] - self.sum.zr[j][i] * q[j];
+                s[i] += self.sum.rr[j][i] * q[j] - self.sum.rz[j][i] * p[j];
+            }
+        }
+        (w, s)
+    }
+
+    /// The contact along a monotone approach through every positive value of
+    /// `deltas_mm` (any order; a state per entry, zero load at or below 0), in
+    /// steps of at most `max_step_mm`. `mu = 0` is frictionless, `mu = inf` sticks.
+    pub fn solve_path(&self, deltas_mm: &[f64], mu: f64, max_step_mm: f64) -> Result<Vec<ContactState>, FemError> {
+        if mu.is_nan() || mu < 0.0 || max_step_mm.is_nan() || max_step_mm <= 0.0 {
+            return Err(FemError::Invalid(format!("friction {mu}, load step {max_step_mm} mm")));
+        }
+        let n = self.r.len();
+        let mut order: Vec<usize> = (0..deltas_mm.len()).collect();
+        order.sort_by(|&a, &b| deltas_mm[a].total_cmp(&deltas_mm[b]));
+        let mut out: Vec<Option<ContactState>> = vec![None; deltas_mm.len()];
+        let mut status = vec![Node::Free; n];
+        let mut p = vec![0.0; n];
+        let mut q = vec![0.0; n];
+        let mut s_ref = vec![0.0; n];
+        let mut at = 0.0f64;
+        for &k in &order {
+            let target = deltas_mm[k];
+            if !target.is_finite() {
+                return Err(FemError::Invalid(format!("approach {target} mm")));
+            }
+            if target > at {
+                let steps = ((target - at) / max_step_mm).ceil().max(1.0) as usize;
+                let from = at;
+                for m in 1..=steps {
+                    let delta = from + (target - from) * m as f64 / steps as f64;
+                    self.step(delta, mu, &mut status, &mut p, &mut q, &mut s_ref)?;
+                }
+                at = target;
+            }
+            out[k] = Some(if target <= 0.0 {
+                self.state(target, &vec![0.0; n], &vec![0.0; n])
+            } else {
+                self.state(target, &p, &q)
+            });
+        }
+        Ok(out.into_iter().map(|s| s.expect("every entry is visited")).collect())
+    }
+
+    fn state(&self, delta_mm: f64, p: &[f64], q: &[f64]) -> ContactState {
+        let n = self.r.len();
+        let gamma1: f64 = (0..n).map(|j| self.gel.zz[j][0] * p[j] - self.gel.zr[j][0] * q[j]).sum();
+        let last = (0..n).rev().find(|&i| p[i] > 0.0).unwrap_or(0);
+        ContactState {
+            delta_mm,
+            force_n: 2.0 * PI * p.iter().sum::<f64>(),
+            gamma1_mm: gamma1,
+            gamma2_mm: delta_mm - gamma1,
+            contact_radius_mm: [self.r[last], self.r.get(last + 1).copied().unwrap_or(self.r[last])],
+            nodal_force: p.to_vec(),
+            nodal_shear: q.to_vec(),
+        }
+    }
+
+    /// One load step to approach `delta`, from the converged state in the arguments.
+    fn step(
+        &self,
+        delta: f64,
+        mu: f64,
+        status: &mut [Node],
+        p: &mut [f64],
+        q: &mut [f64],
+        s_ref: &mut [f64],
+    ) -> Result<(), FemError> {
+        let n = self.r.len();
+        let need: Vec<f64> = self.r.iter().map(|&r| delta - self.profile(r)).collect();
+        let tol = 1e-12 * delta.abs().max(1e-9);
+        let limit = 8 * n + 40;
+        let mut releasing = 0;
+        let mut passes = 0;
+        let mut slid_free = vec![false; n];
+        // Grip lost at the edge in the last step is regained.
+        if mu > 0.0 {
+            status.iter_mut().filter(|st| **st == Node::Slip(0.0)).for_each(|st| *st = Node::Stick);
+        }
+        for _ in 0..limit {
+            // Unknowns: p on the nodes in contact, then q on those off the axis.
+            let contact: Vec<usize> = (0..n).filter(|&i| status[i] != Node::Free).collect();
+            let shear: Vec<usize> = contact.iter().copied().filter(|&i| i > 0).collect();
+            let m = contact.len() + shear.len();
+            let mut a = vec![vec![0.0; m]; m];
+            let mut b = vec![0.0; m];
+            for (row, &i) in contact.iter().enumerate() {
+                for (c, &j) in contact.iter().enumerate() {
+                    a[row][c] = self.sum.zz[j][i];
+                }
+                for (c, &j) in shear.iter().enumerate() {
+                    a[row][contact.len() + c] = -self.sum.zr[j][i];
+                }
+                b[row] = need[i];
+            }
+            for (k, &i) in shear.iter().enumerate() {
+                let row = contact.len() + k;
+                match status[i] {
+                    Node::Slip(d) => {
+                        a[row][contact.len() + k] = 1.0;
+                        let c = contact.iter().position(|&x| x == i).unwrap_or(0);
+                        a[row][c] = if d == 0.0 { 0.0 } else { mu * d };
+                    }
+                    _ => {
+                        for (c, &j) in contact.iter().enumerate() {
+                            a[row][c] = -self.sum.rz[j][i];
+                        }
+                        for (c, &j) in shear.iter().enumerate() {
+                            a[row][contact.len() + c] = self.sum.rr[j][i];
+                        }
+                        b[row] = s_ref[i];
+                    }
+                }
+            }
+            let x = if m == 0 { Vec::new() } else { dense_solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
+            p.iter_mut().for_each(|v| *v = 0.0);
+            q.iter_mut().for_each(|v| *v = 0.0);
+            for (c, &i) in contact.iter().enumerate() {
+                p[i] = x[c];
+            }
+            for (c, &i) in shear.iter().enumerate() {
+                q[i] = x[contact.len() + c];
+            }
+            // Pulling nodes let go (all at once while that converges, then the worst).
+            let pulling: Vec<usize> = contact.iter().copied().filter(|&i| p[i] < 0.0).collect();
+            if !pulling.is_empty() {
+                releasing += 1;
+                if releasing <= 8 {
+                    pulling.iter().for_each(|&i| status[i] = Node::Free);
+                } else if let Some(&worst) = pulling.iter().min_by(|&&a, &&b| p[a].total_cmp(&p[b])) {
+                    status[worst] = Node::Free;
+                }
+                // A node that touches down and is then pulled off by its own grip
+                // (the tensile edge of a stuck contact) comes back without friction
+                // for the rest of this step.
+                pulling.iter().for_each(|&i| slid_free[i] = true);
+                continue;
+            }
+            let (w, s) = self.kinematics(p, q);
+            // Every node that breaks its condition, with how far it breaks it.
+            let mut wrong: Vec<(usize, Node, f64)> = Vec::new();
+            for i in 0..n {
+                match status[i] {
+                    Node::Free => {
+                        if need[i] > w[i] + tol {
+                            // A node touching down sits at the edge, where the
+                            // pressure is least: it enters slipping the way it moves.
+                            let moving = s[i] - s_ref[i];
+                            let to = if mu == 0.0 || slid_free[i] {
+                                Node::Slip(0.0)
+                            } else if i > 0 && moving != 0.0 && mu.is_finite() {
+                                Node::Slip(moving.signum())
+                            } else {
+                                Node::Stick
+                            };
+                            wrong.push((i, to, (need[i] - w[i]) / delta.abs().max(1e-9)));
+                        }
+                    }
+                    Node::Stick => {
+                        if i > 0 && q[i].abs() > mu * p[i] * (1.0 + 1e-9) {
+                            let excess = (q[i].abs() - mu * p[i]) / p[i].abs().max(1e-300);
+                            wrong.push((i, Node::Slip(-q[i].signum()), excess));
+                        }
+                    }
+                    Node::Slip(d) => {
+                        let back = -d * (s[i] - s_ref[i]);
+                        if mu > 0.0 && back > 1e-9 * (s[i].abs() + s_ref[i].abs()) + 1e-15 {
+                            wrong.push((i, Node::Stick, back / delta.abs().max(1e-9)));
+                        }
+                    }
+                }
+            }
+            let changed = !wrong.is_empty();
+            passes += 1;
+            if passes <= 12 {
+                wrong.iter().for_each(|&(i, to, _)| status[i] = to);
+            } else if let Some(&(i, to, _)) = wrong.iter().max_by(|a, b| a.2.total_cmp(&b.2)) {
+                // Changing every wrong node at once can cycle: then one at a time.
+                status[i] = to;
+            }
+            if !changed {
+                s_ref.copy_from_slice(&s);
+                return Ok(());
+            }
+        }
+        Err(FemError::ContactNotSettled(limit))
     }
 }

@@ -148,4 +148,64 @@ impl Body {
             })
             .collect()
     }
+
+    /// The full surface compliance in global (r, z) components: for a unit force
+    /// per radian along r or z at surface node j, the r and z displacements at
+    /// every surface node (column-major blocks, `rr[j][i]` is u_r at i under F_r at
+    /// j). The axis node carries no radial force (its u_r is held), so its radial
+    /// column is zero.
+    pub fn surface_compliance_rz(&self) -> SurfaceCompliance {
+        let s = &self.mesh.surface;
+        let n = 2 * self.mesh.xy.len();
+        let held: std::collections::HashSet<usize> = self.mesh.axis.iter().copied().collect();
+        let column = |j: usize, dof: usize| -> (Vec<f64>, Vec<f64>) {
+            if dof == 0 && held.contains(&j) {
+                return (vec![0.0; s.len()], vec![0.0; s.len()]);
+            }
+            let mut f = vec![0.0; n];
+            f[2 * j + dof] = 1.0;
+            let u = self.factor.solve(&f);
+            (s.iter().map(|&i| u[2 * i]).collect(), s.iter().map(|&i| u[2 * i + 1]).collect())
+        };
+        let mut out = SurfaceCompliance::default();
+        for &j in s {
+            let (rr, zr) = column(j, 0);
+            let (rz, zz) = column(j, 1);
+            out.rr.push(rr);
+            out.zr.push(zr);
+            out.rz.push(rz);
+            out.zz.push(zz);
+        }
+        out
+    }
+}
+
+/// A body's surface compliance in global components (see
+/// [`Body::surface_compliance_rz`]): `ab[j][i]` is the a-displacement at node i
+/// under a unit b-force per radian at node j.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SurfaceCompliance {
+    pub rr: Vec<Vec<f64>>,
+    pub rz: Vec<Vec<f64>>,
+    pub zr: Vec<Vec<f64>>,
+    pub zz: Vec<Vec<f64>>,
+}
+
+impl SurfaceCompliance {
+    /// The leading `n` nodes (the ones an indenter of smaller radius can touch).
+    pub fn leading(&self, n: usize) -> Self {
+        let cut = |m: &Vec<Vec<f64>>| m[..n].iter().map(|c| c[..n].to_vec()).collect();
+        Self { rr: cut(&self.rr), rz: cut(&self.rz), zr: cut(&self.zr), zz: cut(&self.zz) }
+    }
+
+    /// `Σ_k w_k m_k / scale` on the leading `n` nodes, block by block (an
+    /// interpolation between tables).
+    pub fn combine(parts: &[(f64, &Self)], n: usize, scale: f64) -> Self {
+        let mix = |pick: &dyn Fn(&Self) -> &Vec<Vec<f64>>| -> Vec<Vec<f64>> {
+            (0..n)
+                .map(|j| (0..n).map(|i| parts.iter().map(|(w, m)| w * pick(m)[j][i]).sum::<f64>() / scale).collect())
+                .collect()
+        };
+        Self { rr: mix(&|m| &m.rr), rz: mix(&|m| &m.rz), zr: mix(&|m| &m.zr), zz: mix(&|m| &m.zz) }
+    }
 }

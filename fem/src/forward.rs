@@ -9,8 +9,8 @@ use std::f64::consts::PI;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use crate::FemError;
-use crate::contact::{ContactState, TwoBodyContact, dense_solve};
-use crate::elastic::{Body, Material};
+use crate::contact::{ContactState, FrictionalContact, TwoBodyContact, dense_solve};
+use crate::elastic::{Body, Material, SurfaceCompliance};
 use crate::mesh::Mesh;
 use crate::torsion::TorsionBody;
 
@@ -38,8 +38,8 @@ struct GelTables {
     /// Surface radii (all gel surface nodes), mm.
     r: Vec<f64>,
     nu: Vec<f64>,
-    /// Normal compliance per nu node (E1 = 1), column-major.
-    normal: Vec<Vec<Vec<f64>>>,
+    /// Surface compliance in (r, z) per nu node (E1 = 1), column-major.
+    normal: Vec<SurfaceCompliance>,
     /// Torsion compliance for unit shear modulus.
     torsion: Vec<Vec<f64>>,
 }
@@ -57,7 +57,7 @@ impl GelTables {
         let normal = nu
             .iter()
             .map(|&v| {
-                Body::new(mesh.clone(), Material { e_mpa: 1.0, nu: v.min(0.4999) }).map(|b| b.surface_compliance())
+                Body::new(mesh.clone(), Material { e_mpa: 1.0, nu: v.min(0.4999) }).map(|b| b.surface_compliance_rz())
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Self { r, nu, normal, torsion })
@@ -83,13 +83,14 @@ pub struct Forward {
     gel: Arc<GelTables>,
     n: usize,
     radius_mm: f64,
-    ind_normal: Vec<Vec<f64>>,
+    ind_normal: SurfaceCompliance,
     ind_torsion: Vec<Vec<f64>>,
 }
 
 /// One parameter set (E1, nu1) of the forward model.
 pub struct Model {
     contact: TwoBodyContact,
+    frictional: FrictionalContact,
     torsion_gel: Vec<Vec<f64>>,
     torsion_sum: Vec<Vec<f64>>,
 }
@@ -129,7 +130,7 @@ impl Forward {
             .into_iter()
             .map(|c| c.into_iter().map(|v| v / g2).collect())
             .collect();
-        let ind_normal = Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance();
+        let ind_normal = Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance_rz();
         Ok(Self { gel, n: rs.len(), radius_mm: indenter_r_mm, ind_normal, ind_torsion })
     }
 
@@ -137,21 +138,21 @@ impl Forward {
     pub fn model(&self, e1_mpa: f64, nu1: f64) -> Model {
         let n = self.n;
         let w = lagrange(&self.gel.nu, nu1.clamp(0.0, 0.5));
-        let g_gel: Vec<Vec<f64>> = (0..n)
-            .map(|j| {
-                (0..n)
-                    .map(|i| w.iter().zip(&self.gel.normal).map(|(wk, g)| wk * g[j][i]).sum::<f64>() / e1_mpa)
-                    .collect()
-            })
-            .collect();
+        let parts: Vec<(f64, &SurfaceCompliance)> = w.iter().copied().zip(&self.gel.normal).collect();
+        let gel = SurfaceCompliance::combine(&parts, n, e1_mpa);
         let g1 = e1_mpa / (2.0 * (1.0 + nu1));
         let torsion_gel: Vec<Vec<f64>> =
             (0..n).map(|j| (0..n).map(|i| self.gel.torsion[j][i] / g1).collect()).collect();
         let torsion_sum =
             (0..n).map(|j| (0..n).map(|i| torsion_gel[j][i] + self.ind_torsion[j][i]).collect()).collect();
-        let contact =
-            TwoBodyContact::from_compliances(self.gel.r[..n].to_vec(), g_gel, &self.ind_normal, self.radius_mm);
-        Model { contact, torsion_gel, torsion_sum }
+        let contact = TwoBodyContact::from_compliances(
+            self.gel.r[..n].to_vec(),
+            gel.zz.clone(),
+            &self.ind_normal.zz,
+            self.radius_mm,
+        );
+        let frictional = FrictionalContact::new(self.gel.r[..n].to_vec(), gel, &self.ind_normal, self.radius_mm);
+        Model { contact, frictional, torsion_gel, torsion_sum }
     }
 }
 
@@ -159,6 +160,13 @@ impl Model {
     /// The normal contact at platform approach `delta_mm`.
     pub fn normal(&self, delta_mm: f64) -> Result<ContactState, FemError> {
         self.contact.solve(delta_mm)
+    }
+
+    /// The normal contact with Coulomb friction `mu` between the bodies, followed
+    /// along a monotone approach through every entry of `deltas_mm` (a state per
+    /// entry), in load steps of at most `max_step_mm`.
+    pub fn normal_path(&self, deltas_mm: &[f64], mu: f64, max_step_mm: f64) -> Result<Vec<ContactState>, FemError> {
+        self.frictional.solve_path(deltas_mm, mu, max_step_mm)
     }
 
     /// theta1 for a mount twist `twist_rad` (monotone from 0) at normal state `st`:

@@ -2,7 +2,7 @@
 //! reference"): axisymmetric, small-strain, linear elasticity of the sensor's gel
 //! — a cylinder bonded to a rigid window, free on its side — and of the
 //! calibration indenter — a hemisphere whose flat face is held by the platform —
-//! in frictionless contact. It checks the analytical layer model on geometry the
+//! in contact with Coulomb friction (or none). It checks the analytical layer model on geometry the
 //! analysis cannot take (a finite gel, a finite hemisphere) and is checked in turn
 //! against what it did not make (Hertz, Segedin, the layer solver).
 //!

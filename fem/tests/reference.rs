@@ -4,6 +4,7 @@
 
 use std::path::PathBuf;
 
+use fem::contact::FrictionalContact;
 use fem::{Body, Material, Mesh, TwoBodyContact};
 use sim::physics::{Body as Elastic, ContactPair, Layer, LayeredNormal, Profile};
 use sim::recording::{Phase, Recording};
@@ -35,13 +36,17 @@ fn dev_dir() -> PathBuf {
 }
 
 /// The dev set's linear recordings at their truth: the same elastomer (a 15 mm
-/// gel, 5 mm thick, bonded) and indenter (a 5 mm hemisphere held at its flat face).
-/// The dev model also has Coulomb friction (mu 0.4) and its own mesh; ours is
-/// frictionless, so a few micrometres remain at the deepest samples.
+/// gel, 5 mm thick, bonded) and indenter (a 5 mm hemisphere held at its flat
+/// face), and the same Coulomb friction between them (mu 0.4), on our own mesh.
+/// Without the friction the deepest samples miss by 4–25 µm; with it the
+/// residuals come down to a few times the noise (the stiffest indenters, whose
+/// contact reaches 4.5 mm on a 5 mm sphere, are the worst: steep contact slopes
+/// are outside the vertical-gap contact both models approximate differently).
 #[test]
 fn the_dev_sets_linear_recordings_are_reproduced_at_their_truth() {
     let dir = dev_dir().join("linear");
     let truth = std::fs::read_to_string(dir.join("truth.csv")).unwrap();
+    let (mut sum_frictionless, mut sum_friction) = (0.0, 0.0);
     for line in truth.lines().skip(1) {
         let f: Vec<&str> = line.split(',').collect();
         let rec = Recording::read_path(&dir.join(f[0])).unwrap();
@@ -54,19 +59,84 @@ fn the_dev_sets_linear_recordings_are_reproduced_at_their_truth() {
         let hemi =
             Body::new(Mesh::hemisphere(ind.r_mm, &rs, 30).unwrap(), Material { e_mpa: ind.e_mpa, nu: ind.nu }).unwrap();
         let c = TwoBodyContact::new(&gel, Some(&hemi), ind.r_mm).unwrap();
-        let res: Vec<f64> = rec
-            .samples
-            .iter()
-            .filter(|s| s.phase == Phase::Normal && s.stage_mm > 0.0)
-            .map(|s| (s.gamma1_mm - c.solve(s.stage_mm).unwrap().gamma1_mm) * 1e3)
-            .collect();
-        let rms = (res.iter().map(|r| r * r).sum::<f64>() / res.len() as f64).sqrt();
-        let mean = res.iter().sum::<f64>() / res.len() as f64;
-        println!(
-            "{:32} gamma1 - FE: rms {rms:.1} µm, mean {mean:+.1} µm, deepest {:+.1} µm (noise 2 µm)",
-            f[0],
-            res[res.len() - 1]
+        let n = rs.len();
+        let fc = FrictionalContact::new(
+            rs.clone(),
+            gel.surface_compliance_rz().leading(n),
+            &hemi.surface_compliance_rz(),
+            ind.r_mm,
         );
-        assert!(rms < 12.0 && mean.abs() < 8.0, "{}: rms {rms}, mean {mean}", f[0]);
+        let normal: Vec<&sim::recording::Sample> =
+            rec.samples.iter().filter(|s| s.phase == Phase::Normal && s.stage_mm > 0.0).collect();
+        let stages: Vec<f64> = normal.iter().map(|s| s.stage_mm).collect();
+        let deepest = stages.iter().copied().fold(0.0, f64::max);
+        let path = fc.solve_path(&stages, 0.4, deepest / 60.0).unwrap();
+        let stats = |res: &[f64]| {
+            let rms = (res.iter().map(|r| r * r).sum::<f64>() / res.len() as f64).sqrt();
+            (rms, res.iter().sum::<f64>() / res.len() as f64, res[res.len() - 1])
+        };
+        let without: Vec<f64> =
+            normal.iter().map(|s| (s.gamma1_mm - c.solve(s.stage_mm).unwrap().gamma1_mm) * 1e3).collect();
+        let with: Vec<f64> = normal.iter().zip(&path).map(|(s, st)| (s.gamma1_mm - st.gamma1_mm) * 1e3).collect();
+        let (rms0, _, last0) = stats(&without);
+        let (rms, mean, last) = stats(&with);
+        println!(
+            "{:32} gamma1 - FE: frictionless rms {rms0:.1} µm, deepest {last0:+.1} µm | mu 0.4: rms {rms:.1} µm, \
+             mean {mean:+.1} µm, deepest {last:+.1} µm (noise 2 µm)",
+            f[0]
+        );
+        assert!(rms < 7.0 && mean.abs() < 5.0, "{}: rms {rms}, mean {mean}", f[0]);
+        sum_frictionless += rms0;
+        sum_friction += rms;
+    }
+    println!("mean rms: frictionless {:.2} µm, with friction {:.2} µm", sum_frictionless / 8.0, sum_friction / 8.0);
+    assert!(sum_friction < 0.7 * sum_frictionless, "friction must explain most of the frictionless misfit");
+}
+
+/// The frictional contact's limits: without friction it is the frictionless
+/// solver (any path), and a coefficient far above any the contact needs is
+/// full stick.
+#[test]
+fn frictional_contact_reduces_to_its_limits() {
+    let (h, r2) = (5.0, 5.0);
+    let gel_mesh = Mesh::gel(15.0, h, 0.1, 5.0, 1.5).unwrap();
+    let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * r2).collect();
+    let gel = Body::new(gel_mesh, Material { e_mpa: 1.0, nu: 0.48 }).unwrap();
+    let hemi = Body::new(Mesh::hemisphere(r2, &rs, 20).unwrap(), Material { e_mpa: 2.0, nu: 0.45 }).unwrap();
+    let c = TwoBodyContact::new(&gel, Some(&hemi), r2).unwrap();
+    let n = rs.len();
+    let fc = FrictionalContact::new(rs, gel.surface_compliance_rz().leading(n), &hemi.surface_compliance_rz(), r2);
+    let deltas = [2.5, 0.5, 1.5, 0.0, 3.0];
+    let free = fc.solve_path(&deltas, 0.0, 0.05).unwrap();
+    for (d, st) in deltas.iter().zip(&free) {
+        let direct = c.solve(*d).unwrap();
+        assert!(
+            (st.gamma1_mm - direct.gamma1_mm).abs() <= 1e-9 * direct.gamma1_mm.abs().max(1e-9),
+            "{d}: {} vs {}",
+            st.gamma1_mm,
+            direct.gamma1_mm
+        );
+        assert!((st.force_n - direct.force_n).abs() <= 1e-9 * direct.force_n.abs().max(1e-9), "{d}");
+        assert!(st.nodal_shear.iter().all(|q| *q == 0.0));
+    }
+    let stick = fc.solve_path(&deltas, f64::INFINITY, 0.05).unwrap();
+    let high = fc.solve_path(&deltas, 1e3, 0.05).unwrap();
+    for ((d, a), b) in deltas.iter().zip(&stick).zip(&high) {
+        println!("delta {d}: gamma1 stuck {:.7} mm, mu 1000 {:.7} mm", a.gamma1_mm, b.gamma1_mm);
+        // The outermost nodes carry vanishing pressure and slip under any finite mu:
+        // a few hundredths of a micrometre.
+        assert!((a.gamma1_mm - b.gamma1_mm).abs() <= 1e-4 * a.gamma1_mm.abs(), "{d}");
+        // Grip changes the answer: the bonded layer's surface and the indenter's
+        // want to slide against each other; held together, the approach splits
+        // differently between them (the gel takes about 1 % more at this depth,
+        // as the dev set's recordings show against our frictionless model).
+        if *d > 2.0 {
+            let direct = c.solve(*d).unwrap();
+            println!(
+                "delta {d}: force frictionless {:.5} N, stuck {:.5} N; gamma1 {:.5} mm, {:.5} mm",
+                direct.force_n, a.force_n, direct.gamma1_mm, a.gamma1_mm
+            );
+            assert!(a.gamma1_mm > direct.gamma1_mm * 1.005 && a.force_n > direct.force_n);
+        }
     }
 }
