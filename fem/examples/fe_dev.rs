@@ -3,7 +3,7 @@ use fem::{Body, Material, Mesh, TwoBodyContact};
 use sim::recording::{Phase, Recording};
 
 fn main() {
-    let root = std::env::args().nth(1).unwrap_or("/work/shared/data/fem-dev".into());
+    let root = std::env::args().nth(1).unwrap_or(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/fem-dev").into());
     for set in ["linear", "nonlinear"] {
         let truth = std::fs::read_to_string(format!("{root}/{set}/truth.csv")).unwrap();
         for line in truth.lines().skip(1) {

@@ -4,7 +4,7 @@ use fem::{Body, Material, Mesh, TwoBodyContact};
 use sim::recording::{Phase, Recording};
 
 fn main() {
-    let root = "/work/shared/data/fem-dev";
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/fem-dev");
     for set in ["linear", "nonlinear"] {
         let truth = std::fs::read_to_string(format!("{root}/{set}/truth.csv")).unwrap();
         for line in truth.lines().skip(1) {
