@@ -278,8 +278,8 @@ impl SensorLink for SensorDriver {
 /// gamma1, theta1 and the contact radius of one frame. A frame without
 /// contact is a valid reading of zero: the sequencer needs readings out of
 /// contact to find the contact.
-pub fn measure_frame(frame: &SensorFrame) -> Result<(f64, f64, f64), String> {
-    match measure(frame, &SensingConfig::default()) {
+pub fn measure_frame(frame: &SensorFrame, cfg: &SensingConfig) -> Result<(f64, f64, f64), String> {
+    match measure(frame, cfg) {
         Ok(m) => Ok((m.gamma1_mm, m.theta1_deg, m.contact_radius_mm)),
         Err(SensingError::NoContact { .. }) => Ok((0.0, 0.0, 0.0)),
         Err(e) => Err(e.to_string()),
@@ -289,8 +289,9 @@ pub fn measure_frame(frame: &SensorFrame) -> Result<(f64, f64, f64), String> {
 /// The gauge the sequencer reads: the sensor link plus [`measure_frame`].
 pub type RigGauge = SensorGauge<SensorDriver, MeasureFn>;
 
-/// The frame-measuring function of a [`RigGauge`].
-pub type MeasureFn = fn(&SensorFrame) -> Result<(f64, f64, f64), String>;
+/// The frame-measuring function of a [`RigGauge`]: [`measure_frame`] with the
+/// rig's sensing settings.
+pub type MeasureFn = Box<dyn Fn(&SensorFrame) -> Result<(f64, f64, f64), String> + Send + Sync>;
 
 /// The opened devices of a rig.
 pub struct RigDevices {
@@ -364,12 +365,12 @@ fn link_cfg() -> LinkConfig {
     LinkConfig { queue_capacity: GAUGE_QUEUE, ..LinkConfig::default() }
 }
 
-/// Open every device of the rig.
-pub async fn open_rig(spec: &RigSpec) -> Result<RigDevices, ConnectError> {
+/// Open every device of the rig; frames are measured with `sensing`.
+pub async fn open_rig(spec: &RigSpec, sensing: SensingConfig) -> Result<RigDevices, ConnectError> {
     let stage = open_stage(&spec.stage).await?;
     let rotation = open_rotation(&spec.rotation).await?;
     let sensor = open_sensor(&spec.sensor).await?;
-    let measure: MeasureFn = measure_frame;
+    let measure: MeasureFn = Box::new(move |frame: &SensorFrame| measure_frame(frame, &sensing));
     let gauge = SensorGauge::new(sensor, measure, spec.sensor_name.clone());
     Ok(RigDevices { stage, rotation, gauge })
 }

@@ -11,6 +11,7 @@ use crate::fit::{Calibration, FitOptions, calibrate};
 use crate::report::{ReportFiles, RunTimings, Truth, write_run_report};
 use crate::run::events::{LogLevel, RunControl, RunEvent};
 use crate::run::{RunOutcome, Script, ScriptError, Sequencer};
+use crate::sensing::SensingConfig;
 
 /// File name of the recording inside a run's folder.
 pub const RECORDING_FILE: &str = "recording.csv";
@@ -82,7 +83,9 @@ pub async fn run_calibration(
 ) -> Result<RunResult, StartError> {
     req.script.validate()?;
     std::fs::create_dir_all(&req.out_dir).map_err(|source| StartError::OutDir { path: req.out_dir.clone(), source })?;
-    let devices = open_rig(&req.spec).await?;
+    // The indenter bounds what a contact under the marker pitch can look like.
+    let sensing = SensingConfig::for_contact(req.script.indenter.r_mm, req.script.sensor.elastomer_r_mm);
+    let devices = open_rig(&req.spec, sensing).await?;
     let recording = req.out_dir.join(RECORDING_FILE);
     let mut meta = req.metadata.clone();
     if let Some(t) = req.truth {

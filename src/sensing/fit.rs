@@ -361,13 +361,32 @@ pub struct HertzFit {
 /// reject outliers by a robust scale and refit. Used when the contact is too
 /// small for the quadratic window to stay inside it: outside the contact the
 /// field is no paraboloid, but it still is Hertz's.
-pub fn fit_hertz(pts: &[[f64; 3]], start: (f64, [f64; 2], f64), k: f64, floor: f64) -> Option<HertzFit> {
+///
+/// `bound = (c, below_mm)`, when known, bounds the field's curvature inside
+/// the contact, gamma1 / a^2 <= c (docs/sensing.md, "Small contacts"): the
+/// elastomer conforms to the indenter there, and a pressed sphere is no more
+/// curved than it was, so c = 1/R2 + 1/R1 in small strain. A fit whose radius
+/// is under `below_mm` (the marker pitch: only there are depth and radius hard
+/// to tell apart) and ends beyond the bound is redone on it (a tied to gamma1).
+pub fn fit_hertz(
+    pts: &[[f64; 3]],
+    start: (f64, [f64; 2], f64),
+    k: f64,
+    floor: f64,
+    bound: Option<(f64, f64)>,
+) -> Option<HertzFit> {
     let n = pts.len();
     let mut kept = vec![true; n];
     let mut params = [start.0, start.1[0], start.1[1], start.2];
     const ROUNDS: usize = 4;
     for round in 0..ROUNDS {
-        params = lm_hertz(pts, &kept, params)?;
+        params = lm_hertz(pts, &kept, params, None)?;
+        if let Some((kmax, below_mm)) = bound.filter(|b| b.0 > 0.0)
+            && params[3] < below_mm
+            && params[0] > kmax * params[3] * params[3]
+        {
+            params = lm_hertz(pts, &kept, params, Some(kmax))?;
+        }
         let [g, cx, cy, a] = params;
         let resid: Vec<f64> = pts.iter().map(|p| p[2] - g * hertz_shape((p[0] - cx).hypot(p[1] - cy) / a)).collect();
         let mut kr: Vec<f64> = (0..n).filter(|&i| kept[i]).map(|i| resid[i].abs()).collect();
@@ -392,8 +411,17 @@ fn hertz_cost(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4]) -> f64 {
         .sum()
 }
 
-fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], mut p: [f64; 4]) -> Option<[f64; 4]> {
+/// Levenberg-Marquardt on the Hertz field; with `tie = Some(c)` the radius
+/// follows the depth, a = sqrt(gamma1 / c), and only (gamma1, cx, cy) are free.
+fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], mut p: [f64; 4], tie: Option<f64>) -> Option<[f64; 4]> {
     use nalgebra::{Matrix4, Vector4};
+    let tied = |mut q: [f64; 4]| {
+        if let Some(c) = tie {
+            q[3] = (q[0] / c).sqrt();
+        }
+        q
+    };
+    p = tied(p);
     let mut lambda = 1e-3;
     let mut cost = hertz_cost(pts, kept, p);
     for _ in 0..500 {
@@ -407,9 +435,16 @@ fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], mut p: [f64; 4]) -> Option<[f64; 4]
             let f = hertz_shape(rho);
             let fp = hertz_slope(rho);
             let (dcx, dcy) = if r > 0.0 { (-g * fp * dx / (r * a), -g * fp * dy / (r * a)) } else { (0.0, 0.0) };
-            let j = Vector4::new(f, dcx, dcy, -g * fp * rho / a);
+            // Tied: d(g f(r / a(g)))/dg = f - f' rho / 2, and a is no unknown.
+            let j = match tie {
+                None => Vector4::new(f, dcx, dcy, -g * fp * rho / a),
+                Some(_) => Vector4::new(f - 0.5 * fp * rho, dcx, dcy, 0.0),
+            };
             jtj += j * j.transpose();
             jtr += j * (q[2] - g * f);
+        }
+        if tie.is_some() {
+            jtj[(3, 3)] = 1.0;
         }
         let mut improved = false;
         for _ in 0..12 {
@@ -421,7 +456,7 @@ fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], mut p: [f64; 4]) -> Option<[f64; 4]
                 lambda *= 10.0;
                 continue;
             };
-            let trial = [p[0] + step[0], p[1] + step[1], p[2] + step[2], p[3] + step[3]];
+            let trial = tied([p[0] + step[0], p[1] + step[1], p[2] + step[2], p[3] + step[3]]);
             if trial[3] > 0.0 && trial[0] > 0.0 {
                 let c = hertz_cost(pts, kept, trial);
                 if c <= cost {

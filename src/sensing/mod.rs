@@ -55,6 +55,21 @@ pub struct SensingConfig {
     /// Residuals below this are never outliers (keeps noise-free frames from
     /// rejecting markers over rounding), mm.
     pub outlier_floor_mm: f64,
+    /// The largest curvature the normal field can have inside the contact,
+    /// 1/R2 + 1/R1 (1/mm; R1 infinite for a flat gel), from the indenter the
+    /// rig declares. It settles contacts smaller than the marker pitch, whose
+    /// depth the markers around them cannot separate from their radius
+    /// (docs/sensing.md, "Small contacts"). `None`: not known, not used.
+    pub max_curvature_per_mm: Option<f64>,
+}
+
+impl SensingConfig {
+    /// The defaults, for an indenter of radius `indenter_r_mm` on an elastomer
+    /// of radius `elastomer_r_mm` (infinite when flat).
+    pub fn for_contact(indenter_r_mm: f64, elastomer_r_mm: f64) -> Self {
+        let c = 1.0 / indenter_r_mm + if elastomer_r_mm.is_finite() { 1.0 / elastomer_r_mm } else { 0.0 };
+        Self { max_curvature_per_mm: (c.is_finite() && c > 0.0).then_some(c), ..Self::default() }
+    }
 }
 
 impl Default for SensingConfig {
@@ -69,6 +84,7 @@ impl Default for SensingConfig {
             hertz_refine: true,
             outlier_sigmas: 4.0,
             outlier_floor_mm: 2e-4,
+            max_curvature_per_mm: None,
         }
     }
 }
@@ -276,10 +292,11 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
     // locally when there is one, else start from a few radii and keep the
     // best fit. Far-apart minima can fit noisy markers equally well there.
     let starts: &[f64] = if start.2 > 0.0 { &[start.2] } else { &[0.3, 0.55, 0.9] };
+    let bound = cfg.max_curvature_per_mm.map(|c| (c, pitch));
     let hf = starts
         .iter()
         .map(|&a0| if start.2 > 0.0 { a0 } else { a0 * pitch })
-        .filter_map(|a0| fit_hertz(&pts, (start.0, start.1, a0), cfg.outlier_sigmas, cfg.outlier_floor_mm))
+        .filter_map(|a0| fit_hertz(&pts, (start.0, start.1, a0), cfg.outlier_sigmas, cfg.outlier_floor_mm, bound))
         .min_by(|x, y| {
             let score = |h: &fit::HertzFit| h.rms * (pts.len() as f64 / h.kept.iter().filter(|&&b| b).count() as f64);
             score(x).total_cmp(&score(y))
