@@ -49,7 +49,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<(), CliError> {
 
 /// What the history keeps of a diagnosis: the corrected values and the effects named.
 fn history_outcome(rec: &Recording, d: &Diagnosis) -> super::history::Outcome {
-    use history::{EffectParam, EffectRecord, Source, WarningRecord};
+    use history::{EffectParam, EffectRecord, Source};
     let c = &d.corrected;
     super::history::Outcome {
         source: Source::Diagnose,
@@ -70,11 +70,7 @@ fn history_outcome(rec: &Recording, d: &Diagnosis) -> super::history::Outcome {
                     .collect(),
             })
             .collect(),
-        warnings: d
-            .warnings
-            .iter()
-            .map(|w| WarningRecord { code: w.code.into(), message: w.message.clone() })
-            .collect(),
+        warnings: super::history::warning_records(&d.warnings),
         rig: None,
         script: None,
     }

@@ -118,14 +118,15 @@ pub fn outcome_of_fit(out: &crate::report::CalibrationOutput, source: Source) ->
         nu1: out.nu1,
         nu1_ci95: out.ci95.nu1,
         effects: vec![],
-        warnings: out
-            .warnings
-            .iter()
-            .map(|w| WarningRecord { code: w.code.into(), message: w.message.clone() })
-            .collect(),
+        warnings: warning_records(&out.warnings),
         rig: None,
         script: None,
     }
+}
+
+/// The warnings of a fit or a diagnosis as the history keeps them.
+pub(super) fn warning_records(warnings: &[crate::fit::Warning]) -> Vec<WarningRecord> {
+    warnings.iter().map(|w| WarningRecord { code: w.code.into(), message: w.message.clone() }).collect()
 }
 
 fn finite(ci: [f64; 2]) -> Option<[f64; 2]> {

@@ -14,7 +14,7 @@ use std::fmt;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
-use std::time::{Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Instant, SystemTime};
 
 use devices::motion::{AxisStatus, DeviceFault, FaultKind, Identify, LinearStage, RotationMount};
 use sim::recording::{Direction, Metadata, Phase, RecordingWriter, Sample};
@@ -245,22 +245,6 @@ pub struct Sequencer<S, R, G> {
 
 fn sanitize(s: &str) -> String {
     s.chars().map(|c| if c.is_control() { ' ' } else { c }).collect()
-}
-
-/// RFC 3339 UTC time of `t` (civil-from-days, so no date crate is needed).
-fn rfc3339(t: SystemTime) -> String {
-    let secs = t.duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0) as i64;
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
 }
 
 /// The next control, waiting for one; pends forever once the channel is closed
@@ -580,7 +564,7 @@ where
             indenter: self.script.indenter,
             elastomer_r_mm: self.script.sensor.elastomer_r_mm,
             layer: None,
-            created: Some(rfc3339(SystemTime::now())),
+            created: Some(crate::report::rfc3339_utc(SystemTime::now())),
             extra,
         };
         let w = RecordingWriter::new(BufWriter::new(file), &meta).map_err(|e| fail(e, &self.recording_path))?;
@@ -1278,13 +1262,6 @@ mod tests {
         assert!((remaining_relaxation(1.0, 1.002, 1.001) - 0.001).abs() < 1e-12);
         // Still speeding up: at least twice the larger drift.
         assert!((remaining_relaxation(0.0, 0.1, 0.3) - 0.4).abs() < 1e-12);
-    }
-
-    #[test]
-    fn rfc3339_formats_known_instants() {
-        assert_eq!(rfc3339(UNIX_EPOCH), "1970-01-01T00:00:00Z");
-        let t = UNIX_EPOCH + std::time::Duration::from_secs(1_795_431_845);
-        assert_eq!(rfc3339(t), "2026-11-23T11:04:05Z");
     }
 
     #[test]
