@@ -149,13 +149,14 @@ impl Body {
             .collect()
     }
 
-    /// The full surface compliance in global (r, z) components: for a unit force
-    /// per radian along r or z at surface node j, the r and z displacements at
-    /// every surface node (column-major blocks, `rr[j][i]` is u_r at i under F_r at
-    /// j). The axis node carries no radial force (its u_r is held), so its radial
-    /// column is zero.
-    pub fn surface_compliance_rz(&self) -> SurfaceCompliance {
-        let s = &self.mesh.surface;
+    /// The full surface compliance in global (r, z) components on the first
+    /// `nodes` surface nodes (all of them if fewer): for a unit force per radian
+    /// along r or z at surface node j, the r and z displacements at each of those
+    /// nodes (column-major blocks, `rr[j][i]` is u_r at i under F_r at j). The
+    /// axis node carries no radial force (its u_r is held), so its radial column
+    /// is zero.
+    pub fn surface_compliance_rz(&self, nodes: usize) -> SurfaceCompliance {
+        let s = &self.mesh.surface[..nodes.min(self.mesh.surface.len())];
         let n = 2 * self.mesh.xy.len();
         let held: std::collections::HashSet<usize> = self.mesh.axis.iter().copied().collect();
         let column = |j: usize, dof: usize| -> (Vec<f64>, Vec<f64>) {
@@ -192,12 +193,6 @@ pub struct SurfaceCompliance {
 }
 
 impl SurfaceCompliance {
-    /// The leading `n` nodes (the ones an indenter of smaller radius can touch).
-    pub fn leading(&self, n: usize) -> Self {
-        let cut = |m: &Vec<Vec<f64>>| m[..n].iter().map(|c| c[..n].to_vec()).collect();
-        Self { rr: cut(&self.rr), rz: cut(&self.rz), zr: cut(&self.zr), zz: cut(&self.zz) }
-    }
-
     /// `Σ_k w_k m_k / scale` on the leading `n` nodes, block by block (an
     /// interpolation between tables).
     pub fn combine(parts: &[(f64, &Self)], n: usize, scale: f64) -> Self {

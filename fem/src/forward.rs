@@ -33,9 +33,10 @@ fn lagrange(nodes: &[f64], nu: f64) -> Vec<f64> {
         .collect()
 }
 
-/// The gel of one thickness, for unit modulus, at the tabulated Poisson's ratios.
+/// The gel of one thickness, for unit modulus, at the tabulated Poisson's ratios,
+/// on the surface nodes an indenter can touch.
 struct GelTables {
-    /// Surface radii (all gel surface nodes), mm.
+    /// Surface radii of the tabulated nodes, mm.
     r: Vec<f64>,
     nu: Vec<f64>,
     /// Surface compliance in (r, z) per nu node (E1 = 1), column-major.
@@ -49,30 +50,47 @@ fn gel_mesh(h: f64) -> Result<Mesh, FemError> {
 }
 
 impl GelTables {
-    fn build(h: f64) -> Result<Self, FemError> {
+    /// The tables on the first `nodes` surface nodes; the nine Poisson's ratios
+    /// are factored and solved on threads of their own.
+    fn build(h: f64, nodes: usize) -> Result<Self, FemError> {
         let mesh = gel_mesh(h)?;
-        let r = mesh.surface_radii();
-        let torsion = TorsionBody::new(&mesh)?.surface_compliance(&mesh.surface);
+        let nodes = nodes.min(mesh.surface.len());
+        let r = mesh.surface_radii()[..nodes].to_vec();
         let nu = nu_nodes();
-        let normal = nu
-            .iter()
-            .map(|&v| {
-                Body::new(mesh.clone(), Material { e_mpa: 1.0, nu: v.min(0.4999) }).map(|b| b.surface_compliance_rz())
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self { r, nu, normal, torsion })
+        let (torsion, normal) = std::thread::scope(|scope| {
+            let per_nu: Vec<_> = nu
+                .iter()
+                .map(|&v| {
+                    let mesh = mesh.clone();
+                    scope.spawn(move || {
+                        Body::new(mesh, Material { e_mpa: 1.0, nu: v.min(0.4999) })
+                            .map(|b| b.surface_compliance_rz(nodes))
+                    })
+                })
+                .collect();
+            let torsion = TorsionBody::new(&mesh).map(|t| t.surface_compliance(&mesh.surface[..nodes]));
+            let normal: Result<Vec<_>, FemError> = per_nu
+                .into_iter()
+                .map(|h| h.join().unwrap_or_else(|_| Err(FemError::Invalid("a table thread panicked".into()))))
+                .collect();
+            (torsion, normal)
+        });
+        Ok(Self { r, nu, normal: normal?, torsion: torsion? })
     }
 
-    /// Shared per thickness: the tables take seconds and every fit of a gel reuses them.
-    fn cached(h: f64) -> Result<Arc<Self>, FemError> {
-        static CACHE: OnceLock<Mutex<HashMap<u64, Arc<GelTables>>>> = OnceLock::new();
+    /// Shared per thickness and node count: the tables take seconds and every
+    /// fit of a gel reuses them.
+    fn cached(h: f64, nodes: usize) -> Result<Arc<Self>, FemError> {
+        type Key = (u64, usize);
+        static CACHE: OnceLock<Mutex<HashMap<Key, Arc<GelTables>>>> = OnceLock::new();
         let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
-        if let Some(t) = cache.lock().ok().and_then(|c| c.get(&h.to_bits()).cloned()) {
+        let key = (h.to_bits(), nodes);
+        if let Some(t) = cache.lock().ok().and_then(|c| c.get(&key).cloned()) {
             return Ok(t);
         }
-        let t = Arc::new(Self::build(h)?);
+        let t = Arc::new(Self::build(h, nodes)?);
         if let Ok(mut c) = cache.lock() {
-            c.insert(h.to_bits(), t.clone());
+            c.insert(key, t.clone());
         }
         Ok(t)
     }
@@ -121,8 +139,10 @@ impl Forward {
         if !(thickness_mm > 0.0 && thickness_mm.is_finite() && indenter_r_mm > 0.0 && indenter_r_mm < 100.0) {
             return Err(FemError::Invalid(format!("layer {thickness_mm} mm, indenter radius {indenter_r_mm} mm")));
         }
-        let gel = GelTables::cached(thickness_mm)?;
-        let rs: Vec<f64> = gel.r.iter().copied().filter(|&r| r < 0.97 * indenter_r_mm).collect();
+        // Only the gel's nodes under the indenter can touch it: tabulate those.
+        let rs: Vec<f64> =
+            gel_mesh(thickness_mm)?.surface_radii().into_iter().filter(|&r| r < 0.97 * indenter_r_mm).collect();
+        let gel = GelTables::cached(thickness_mm, rs.len())?;
         let hemi = Mesh::hemisphere(indenter_r_mm, &rs, 30)?;
         let g2 = indenter_e_mpa / (2.0 * (1.0 + indenter_nu));
         let ind_torsion = TorsionBody::new(&hemi)?
@@ -130,7 +150,8 @@ impl Forward {
             .into_iter()
             .map(|c| c.into_iter().map(|v| v / g2).collect())
             .collect();
-        let ind_normal = Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance_rz();
+        let ind_normal =
+            Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance_rz(usize::MAX);
         Ok(Self { gel, n: rs.len(), radius_mm: indenter_r_mm, ind_normal, ind_torsion })
     }
 
