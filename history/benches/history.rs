@@ -4,31 +4,16 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use history::change::{self, Quantity, Settings};
-use history::{CalibrationRecord, Indenter, Source, Target, sha256_hex};
+use history::{CalibrationRecord, Target};
+
+#[path = "../tests/common/mod.rs"]
+mod common;
 
 fn record(i: usize, sensor: &str) -> (CalibrationRecord, Vec<u8>) {
     let bytes = format!("# easycalib-recording: 1\n# sensor: {sensor}\n# run {i}\n").repeat(200).into_bytes();
     let e1 = 0.33 * (1.0 + 1e-4 * (i % 17) as f64);
     let t = 1.7e9 + i as f64 * 3600.0;
-    let rec = CalibrationRecord {
-        sensor: sensor.into(),
-        time_utc: history::record::format_rfc3339(t),
-        time_unix_s: t,
-        source: Source::Run,
-        rig: Some("bench rig".into()),
-        indenter: Indenter { e_mpa: 2.0, nu: 0.4, r_mm: 5.0 },
-        script: Some("[approach]\nstart_mm = 10\n".into()),
-        model: "half-space".into(),
-        e1_mpa: e1,
-        e1_ci95: Some([e1 - 0.001, e1 + 0.001]),
-        nu1: 0.39,
-        nu1_ci95: Some([0.387, 0.393]),
-        effects: vec![],
-        warnings: vec![],
-        software_version: "bench".into(),
-        recording_path: Some(format!("runs/{i}/recording.csv")),
-        recording_sha256: sha256_hex(&bytes),
-    };
+    let rec = common::calibration_record(sensor, t, e1, &bytes);
     (rec, bytes)
 }
 

@@ -7,8 +7,10 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+mod common;
+
 use history::queue::Queue;
-use history::{CalibrationRecord, ErrorKind, Indenter, Recorded, Source, Store, Target, sha256_hex};
+use history::{CalibrationRecord, ErrorKind, Recorded, Store, Target, sha256_hex};
 
 /// A calibration of `sensor` with a recording of about `size` bytes.
 fn calibration(sensor: &str, i: usize, size: usize) -> (CalibrationRecord, Vec<u8>) {
@@ -18,26 +20,7 @@ fn calibration(sensor: &str, i: usize, size: usize) -> (CalibrationRecord, Vec<u
         bytes.extend_from_slice(format!("{:.6},normal,{:.4},0,0,0\n", bytes.len(), i).as_bytes());
     }
     let t = 1.78e9 + i as f64 * 86_400.0;
-    let e1 = 0.33 + 1e-5 * i as f64;
-    let rec = CalibrationRecord {
-        sensor: sensor.into(),
-        time_utc: history::record::format_rfc3339(t),
-        time_unix_s: t,
-        source: Source::Run,
-        rig: Some("test rig".into()),
-        indenter: Indenter { e_mpa: 2.0, nu: 0.4, r_mm: 5.0 },
-        script: None,
-        model: "half-space".into(),
-        e1_mpa: e1,
-        e1_ci95: Some([e1 - 0.001, e1 + 0.001]),
-        nu1: 0.39,
-        nu1_ci95: Some([0.387, 0.393]),
-        effects: vec![],
-        warnings: vec![],
-        software_version: "test".into(),
-        recording_path: None,
-        recording_sha256: sha256_hex(&bytes),
-    };
+    let rec = common::calibration_record(sensor, t, 0.33 + 1e-5 * i as f64, &bytes);
     (rec, bytes)
 }
 
