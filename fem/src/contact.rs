@@ -39,6 +39,13 @@ pub struct TwoBodyContact {
     g_sum: Vec<Vec<f64>>,
 }
 
+/// How far each node at radii `r_mm` must close at platform approach
+/// `delta_mm`: the approach less the exact sphere's height above its tip there.
+fn approach_needed(delta_mm: f64, sphere_radius_mm: f64, r_mm: &[f64]) -> Vec<f64> {
+    let big = sphere_radius_mm;
+    r_mm.iter().map(|&r| delta_mm - (big - (big * big - r * r).max(0.0).sqrt())).collect()
+}
+
 /// Solve the dense system a x = b (Gaussian elimination with partial pivoting).
 pub(crate) fn dense_solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
     let n = b.len();
@@ -101,15 +108,10 @@ impl TwoBodyContact {
         &self.r
     }
 
-    fn profile(&self, r: f64) -> f64 {
-        let big = self.radius_mm;
-        big - (big * big - r * r).max(0.0).sqrt()
-    }
-
     /// The contact at platform approach `delta_mm`.
     pub fn solve(&self, delta_mm: f64) -> Result<ContactState, FemError> {
         let n = self.r.len();
-        let need: Vec<f64> = self.r.iter().map(|&r| delta_mm - self.profile(r)).collect();
+        let need = approach_needed(delta_mm, self.radius_mm, &self.r);
         let mut active: Vec<bool> = need.iter().map(|&d| d > 0.0).collect();
         let mut p = vec![0.0; n];
         let mut passes_releasing = 0;
@@ -200,15 +202,6 @@ impl FrictionalContact {
         Self { radius_mm: indenter_radius_mm, r, gel, sum }
     }
 
-    pub fn radii(&self) -> &[f64] {
-        &self.r
-    }
-
-    fn profile(&self, r: f64) -> f64 {
-        let big = self.radius_mm;
-        big - (big * big - r * r).max(0.0).sqrt()
-    }
-
     /// Gap closure and relative radial slip at every node for normal forces `p`
     /// and friction forces `q` on the gel: (gap + delta - f(r), slip).
     fn kinematics(&self, p: &[f64], q: &[f64]) -> (Vec<f64>, Vec<f64>) {
@@ -292,7 +285,7 @@ impl FrictionalContact {
         s_ref: &mut [f64],
     ) -> Result<(), FemError> {
         let n = self.r.len();
-        let need: Vec<f64> = self.r.iter().map(|&r| delta - self.profile(r)).collect();
+        let need = approach_needed(delta, self.radius_mm, &self.r);
         let tol = 1e-12 * delta.abs().max(1e-9);
         let limit = 8 * n + 40;
         let mut releasing = 0;

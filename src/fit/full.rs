@@ -68,8 +68,8 @@ fn predict_with(
 ) -> Result<Vec<Prediction>, FitError> {
     if let Some(layer) = fe_layer(rec) {
         return match correction {
-            None => predict_fe(rec, p, layer),
-            Some(c) => predict_fe_frictionless(rec, p, layer).map(|mut pred| {
+            None => predict_fe(rec, p, layer, NormalContact::Frictional),
+            Some(c) => predict_fe(rec, p, layer, NormalContact::Frictionless).map(|mut pred| {
                 for (q, (dg, dt)) in pred.iter_mut().zip(c) {
                     q.gamma1_mm += dg;
                     q.theta1_deg += dt;
@@ -108,10 +108,24 @@ pub fn fe_layer(rec: &Recording) -> Option<Layer> {
     rec.meta.layer.filter(|l| l.base == LayerBase::Bonded && rec.meta.elastomer_r_mm.is_infinite())
 }
 
+/// The normal contact in the FE model: followed with Coulomb friction along the
+/// approach (the model itself), or frictionless with each depth solved on its
+/// own (its fast form, hundreds of times cheaper; see [`friction_correction`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum NormalContact {
+    Frictional,
+    Frictionless,
+}
+
 /// The layered contact from the project's own FE reference (docs/physics.md,
 /// "Finite-element reference"): a hemisphere held at its flat face on a bonded gel,
 /// with Coulomb friction between them in both sweeps (one coefficient).
-fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Result<Vec<Prediction>, FitError> {
+fn predict_fe(
+    rec: &Recording,
+    p: &ModelParams,
+    layer: Layer,
+    normal: NormalContact,
+) -> Result<Vec<Prediction>, FitError> {
     let ind = rec.meta.indenter;
     let fw = fem::forward::Forward::cached(layer.thickness_mm, ind.e_mpa, ind.nu, ind.r_mm)
         .map_err(|e| FitError::Model(e.to_string()))?;
@@ -120,47 +134,31 @@ fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Result<Vec<Pred
     }
     let model = fw.model(p.e1_mpa, p.nu1);
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
-    // The gel and the indenter grip each other while the stage presses (the same
-    // interface friction as in torsion), so the normal state depends on the path:
-    // it is followed through the recording's depths in small load steps.
     let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).collect();
-    let deepest = deltas.iter().copied().fold(0.0, f64::max);
-    let states = model
-        .normal_path(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))
-        .map_err(|e| FitError::Model(e.to_string()))?;
+    let model_error = |e: fem::FemError| FitError::Model(e.to_string());
+    let states: Vec<fem::ContactState> = match normal {
+        // The gel and the indenter grip each other while the stage presses (the
+        // same interface friction as in torsion), so the normal state depends on
+        // the path: it is followed through the recording's depths in small steps.
+        NormalContact::Frictional => {
+            let deepest = deltas.iter().copied().fold(0.0, f64::max);
+            model.normal_path(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6)).map_err(model_error)?
+        }
+        NormalContact::Frictionless => {
+            let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
+            let mut out = Vec::with_capacity(deltas.len());
+            for &delta in &deltas {
+                let st = match solved.entry(delta.to_bits()) {
+                    Entry::Occupied(e) => e.into_mut(),
+                    Entry::Vacant(e) => e.insert(model.normal(delta).map_err(model_error)?),
+                };
+                out.push(st.clone());
+            }
+            out
+        }
+    };
     let mut out = Vec::with_capacity(rec.samples.len());
     for (s, st) in rec.samples.iter().zip(&states) {
-        let theta1_deg = match s.phase {
-            Phase::Normal => 0.0,
-            Phase::Torsion => {
-                let twist = s.rot_deg.to_radians();
-                model.theta1_rad(st, twist.abs(), mu).map_or(0.0, |t| t.to_degrees() * twist.signum())
-            }
-        };
-        out.push(Prediction { gamma1_mm: st.gamma1_mm, theta1_deg, beta: st.gamma2_mm / ind.r_mm });
-    }
-    Ok(out)
-}
-
-/// The FE model with a frictionless normal contact, each depth solved on its own
-/// (what the frictional path costs hundreds of times less than).
-fn predict_fe_frictionless(rec: &Recording, p: &ModelParams, layer: Layer) -> Result<Vec<Prediction>, FitError> {
-    let ind = rec.meta.indenter;
-    let fw = fem::forward::Forward::cached(layer.thickness_mm, ind.e_mpa, ind.nu, ind.r_mm)
-        .map_err(|e| FitError::Model(e.to_string()))?;
-    if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
-        return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
-    }
-    let model = fw.model(p.e1_mpa, p.nu1);
-    let mu = p.contact_friction.unwrap_or(f64::INFINITY);
-    let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
-    let mut out = Vec::with_capacity(rec.samples.len());
-    for s in &rec.samples {
-        let delta = s.stage_mm - p.contact_offset_mm;
-        let st = match solved.entry(delta.to_bits()) {
-            Entry::Occupied(e) => e.into_mut(),
-            Entry::Vacant(e) => e.insert(model.normal(delta).map_err(|e| FitError::Model(e.to_string()))?),
-        };
         let theta1_deg = match s.phase {
             Phase::Normal => 0.0,
             Phase::Torsion => {
@@ -181,8 +179,8 @@ fn friction_correction(rec: &Recording, p: &ModelParams) -> Result<Option<Correc
     let Some(layer) = fe_layer(rec) else {
         return Ok(None);
     };
-    let exact = predict_fe(rec, p, layer)?;
-    let fast = predict_fe_frictionless(rec, p, layer)?;
+    let exact = predict_fe(rec, p, layer, NormalContact::Frictional)?;
+    let fast = predict_fe(rec, p, layer, NormalContact::Frictionless)?;
     Ok(Some(exact.iter().zip(&fast).map(|(e, f)| (e.gamma1_mm - f.gamma1_mm, e.theta1_deg - f.theta1_deg)).collect()))
 }
 
