@@ -15,7 +15,7 @@ use std::time::Duration;
 
 use devices::apt::{AptConfig, AptStage};
 use devices::serial::open_serial_settle;
-use devices::{Identify, LinearStage};
+use devices::{Axis, Identify, Mm};
 use easycalib::fit::{FitOptions, calibrate};
 use easycalib::rig::emulated::{CONTACT_STAGE_MM, EmulatedRig, EmulatedRigOptions};
 use easycalib::rig::{RunRequest, RunResult, run_calibration};
@@ -277,7 +277,7 @@ fn sim_serve_prints_devices_an_apt_client_can_drive() {
         let mut stage = AptStage::connect(io, AptConfig::kdc101_z825b()).await.unwrap();
         let info = stage.identify().await.unwrap();
         stage.home(Duration::from_secs(10)).await.unwrap();
-        let p = stage.move_to_mm(1.0, Duration::from_secs(10)).await.unwrap();
+        let p = stage.move_to(Mm(1.0), Duration::from_secs(10)).await.unwrap().0;
         (info, p)
     });
     let _ = child.kill();

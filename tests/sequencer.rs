@@ -12,11 +12,14 @@ use devices::motion::FaultKind;
 use easycalib::fit::{FitOptions, calibrate};
 use easycalib::run::events::{RunControl, RunEvent, RunPhase, SensorStatus};
 use easycalib::run::gauge::{Gauge, GaugeError, GaugeReading};
-use easycalib::run::simrig::{SimFaults, SimGauge, SimRig, SimRigConfig};
 use easycalib::run::{Backoff, Culprit, RunOutcome, RunStatus, Script, Sequencer};
 use sim::generator::CleanRig;
 use sim::recording::{Phase, Recording};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
+
+#[path = "support/simrig.rs"]
+mod simrig;
+use simrig::{SimFaults, SimGauge, SimRig, SimRigConfig};
 
 fn drain(rx: &mut UnboundedReceiver<RunEvent>) -> Vec<RunEvent> {
     let mut v = Vec::new();
@@ -439,9 +442,9 @@ async fn a_limit_that_forbids_the_target_depth_stops_the_sweep_safely() {
 }
 
 mod mocks {
+    use super::simrig::SimFault;
     use super::*;
-    use devices::motion::{AxisStatus, DeviceInfo, Identify, LinearStage, RotationMount};
-    use easycalib::run::simrig::SimFault;
+    use devices::motion::{Axis, AxisStatus, Deg, DeviceInfo, Identify, Mm};
     use mockall::mock;
 
     mock! {
@@ -452,15 +455,15 @@ mod mocks {
             async fn identify(&mut self) -> Result<DeviceInfo, SimFault>;
         }
         #[async_trait]
-        impl LinearStage for Stage {
-            type Error = SimFault;
-            fn travel_mm(&self) -> (f64, f64);
+        impl Axis for Stage {
+            type Unit = Mm;
+            fn travel(&self) -> (Mm, Mm);
             async fn home(&mut self, timeout: Duration) -> Result<(), SimFault>;
-            async fn start_move_to_mm(&mut self, target_mm: f64) -> Result<(), SimFault>;
-            async fn start_move_by_mm(&mut self, delta_mm: f64) -> Result<(), SimFault>;
-            async fn wait_until_stopped(&mut self, timeout: Duration) -> Result<f64, SimFault>;
+            async fn start_move_to(&mut self, target: Mm) -> Result<(), SimFault>;
+            async fn start_move_by(&mut self, delta: Mm) -> Result<(), SimFault>;
+            async fn wait_until_stopped(&mut self, timeout: Duration) -> Result<Mm, SimFault>;
             async fn stop(&mut self) -> Result<(), SimFault>;
-            async fn position_mm(&mut self) -> Result<f64, SimFault>;
+            async fn position(&mut self) -> Result<Mm, SimFault>;
             async fn status(&mut self) -> Result<AxisStatus, SimFault>;
         }
     }
@@ -473,15 +476,15 @@ mod mocks {
             async fn identify(&mut self) -> Result<DeviceInfo, SimFault>;
         }
         #[async_trait]
-        impl RotationMount for Mount {
-            type Error = SimFault;
-            fn travel_deg(&self) -> (f64, f64);
+        impl Axis for Mount {
+            type Unit = Deg;
+            fn travel(&self) -> (Deg, Deg);
             async fn home(&mut self, timeout: Duration) -> Result<(), SimFault>;
-            async fn start_move_to_deg(&mut self, target_deg: f64) -> Result<(), SimFault>;
-            async fn start_move_by_deg(&mut self, delta_deg: f64) -> Result<(), SimFault>;
-            async fn wait_until_stopped(&mut self, timeout: Duration) -> Result<f64, SimFault>;
+            async fn start_move_to(&mut self, target: Deg) -> Result<(), SimFault>;
+            async fn start_move_by(&mut self, delta: Deg) -> Result<(), SimFault>;
+            async fn wait_until_stopped(&mut self, timeout: Duration) -> Result<Deg, SimFault>;
             async fn stop(&mut self) -> Result<(), SimFault>;
-            async fn position_deg(&mut self) -> Result<f64, SimFault>;
+            async fn position(&mut self) -> Result<Deg, SimFault>;
             async fn status(&mut self) -> Result<AxisStatus, SimFault>;
         }
     }
@@ -510,7 +513,7 @@ mod mocks {
         let mut m = MockStage::new();
         let pos = Arc::new(Mutex::new(5.0f64));
         let moves = Arc::new(Mutex::new(0usize));
-        m.expect_travel_mm().return_const((0.0, 25.0));
+        m.expect_travel().return_const((Mm(0.0), Mm(25.0)));
         let l = log.clone();
         m.expect_identify().returning(move || {
             l.lock().unwrap().push("stage.identify".into());
@@ -530,7 +533,7 @@ mod mocks {
             Ok(())
         });
         let (l, p) = (log.clone(), pos.clone());
-        m.expect_start_move_to_mm().returning(move |t| {
+        m.expect_start_move_to().returning(move |Mm(t)| {
             let mut n = moves.lock().unwrap();
             *n += 1;
             l.lock().unwrap().push(format!("stage.move {t:.3}"));
@@ -544,16 +547,16 @@ mod mocks {
             *p.lock().unwrap() = t;
             Ok(())
         });
-        m.expect_start_move_by_mm().never();
+        m.expect_start_move_by().never();
         let p = pos.clone();
-        m.expect_wait_until_stopped().returning(move |_| Ok(*p.lock().unwrap()));
+        m.expect_wait_until_stopped().returning(move |_| Ok(Mm(*p.lock().unwrap())));
         let l = log.clone();
         m.expect_stop().returning(move || {
             l.lock().unwrap().push("stage.stop".into());
             Ok(())
         });
         let p = pos.clone();
-        m.expect_position_mm().returning(move || Ok(*p.lock().unwrap()));
+        m.expect_position().returning(move || Ok(Mm(*p.lock().unwrap())));
         let p = pos;
         m.expect_status().returning(move || Ok(AxisStatus { position: *p.lock().unwrap(), ..Default::default() }));
         m
@@ -561,7 +564,7 @@ mod mocks {
 
     pub fn mount(log: &Log) -> MockMount {
         let mut m = MockMount::new();
-        m.expect_travel_deg().return_const((-170.0, 170.0));
+        m.expect_travel().return_const((Deg(-170.0), Deg(170.0)));
         let l = log.clone();
         m.expect_identify().returning(move || {
             l.lock().unwrap().push("mount.identify".into());
@@ -573,18 +576,18 @@ mod mocks {
             Ok(())
         });
         let l = log.clone();
-        m.expect_start_move_to_deg().returning(move |t| {
+        m.expect_start_move_to().returning(move |Deg(t)| {
             l.lock().unwrap().push(format!("mount.move {t:.3}"));
             Ok(())
         });
-        m.expect_start_move_by_deg().never();
-        m.expect_wait_until_stopped().returning(|_| Ok(0.0));
+        m.expect_start_move_by().never();
+        m.expect_wait_until_stopped().returning(|_| Ok(Deg(0.0)));
         let l = log.clone();
         m.expect_stop().returning(move || {
             l.lock().unwrap().push("mount.stop".into());
             Ok(())
         });
-        m.expect_position_deg().returning(|| Ok(0.0));
+        m.expect_position().returning(|| Ok(Deg(0.0)));
         m.expect_status().returning(|| Ok(AxisStatus::default()));
         m
     }
@@ -806,7 +809,7 @@ mod limits {
 /// A stage whose n-th move never ends by itself (a long travel), and which
 /// presses the operator's abort key as that move starts.
 struct StuckStage {
-    inner: easycalib::run::simrig::SimStage,
+    inner: simrig::SimStage,
     moves: usize,
     stuck_at: usize,
     stuck: bool,
@@ -816,34 +819,35 @@ struct StuckStage {
 
 #[async_trait]
 impl devices::motion::Identify for StuckStage {
-    type Error = easycalib::run::SimFault;
+    type Error = simrig::SimFault;
     async fn identify(&mut self) -> Result<devices::motion::DeviceInfo, Self::Error> {
         self.inner.identify().await
     }
 }
 
 #[async_trait]
-impl devices::motion::LinearStage for StuckStage {
-    type Error = easycalib::run::SimFault;
-    fn travel_mm(&self) -> (f64, f64) {
-        self.inner.travel_mm()
+impl devices::motion::Axis for StuckStage {
+    type Unit = devices::motion::Mm;
+    fn travel(&self) -> (Self::Unit, Self::Unit) {
+        self.inner.travel()
     }
     async fn home(&mut self, t: Duration) -> Result<(), Self::Error> {
         self.inner.home(t).await
     }
-    async fn start_move_to_mm(&mut self, target_mm: f64) -> Result<(), Self::Error> {
+    async fn start_move_to(&mut self, target: Self::Unit) -> Result<(), Self::Error> {
+        let target_mm = target.0;
         self.moves += 1;
         self.log.lock().unwrap().push(format!("move {target_mm:.3}"));
         if self.moves == self.stuck_at {
             self.stuck = true;
             self.ctl.send(RunControl::Abort).unwrap();
         }
-        self.inner.start_move_to_mm(target_mm).await
+        self.inner.start_move_to(target).await
     }
-    async fn start_move_by_mm(&mut self, d: f64) -> Result<(), Self::Error> {
-        self.inner.start_move_by_mm(d).await
+    async fn start_move_by(&mut self, d: Self::Unit) -> Result<(), Self::Error> {
+        self.inner.start_move_by(d).await
     }
-    async fn wait_until_stopped(&mut self, t: Duration) -> Result<f64, Self::Error> {
+    async fn wait_until_stopped(&mut self, t: Duration) -> Result<Self::Unit, Self::Error> {
         if self.stuck {
             self.log.lock().unwrap().push("waiting".into());
             std::future::pending::<()>().await;
@@ -855,8 +859,8 @@ impl devices::motion::LinearStage for StuckStage {
         self.log.lock().unwrap().push("stop".into());
         self.inner.stop().await
     }
-    async fn position_mm(&mut self) -> Result<f64, Self::Error> {
-        self.inner.position_mm().await
+    async fn position(&mut self) -> Result<Self::Unit, Self::Error> {
+        self.inner.position().await
     }
     async fn status(&mut self) -> Result<devices::motion::AxisStatus, Self::Error> {
         self.inner.status().await

@@ -6,10 +6,10 @@ use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use devices::Axis;
 use devices::apt::codec::{AptDecoder, AptMessage, HOST, HwInfo, StatusPayload, USB_UNIT, encode_into, status};
 use devices::apt::{AptConfig, AptStage};
 use devices::serial::open_serial_settle;
-use devices::{LinearStage, RotationMount};
 use sim::clock::VirtualClock;
 use sim::emulator::apt::{k10cr1_axis, spawn_apt_rotation, spawn_apt_stage, z8_axis};
 use sim::emulator::rig::Rig;
@@ -88,7 +88,7 @@ fn pty_round_trip(c: &mut Criterion) {
             rt.block_on(async {
                 let t0 = Instant::now();
                 for _ in 0..iters {
-                    black_box(LinearStage::status(&mut stage).await.expect("status"));
+                    black_box(Axis::status(&mut stage).await.expect("status"));
                 }
                 t0.elapsed()
             })
@@ -100,7 +100,7 @@ fn pty_round_trip(c: &mut Criterion) {
             rt.block_on(async {
                 let t0 = Instant::now();
                 for _ in 0..iters {
-                    black_box(RotationMount::status(&mut rot).await.expect("status"));
+                    black_box(Axis::status(&mut rot).await.expect("status"));
                 }
                 t0.elapsed()
             })

@@ -9,7 +9,7 @@ use std::time::Duration;
 use devices::apt::codec::{Addressing, AptDecoder, AptMessage, Frame, decode_frame, status};
 use devices::apt::{AptConfig, AptError, AptRotation, AptStage, probe};
 use devices::serial::open_serial_settle;
-use devices::{DeviceFault, FaultKind, Identify, LinearStage, RotationMount};
+use devices::{Axis, Deg, DeviceFault, FaultKind, Identify, Mm};
 use sim::clock::VirtualClock;
 use sim::emulator::apt::{
     AptEmulatorConfig, EmulatorHandle, InjectedError, k10cr1_axis, spawn_apt, spawn_apt_rotation, spawn_apt_stage,
@@ -87,15 +87,15 @@ async fn stage_homes_then_moves_absolute_and_relative() {
     assert!(rig.pose().stage_mm.abs() < 1e-9);
 
     // 1.234 mm is 42 641 counts (A.6 worked number); the rig's load really is there.
-    let p = s.move_to_mm(1.234, T).await.unwrap();
+    let p = s.move_to(Mm(1.234), T).await.unwrap().0;
     assert_eq!((p * 34_554.96).round(), 42_641.0);
     assert!((rig.pose().stage_mm - 1.234).abs() < 1.0 / 34_554.96, "{:?}", rig.pose());
 
-    let p = s.move_by_mm(1.5, T).await.unwrap();
+    let p = s.move_by(Mm(1.5), T).await.unwrap().0;
     assert!((z8_counts(p) - z8_counts(2.734)).abs() <= 1.0, "{p}");
-    let p = s.move_by_mm(-0.5, T).await.unwrap();
+    let p = s.move_by(Mm(-0.5), T).await.unwrap().0;
     assert!((z8_counts(p) - z8_counts(2.234)).abs() <= 1.0, "{p}");
-    assert!((s.position_mm().await.unwrap() - p).abs() < 1e-12);
+    assert!((s.position().await.unwrap().0 - p).abs() < 1e-12);
     assert!((rig.pose().stage_mm - 2.234).abs() < 2.0 / 34_554.96);
 }
 
@@ -103,7 +103,7 @@ async fn stage_homes_then_moves_absolute_and_relative() {
 async fn stop_during_a_move_ends_short_of_the_target() {
     let (rig, _h, mut s) = stage(20.0).await;
     s.home(T).await.unwrap();
-    s.start_move_to_mm(20.0).await.unwrap();
+    s.start_move_to(Mm(20.0)).await.unwrap();
     // Wait (by polling the device, not by sleeping) until the move is well under way.
     let mut seen_moving = false;
     loop {
@@ -116,7 +116,7 @@ async fn stop_during_a_move_ends_short_of_the_target() {
     }
     assert!(seen_moving);
     s.stop().await.unwrap();
-    let p = s.wait_until_stopped(T).await.unwrap();
+    let p = s.wait_until_stopped(T).await.unwrap().0;
     assert!(p > 1.0 && p < 19.0, "stopped at {p}");
     let st = s.status().await.unwrap();
     assert!(!st.moving);
@@ -128,16 +128,16 @@ async fn stop_during_a_move_ends_short_of_the_target() {
 async fn moves_past_travel_are_refused_before_anything_is_sent() {
     let (rig, h, mut s) = stage(100.0).await;
     s.home(T).await.unwrap();
-    s.move_to_mm(24.0, T).await.unwrap();
+    s.move_to(Mm(24.0), T).await.unwrap();
     let sent_before = h.received();
     let pose = rig.pose();
 
-    for r in [s.start_move_to_mm(25.5).await, s.start_move_to_mm(-0.1).await, s.start_move_to_mm(f64::NAN).await] {
+    for r in [s.start_move_to(Mm(25.5)).await, s.start_move_to(Mm(-0.1)).await, s.start_move_to(Mm(f64::NAN)).await] {
         let e = r.unwrap_err();
         assert_eq!(e.kind(), FaultKind::Limit, "{e}");
     }
     // A relative move is checked against the position it starts from (24 + 2 > 25).
-    let e = s.start_move_by_mm(2.0).await.unwrap_err();
+    let e = s.start_move_by(Mm(2.0)).await.unwrap_err();
     assert!(matches!(e, AptError::Limit { .. }), "{e}");
 
     let sent = h.received();
@@ -150,7 +150,7 @@ async fn moves_past_travel_are_refused_before_anything_is_sent() {
 #[tokio::test]
 async fn cut_cable_mid_move_gives_disconnected_within_one_second() {
     let (_rig, h, mut s) = stage(5.0).await;
-    s.start_move_to_mm(20.0).await.unwrap();
+    s.start_move_to(Mm(20.0)).await.unwrap();
     h.cut();
     let r = tokio::time::timeout(Duration::from_secs(1), s.wait_until_stopped(T))
         .await
@@ -204,13 +204,13 @@ async fn rotation_identifies_homes_and_turns_both_ways() {
     assert!(h.received().contains(&0x0429) && !h.received().contains(&0x0490));
 
     let c = 409_600.0 / 3.0;
-    let p = r.move_to_deg(-30.0, T).await.unwrap();
+    let p = r.move_to(Deg(-30.0), T).await.unwrap().0;
     assert!((p * c - (-30.0 * c)).abs() <= 1.0, "{p}");
     assert!((rig.pose().rot_deg + 30.0).abs() < 1e-4);
-    let p = r.move_by_deg(45.5, T).await.unwrap();
+    let p = r.move_by(Deg(45.5), T).await.unwrap().0;
     assert!((p * c - 15.5 * c).abs() <= 1.0, "{p}");
-    assert_eq!(r.start_move_to_deg(400.0).await.unwrap_err().kind(), FaultKind::Limit);
-    assert_eq!(r.start_move_by_deg(-380.0).await.unwrap_err().kind(), FaultKind::Limit);
+    assert_eq!(r.start_move_to(Deg(400.0)).await.unwrap_err().kind(), FaultKind::Limit);
+    assert_eq!(r.start_move_by(Deg(-380.0)).await.unwrap_err().kind(), FaultKind::Limit);
 }
 
 #[tokio::test]
@@ -218,9 +218,9 @@ async fn rotation_stop_during_a_move() {
     // Unhomed, the counter reads the power-on angle (365°); turning back to 0
     // takes 36.5 rig seconds, 0.7 s of wall time at 50x: ample room to stop.
     let (rig, _h, mut r) = rotation(50.0).await;
-    let start = r.position_deg().await.unwrap();
+    let start = r.position().await.unwrap().0;
     assert!((start - 365.0).abs() < 1e-4, "{start}");
-    r.start_move_to_deg(0.0).await.unwrap();
+    r.start_move_to(Deg(0.0)).await.unwrap();
     loop {
         let st = r.status().await.unwrap();
         assert!(st.position > 5.0, "the move ended before the stop could be sent");
@@ -229,7 +229,7 @@ async fn rotation_stop_during_a_move() {
         }
     }
     r.stop().await.unwrap();
-    let p = r.wait_until_stopped(T).await.unwrap();
+    let p = r.wait_until_stopped(T).await.unwrap().0;
     assert!(p > 5.0 && p < 345.0, "{p}");
     let st = r.status().await.unwrap();
     assert!(!st.moving && (st.position - p).abs() < 1e-9);
@@ -239,7 +239,7 @@ async fn rotation_stop_during_a_move() {
 #[tokio::test]
 async fn rotation_cut_cable_gives_disconnected() {
     let (_rig, h, mut r) = rotation(2.0).await;
-    r.start_move_to_deg(200.0).await.unwrap();
+    r.start_move_to(Deg(200.0)).await.unwrap();
     h.cut();
     let e = tokio::time::timeout(Duration::from_secs(1), r.wait_until_stopped(T))
         .await

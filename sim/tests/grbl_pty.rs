@@ -7,7 +7,7 @@
 use std::time::Duration;
 
 use devices::grbl::{AlarmCode, GrblConfig, GrblError, GrblStage, MachineState};
-use devices::{DeviceFault, FaultKind, Identify, LinearStage};
+use devices::{Axis, DeviceFault, FaultKind, Identify, Mm};
 use sim::clock::VirtualClock;
 use sim::emulator::grbl::{GrblEmulatorConfig, GrblPort, free_rotation_axis, serve_grbl_stage, stepper_stage_axis};
 use sim::emulator::rig::Rig;
@@ -49,7 +49,7 @@ async fn connect_identify_home_and_move() {
     let st = stage.status().await.unwrap();
     assert!(!st.enabled && !st.homed);
     assert!(matches!(
-        stage.start_move_to_mm(1.0).await,
+        stage.start_move_to(Mm(1.0)).await,
         Err(GrblError::Rejected { code, .. }) if code.0 == 9
     ));
 
@@ -63,14 +63,14 @@ async fn connect_identify_home_and_move() {
     assert!(st.homed && st.enabled && !st.moving);
     assert!(st.position.abs() < 1e-9);
 
-    let p = stage.move_to_mm(2.5, LONG).await.unwrap();
+    let p = stage.move_to(Mm(2.5), LONG).await.unwrap().0;
     assert!((p - 2.5).abs() < 1e-3, "{p}");
     assert!((rig.pose().stage_mm - 2.5).abs() < 1e-3);
 
-    let p = stage.move_by_mm(-0.75, LONG).await.unwrap();
+    let p = stage.move_by(Mm(-0.75), LONG).await.unwrap().0;
     assert!((p - 1.75).abs() < 1e-3, "{p}");
     assert!((rig.pose().stage_mm - 1.75).abs() < 1e-3);
-    assert!((stage.position_mm().await.unwrap() - 1.75).abs() < 1e-3);
+    assert!((stage.position().await.unwrap().0 - 1.75).abs() < 1e-3);
 
     port.cut_cable();
     let stats = port.task.await.unwrap().unwrap();
@@ -85,8 +85,8 @@ async fn stop_during_move_keeps_position() {
     // Slower rig here (20 mm take ~0.5 wall s) so the stop surely lands mid-move.
     let (rig, port, mut stage) = setup_at(20.0).await;
     stage.home(LONG).await.unwrap();
-    stage.start_move_to_mm(20.0).await.unwrap();
-    while stage.position_mm().await.unwrap() < 0.5 {
+    stage.start_move_to(Mm(20.0)).await.unwrap();
+    while stage.position().await.unwrap().0 < 0.5 {
         tokio::time::sleep(Duration::from_millis(2)).await;
     }
     stage.stop().await.unwrap();
@@ -99,7 +99,7 @@ async fn stop_during_move_keeps_position() {
     assert!((rig.pose().stage_mm - st.position).abs() < 1e-3);
     assert!(!rig.with_stage(|ax, _| ax.is_moving()));
     // The planner was flushed: the axis stays put and accepts a new move.
-    let p = stage.move_to_mm(1.0, LONG).await.unwrap();
+    let p = stage.move_to(Mm(1.0), LONG).await.unwrap().0;
     assert!((p - 1.0).abs() < 1e-3);
     port.cut_cable();
     let stats = port.task.await.unwrap().unwrap();
@@ -110,9 +110,9 @@ async fn stop_during_move_keeps_position() {
 async fn move_past_travel_is_refused_before_sending() {
     let (rig, port, mut stage) = setup().await;
     stage.home(LONG).await.unwrap();
-    let e = stage.start_move_to_mm(25.5).await.unwrap_err();
+    let e = stage.start_move_to(Mm(25.5)).await.unwrap_err();
     assert_eq!(e.kind(), FaultKind::Limit);
-    let e = stage.move_by_mm(-0.1, LONG).await.unwrap_err();
+    let e = stage.move_by(Mm(-0.1), LONG).await.unwrap_err();
     assert_eq!(e.kind(), FaultKind::Limit);
     assert!(!rig.with_stage(|ax, _| ax.is_moving()));
     port.cut_cable();
@@ -126,7 +126,7 @@ async fn move_past_travel_is_refused_before_sending() {
 async fn emulator_alarm_is_device_reported_and_home_recovers() {
     let (rig, port, mut stage) = setup().await;
     stage.home(LONG).await.unwrap();
-    stage.start_move_to_mm(20.0).await.unwrap();
+    stage.start_move_to(Mm(20.0)).await.unwrap();
     tokio::time::sleep(Duration::from_millis(20)).await;
     port.inject_alarm(1);
     let e = stage.wait_until_stopped(LONG).await.unwrap_err();
@@ -135,11 +135,11 @@ async fn emulator_alarm_is_device_reported_and_home_recovers() {
     assert!(e.to_string().contains("Hard limit triggered"));
     assert!(!rig.with_stage(|ax, _| ax.is_moving()));
     // Refused while locked, without sending.
-    assert_eq!(stage.start_move_to_mm(1.0).await.unwrap_err().kind(), FaultKind::DeviceReported);
+    assert_eq!(stage.start_move_to(Mm(1.0)).await.unwrap_err().kind(), FaultKind::DeviceReported);
     // Re-homing resets the critical alarm and unlocks.
     stage.home(LONG).await.unwrap();
     assert_eq!(stage.alarm(), None);
-    let p = stage.move_to_mm(0.5, LONG).await.unwrap();
+    let p = stage.move_to(Mm(0.5), LONG).await.unwrap().0;
     assert!((p - 0.5).abs() < 1e-3);
 }
 
@@ -147,7 +147,7 @@ async fn emulator_alarm_is_device_reported_and_home_recovers() {
 async fn cable_cut_mid_move_is_disconnected_within_a_second() {
     let (_rig, port, mut stage) = setup().await;
     stage.home(LONG).await.unwrap();
-    stage.start_move_to_mm(20.0).await.unwrap();
+    stage.start_move_to(Mm(20.0)).await.unwrap();
     tokio::time::sleep(Duration::from_millis(20)).await;
     port.cut_cable();
     // A one-second wait budget (and a one-second reply timeout): the only way
@@ -161,8 +161,8 @@ async fn cable_cut_mid_move_is_disconnected_within_a_second() {
 async fn feed_hold_pauses_and_resume_finishes_the_move() {
     let (rig, port, mut stage) = setup_at(20.0).await;
     stage.home(LONG).await.unwrap();
-    stage.start_move_to_mm(20.0).await.unwrap();
-    while stage.position_mm().await.unwrap() < 0.5 {
+    stage.start_move_to(Mm(20.0)).await.unwrap();
+    while stage.position().await.unwrap().0 < 0.5 {
         tokio::time::sleep(Duration::from_millis(2)).await;
     }
     let held = stage.feed_hold().await.unwrap();
@@ -175,7 +175,7 @@ async fn feed_hold_pauses_and_resume_finishes_the_move() {
     assert!(!st.moving);
     assert!((st.position - at).abs() < 1e-3);
     stage.resume().await.unwrap();
-    let p = stage.wait_until_stopped(LONG).await.unwrap();
+    let p = stage.wait_until_stopped(LONG).await.unwrap().0;
     assert!((p - 20.0).abs() < 1e-3, "{p}");
     assert!((rig.pose().stage_mm - 20.0).abs() < 1e-3);
     port.cut_cable();

@@ -1,5 +1,7 @@
 //! `rig.toml`: where a real rig's devices are. Unknown keys are errors so a
 //! typo never silently falls back to a default; every error names the key.
+//! The `[stage]` and `[rotation]` sections name a registered driver
+//! (`super::drivers`), which reads its own keys there.
 //!
 //! ```toml
 //! script = "my-script.toml"         # optional, relative to this file
@@ -7,6 +9,7 @@
 //! driver = "apt"                    # "apt" (KDC101 + Z8) or "grbl"
 //! port = "/dev/easycalib-stage"
 //! actuator = "z825b"                # apt: "z825b" (25 mm) or "z812b" (12 mm)
+//! # grbl: axis = "Z", feed_mm_per_min = 60, travel_mm = [0, 25]
 //! [rotation]
 //! driver = "apt"                    # K10CR1
 //! port = "/dev/easycalib-rotation"
@@ -20,44 +23,30 @@
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
-use devices::apt::AptConfig;
-use devices::grbl::GrblConfig;
 use serde::Deserialize;
 
-use super::connect::{RigSpec, RotationSpec, SensorSpec, StageSpec};
+use super::connect::{RigSpec, SensorSpec};
+use super::drivers::Drivers;
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RigConfig {
     /// Calibration script for this rig (relative paths are from the rig file).
     pub script: Option<PathBuf>,
-    pub stage: StageConfig,
-    pub rotation: RotationConfig,
+    pub stage: AxisConfig,
+    pub rotation: AxisConfig,
     pub sensor: SensorConfig,
 }
 
+/// A `[stage]` or `[rotation]` section.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StageConfig {
-    /// `apt` or `grbl`.
+pub struct AxisConfig {
+    /// A registered driver's name, e.g. `apt` or `grbl`.
     pub driver: String,
     pub port: PathBuf,
-    /// APT actuator preset: `z825b` (default) or `z812b`.
-    pub actuator: Option<String>,
-    /// GRBL: axis letter (default `Z`).
-    pub axis: Option<char>,
-    /// GRBL: feed rate of moves, mm/min (default 60).
-    pub feed_mm_per_min: Option<f64>,
-    /// GRBL: soft travel `[min, max]`, mm (default `[0, 25]`).
-    pub travel_mm: Option<[f64; 2]>,
-}
-
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RotationConfig {
-    /// Only `apt` (Thorlabs K10CR1) is supported.
-    pub driver: String,
-    pub port: PathBuf,
+    /// The driver's own keys (e.g. `actuator`), read by the driver.
+    #[serde(flatten)]
+    pub keys: toml::Table,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -91,26 +80,37 @@ pub enum ConfigError {
     #[error("rig file{}: {message}", at.as_ref().map(|p| format!(" {}", p.display())).unwrap_or_default())]
     Parse { at: Option<PathBuf>, message: String },
     #[error("rig file `{key}`: {message}")]
-    Invalid { key: &'static str, message: String },
+    Invalid { key: String, message: String },
 }
 
-fn invalid(key: &'static str, message: impl Into<String>) -> ConfigError {
-    ConfigError::Invalid { key, message: message.into() }
+fn invalid(key: &str, message: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid { key: key.to_string(), message: message.into() }
 }
 
 impl RigConfig {
+    /// Parse and check a rig file's text against the built-in drivers.
     pub fn from_toml(text: &str) -> Result<RigConfig, ConfigError> {
+        Self::from_toml_with(text, &Drivers::builtin())
+    }
+
+    /// Parse and check a rig file's text against `drivers`.
+    pub fn from_toml_with(text: &str, drivers: &Drivers) -> Result<RigConfig, ConfigError> {
         let cfg: RigConfig =
             toml::from_str(text).map_err(|e| ConfigError::Parse { at: None, message: e.to_string() })?;
-        cfg.to_spec()?;
+        cfg.to_spec_with(drivers)?;
         Ok(cfg)
     }
 
     /// Read a rig file; a relative `script` path becomes relative to the file.
     pub fn read_path(path: &Path) -> Result<RigConfig, ConfigError> {
+        Self::read_path_with(path, &Drivers::builtin())
+    }
+
+    /// [`Self::read_path`] against `drivers`.
+    pub fn read_path_with(path: &Path, drivers: &Drivers) -> Result<RigConfig, ConfigError> {
         let text =
             std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
-        let mut cfg = Self::from_toml(&text).map_err(|e| match e {
+        let mut cfg = Self::from_toml_with(&text, drivers).map_err(|e| match e {
             ConfigError::Parse { message, .. } => ConfigError::Parse { at: Some(path.to_path_buf()), message },
             other => other,
         })?;
@@ -122,58 +122,23 @@ impl RigConfig {
         Ok(cfg)
     }
 
-    /// The devices to open.
+    /// The devices to open, with the built-in drivers.
     pub fn to_spec(&self) -> Result<RigSpec, ConfigError> {
-        let stage = match self.stage.driver.as_str() {
-            "apt" => {
-                if self.stage.axis.is_some() || self.stage.feed_mm_per_min.is_some() || self.stage.travel_mm.is_some() {
-                    return Err(invalid("stage", "axis, feed_mm_per_min and travel_mm are GRBL settings"));
-                }
-                let cfg = match self.stage.actuator.as_deref().unwrap_or("z825b") {
-                    "z825b" => AptConfig::kdc101_z825b(),
-                    "z812b" => AptConfig::kdc101_z812b(),
-                    other => {
-                        return Err(invalid("stage.actuator", format!("`{other}` is not one of \"z825b\", \"z812b\"")));
-                    }
-                };
-                StageSpec::Apt { path: self.stage.port.clone(), cfg }
-            }
-            "grbl" => {
-                if self.stage.actuator.is_some() {
-                    return Err(invalid("stage.actuator", "an actuator preset applies to the APT driver only"));
-                }
-                let mut cfg = GrblConfig::default();
-                if let Some(a) = self.stage.axis {
-                    if !"XYZABC".contains(a.to_ascii_uppercase()) {
-                        return Err(invalid("stage.axis", format!("`{a}` is not one of X, Y, Z, A, B, C")));
-                    }
-                    cfg.axis = a.to_ascii_uppercase();
-                }
-                if let Some(f) = self.stage.feed_mm_per_min {
-                    if !(f.is_finite() && f > 0.0) {
-                        return Err(invalid("stage.feed_mm_per_min", format!("must be a positive number, got {f}")));
-                    }
-                    cfg.feed_mm_per_min = f;
-                }
-                if let Some([lo, hi]) = self.stage.travel_mm {
-                    if !(lo.is_finite() && hi.is_finite() && lo < hi) {
-                        return Err(invalid("stage.travel_mm", format!("needs min < max, got [{lo}, {hi}]")));
-                    }
-                    cfg.travel_mm = (lo, hi);
-                }
-                StageSpec::Grbl { path: self.stage.port.clone(), cfg }
-            }
-            other => return Err(invalid("stage.driver", format!("`{other}` is not one of \"apt\", \"grbl\""))),
-        };
-        if self.rotation.driver != "apt" {
-            return Err(invalid(
-                "rotation.driver",
-                format!("`{}` is not supported (only \"apt\", a Thorlabs K10CR1)", self.rotation.driver),
-            ));
-        }
-        let rotation = RotationSpec { path: self.rotation.port.clone(), cfg: AptConfig::k10cr1() };
+        self.to_spec_with(&Drivers::builtin())
+    }
+
+    /// The devices to open; the stage and the mount by the `drivers` they name.
+    pub fn to_spec_with(&self, drivers: &Drivers) -> Result<RigSpec, ConfigError> {
+        let stage = drivers.stage_spec(&self.stage.driver, &self.stage.port, self.stage.keys.clone())?;
+        let rotation = drivers.rotation_spec(&self.rotation.driver, &self.rotation.port, self.rotation.keys.clone())?;
+        let sensor = self.sensor_spec()?;
+        let sensor_name = self.sensor.name.clone().unwrap_or_else(|| self.sensor.kind.clone());
+        Ok(RigSpec { stage, rotation, sensor, sensor_name })
+    }
+
+    fn sensor_spec(&self) -> Result<SensorSpec, ConfigError> {
         let s = &self.sensor;
-        let unused = |key: &'static str, present: bool| {
+        let unused = |key: &str, present: bool| {
             if present { Err(invalid(key, format!("does not apply to a `{}` sensor", s.kind))) } else { Ok(()) }
         };
         let sensor = match s.kind.as_str() {
@@ -225,14 +190,15 @@ impl RigConfig {
                 ));
             }
         };
-        let sensor_name = s.name.clone().unwrap_or_else(|| s.kind.clone());
-        Ok(RigSpec { stage, rotation, sensor, sensor_name })
+        Ok(sensor)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use devices::apt::AptConfig;
+    use devices::grbl::GrblConfig;
 
     const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
@@ -241,14 +207,16 @@ mod tests {
         let thor = RigConfig::read_path(&Path::new(ROOT).join("examples/rig-thorlabs.toml")).unwrap();
         let spec = thor.to_spec().unwrap();
         assert!(
-            matches!(&spec.stage, StageSpec::Apt { path, cfg } if path == Path::new("/dev/easycalib-stage") && cfg.travel == (0.0, 25.0))
+            spec.stage.path == Path::new("/dev/easycalib-stage")
+                && spec.stage.settings::<AptConfig>().is_some_and(|cfg| cfg.travel == (0.0, 25.0))
         );
         assert_eq!(spec.rotation.path, Path::new("/dev/easycalib-rotation"));
         assert_eq!(spec.sensor, SensorSpec::Tac3d { bind: "127.0.0.1:9988".parse().unwrap(), source: None });
         let grbl = RigConfig::read_path(&Path::new(ROOT).join("examples/rig-grbl.toml")).unwrap();
         let spec = grbl.to_spec().unwrap();
         assert!(
-            matches!(&spec.stage, StageSpec::Grbl { path, cfg } if path == Path::new("/dev/easycalib-grbl") && cfg.axis == 'Z')
+            spec.stage.path == Path::new("/dev/easycalib-grbl")
+                && spec.stage.settings::<GrblConfig>().is_some_and(|cfg| cfg.axis == 'Z')
         );
         assert!(matches!(&spec.sensor, SensorSpec::LinkSerial { baud: 115_200, .. }));
     }

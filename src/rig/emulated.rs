@@ -25,7 +25,8 @@ use sim::sensor::rig::RigSensor;
 use sim::sensor::rig::SensorSimConfig;
 use sim::sensor::stream::{FrameSink, SensorStream, SinkError, spawn_rig_sensor};
 
-use super::connect::{RigSpec, RotationSpec, SensorSpec, StageSpec};
+use super::connect::{RigSpec, SensorSpec};
+use super::drivers::{RotationSpec, StageSpec};
 use crate::report::Truth;
 
 /// Travel of the emulated Z825 stage, mm.
@@ -185,17 +186,15 @@ impl EmulatedRig {
                 poll_interval: poll(Duration::from_millis(100)),
                 ..GrblConfig::default()
             };
-            StageSpec::Grbl { path: self.stage.path().to_path_buf(), cfg }
+            StageSpec::new(self.stage.path(), cfg)
         } else {
             let base = AptConfig::kdc101_z825b();
             let cfg = AptConfig { poll_period: poll(base.poll_period), ..base };
-            StageSpec::Apt { path: self.stage.path().to_path_buf(), cfg }
+            StageSpec::new(self.stage.path(), cfg)
         };
         let base = AptConfig::k10cr1();
-        let rotation = RotationSpec {
-            path: self.rotation.path().to_path_buf(),
-            cfg: AptConfig { poll_period: poll(base.poll_period), ..base },
-        };
+        let rotation =
+            RotationSpec::new(self.rotation.path(), AptConfig { poll_period: poll(base.poll_period), ..base });
         let sensor = match &self.sensor_endpoint {
             SensorEndpoint::Pty(path) => SensorSpec::LinkSerial { path: path.clone(), baud: 115_200 },
             SensorEndpoint::Udp(to) => SensorSpec::Tac3d { bind: *to, source: None },

@@ -9,6 +9,8 @@
 
 use std::fmt;
 
+use devices::motion::{Deg, Mm};
+
 use super::script::Script;
 
 /// The soft limits in force, already narrowed to the devices' own travel.
@@ -70,17 +72,21 @@ pub struct SafetyGuard {
 
 impl SafetyGuard {
     /// Limits of `script` narrowed to the device travel ranges.
-    pub fn new(script: &Script, stage_travel_mm: (f64, f64), mount_travel_deg: (f64, f64)) -> Self {
+    pub fn new(
+        script: &Script,
+        (Mm(stage_min_mm), Mm(stage_max_mm)): (Mm, Mm),
+        (Deg(mount_min_deg), Deg(mount_max_deg)): (Deg, Deg),
+    ) -> Self {
         let l = &script.limits;
         let lo = |a: f64, b: f64| if b.is_finite() { a.max(b) } else { a };
         let hi = |a: f64, b: f64| if b.is_finite() { a.min(b) } else { a };
         let limits = SoftLimits {
-            stage_min_mm: lo(l.stage_min_mm, stage_travel_mm.0),
-            stage_max_mm: hi(l.stage_max_mm, stage_travel_mm.1),
+            stage_min_mm: lo(l.stage_min_mm, stage_min_mm),
+            stage_max_mm: hi(l.stage_max_mm, stage_max_mm),
             clear_until_mm: script.approach.start_mm,
             max_gamma1_mm: l.max_gamma1_mm,
-            mount_min_deg: if mount_travel_deg.0.is_finite() { mount_travel_deg.0 } else { f64::NEG_INFINITY },
-            mount_max_deg: if mount_travel_deg.1.is_finite() { mount_travel_deg.1 } else { f64::INFINITY },
+            mount_min_deg: if mount_min_deg.is_finite() { mount_min_deg } else { f64::NEG_INFINITY },
+            mount_max_deg: if mount_max_deg.is_finite() { mount_max_deg } else { f64::INFINITY },
             max_twist_deg: l.max_twist_deg,
         };
         Self { limits, twist_zero_deg: 0.0, known: Vec::new() }
@@ -182,7 +188,7 @@ mod tests {
         // Script window 0..24 narrowed by a 0..20 mm device; clear until 10 mm; gamma1 up to 4 mm.
         let mut s = Script::default();
         s.limits.max_gamma1_mm = 4.0;
-        SafetyGuard::new(&s, (0.0, 20.0), (-170.0, 170.0))
+        SafetyGuard::new(&s, (Mm(0.0), Mm(20.0)), (Deg(-170.0), Deg(170.0)))
     }
 
     #[test]

@@ -9,14 +9,14 @@
 //! Any failure ends in [`Sequencer::abort`]: stop both axes, back the stage
 //! off to the retract position, say which device did what.
 
-use futures_util::FutureExt;
+use futures_util::{FutureExt, TryFutureExt};
 use std::fmt;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
-use devices::motion::{AxisStatus, DeviceFault, FaultKind, Identify, LinearStage, RotationMount};
+use devices::motion::{Axis, AxisStatus, Deg, DeviceFault, FaultKind, Identify, LinearStage, Mm, RotationMount};
 use sim::recording::{Direction, Metadata, Phase, RecordingWriter, Sample};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
@@ -324,7 +324,7 @@ where
         recording_path: impl Into<PathBuf>,
     ) -> Result<Self, ScriptError> {
         script.validate()?;
-        let guard = SafetyGuard::new(&script, stage.travel_mm(), mount.travel_deg());
+        let guard = SafetyGuard::new(&script, stage.travel(), mount.travel());
         Ok(Self {
             script,
             stage,
@@ -577,22 +577,22 @@ where
         // Devices that report homed have kept their position since they were
         // homed (the controller's own flag, cleared at power loss): trusted,
         // and homing again would only cost time (the K10CR1 homes at 5 deg/s).
-        let stage = LinearStage::status(&mut self.stage).await.map_err(|e| self.stage_fault("status", e))?;
-        let mount = RotationMount::status(&mut self.mount).await.map_err(|e| self.mount_fault("status", e))?;
+        let stage = Axis::status(&mut self.stage).await.map_err(|e| self.stage_fault("status", e))?;
+        let mount = Axis::status(&mut self.mount).await.map_err(|e| self.mount_fault("status", e))?;
         let trusted = stage.homed && mount.homed;
         let t = self.script.home_timeout();
         if !trusted {
-            LinearStage::home(&mut self.stage, t).await.map_err(|e| self.stage_fault("homing", e))?;
+            Axis::home(&mut self.stage, t).await.map_err(|e| self.stage_fault("homing", e))?;
         }
         self.stage_homed = true;
-        self.stage_mm = self.stage.position_mm().await.map_err(|e| self.stage_fault("position", e))?;
+        self.stage_mm = self.stage.position().map_ok(f64::from).await.map_err(|e| self.stage_fault("position", e))?;
         // Inside the declared clear zone nothing touches the sensor.
         self.g1_bound = if self.stage_mm <= self.guard.limits().clear_until_mm { 0.0 } else { f64::NAN };
         if !trusted {
-            RotationMount::home(&mut self.mount, t).await.map_err(|e| self.mount_fault("homing", e))?;
+            Axis::home(&mut self.mount, t).await.map_err(|e| self.mount_fault("homing", e))?;
         }
         self.mount_homed = true;
-        self.mount_deg = self.mount.position_deg().await.map_err(|e| self.mount_fault("position", e))?;
+        self.mount_deg = self.mount.position().map_ok(f64::from).await.map_err(|e| self.mount_fault("position", e))?;
         let what = if trusted { "already homed, homing skipped" } else { "homed" };
         self.log(LogLevel::Info, format!("{what}: stage {:.3} mm, mount {:.3} deg", self.stage_mm, self.mount_deg));
         self.device_status().await
@@ -803,13 +803,13 @@ where
         self.g1_bound = self.guard.gamma1_bound(from, self.g1_bound, target);
         self.last_inward_mm = if from.is_finite() { (target - from).max(0.0) } else { 0.0 };
         self.stage
-            .start_move_to_mm(target)
+            .start_move_to(Mm(target))
             .await
             .map_err(|e| self.stage_fault(&format!("{context}: move to {target:.4} mm"), e))?;
         self.stage_mm = target;
         let timeout = self.script.move_timeout();
         let res = until_done_or_stopped(
-            self.stage.wait_until_stopped(timeout),
+            self.stage.wait_until_stopped(timeout).map_ok(f64::from),
             &mut self.controls,
             &mut self.pause_requested,
         )
@@ -831,13 +831,13 @@ where
             return Err(self.safety(context, v));
         }
         self.mount
-            .start_move_to_deg(target)
+            .start_move_to(Deg(target))
             .await
             .map_err(|e| self.mount_fault(&format!("{context}: move to {target:.3} deg"), e))?;
         self.mount_deg = target;
         let timeout = self.script.move_timeout();
         let res = until_done_or_stopped(
-            self.mount.wait_until_stopped(timeout),
+            self.mount.wait_until_stopped(timeout).map_ok(f64::from),
             &mut self.controls,
             &mut self.pause_requested,
         )
@@ -1173,8 +1173,8 @@ where
                 Err(v) => Backoff::Failed(v.to_string()),
                 Ok(()) => {
                     let timeout = self.script.move_timeout();
-                    let moved = match self.stage.start_move_to_mm(target).await {
-                        Ok(()) => self.stage.wait_until_stopped(timeout).await,
+                    let moved = match self.stage.start_move_to(Mm(target)).await {
+                        Ok(()) => self.stage.wait_until_stopped(timeout).map_ok(f64::from).await,
                         Err(e) => Err(e),
                     };
                     match moved {

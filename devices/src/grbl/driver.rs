@@ -1,4 +1,5 @@
-//! `GrblStage`: one GRBL axis as a [`LinearStage`], over any async byte stream.
+//! `GrblStage`: one GRBL axis as a linear stage (an [`Axis`] in [`Mm`]),
+//! over any async byte stream.
 //!
 //! Protocol rules followed (hardware.md B.2-B.6):
 //! * every line is answered by exactly one `ok`/`error:N`, in order; the
@@ -8,7 +9,9 @@
 //! * `ok` for a move means "queued", so completion is found by polling `?`
 //!   until `Idle` at the target;
 //! * stop = feed hold `!`, wait for the hold to complete (position kept),
-//!   then soft reset 0x18 to flush the planner, then re-read the position;
+//!   then soft reset 0x18 to flush the planner, then re-read the position,
+//!   then unlock (`$X`) if an alarm left GRBL locked, so the next move (the
+//!   back-off of an abort) can go;
 //! * timeouts are wall-clock (tokio timers), whatever speed the far end runs at.
 
 use std::collections::VecDeque;
@@ -26,7 +29,7 @@ use super::codec::{
     AlarmCode, AxisValues, Command, Distance, EncodeError, ErrorCode, LineSplitter, MachineState, ParseError,
     RX_BUFFER_SIZE, Realtime, Response, StatusReport, parse_line_bytes,
 };
-use crate::motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage};
+use crate::motion::{Axis, AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, Mm};
 
 /// Errors of the GRBL driver family.
 #[derive(Debug, Error)]
@@ -452,7 +455,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
     /// Feed hold (`!`): decelerate and pause the move under way, keeping the
     /// rest of it queued; returns the report once the axis stands
     /// (`Hold:0`, or `Idle` if nothing was moving). [`Self::resume`]
-    /// continues; [`LinearStage::stop`] discards.
+    /// continues; [`Axis::stop`] discards.
     pub async fn feed_hold(&mut self) -> Result<StatusReport, GrblError> {
         self.check_unlocked()?;
         self.hold_and_wait("holding").await
@@ -528,11 +531,12 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
 }
 
 #[async_trait]
-impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
-    type Error = GrblError;
+impl<T: AsyncRead + AsyncWrite + Unpin + Send> Axis for GrblStage<T> {
+    type Unit = Mm;
 
-    fn travel_mm(&self) -> (f64, f64) {
-        self.cfg.travel_mm
+    fn travel(&self) -> (Mm, Mm) {
+        let (min_mm, max_mm) = self.cfg.travel_mm;
+        (Mm(min_mm), Mm(max_mm))
     }
 
     async fn home(&mut self, timeout: Duration) -> Result<(), GrblError> {
@@ -549,7 +553,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
         Ok(())
     }
 
-    async fn start_move_to_mm(&mut self, target_mm: f64) -> Result<(), GrblError> {
+    async fn start_move_to(&mut self, Mm(target_mm): Mm) -> Result<(), GrblError> {
         self.check_travel(target_mm)?;
         self.check_unlocked()?;
         let cmd = Command::Feed {
@@ -561,7 +565,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
         self.start_move(target_mm, cmd).await
     }
 
-    async fn start_move_by_mm(&mut self, delta_mm: f64) -> Result<(), GrblError> {
+    async fn start_move_by(&mut self, Mm(delta_mm): Mm) -> Result<(), GrblError> {
         self.check_unlocked()?;
         let from = self.reference_mm().await?;
         let target_mm = from + delta_mm;
@@ -575,7 +579,9 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
         self.start_move(target_mm, cmd).await
     }
 
-    async fn wait_until_stopped(&mut self, timeout: Duration) -> Result<f64, GrblError> {
+    /// Polls `?` until `Idle` at the target (within `position_tolerance_mm`);
+    /// `Idle` elsewhere for [`STALL_REPORTS`] reports is [`GrblError::Stalled`].
+    async fn wait_until_stopped(&mut self, timeout: Duration) -> Result<Mm, GrblError> {
         const DURING: &str = "waiting for a move to end";
         let deadline = Instant::now() + timeout;
         let mut idle_away = 0;
@@ -596,7 +602,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
                     }
                     _ => {
                         self.target = None;
-                        return Ok(pos);
+                        return Ok(Mm(pos));
                     }
                 },
                 _ => idle_away = 0,
@@ -626,12 +632,19 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> LinearStage for GrblStage<T> {
         self.soft_reset().await?;
         self.target = None;
         self.sync().await?;
+        // An alarm leaves GRBL locked, and the indenter possibly pressed into
+        // the elastomer: a stop ends motion in order to move away, so unlock
+        // ($X). The position may be off after a limit alarm (the alarm's own
+        // error says so); re-home before the next run.
+        if self.alarm.is_some() {
+            self.unlock().await?;
+        }
         Ok(())
     }
 
-    async fn position_mm(&mut self) -> Result<f64, GrblError> {
+    async fn position(&mut self) -> Result<Mm, GrblError> {
         let s = self.query_status().await?;
-        self.machine_position(&s)
+        self.machine_position(&s).map(Mm)
     }
 
     async fn status(&mut self) -> Result<AxisStatus, GrblError> {
@@ -674,224 +687,5 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Identify for GrblStage<T> {
 }
 
 #[cfg(test)]
-mod tests {
-    //! Byte-exact transaction scripts over an in-memory duplex pipe.
-    use super::*;
-    use tokio::io::{AsyncBufReadExt, BufReader, DuplexStream};
-
-    fn cfg() -> GrblConfig {
-        GrblConfig {
-            reply_timeout: Duration::from_millis(500),
-            banner_timeout: Duration::from_millis(500),
-            poll_interval: Duration::from_millis(1),
-            ..GrblConfig::default()
-        }
-    }
-
-    /// Read exactly `n` bytes the driver wrote.
-    async fn expect(dev: &mut DuplexStream, want: &[u8]) {
-        let mut got = vec![0u8; want.len()];
-        dev.read_exact(&mut got).await.unwrap();
-        assert_eq!(String::from_utf8_lossy(&got), String::from_utf8_lossy(want));
-    }
-
-    async fn connected() -> (GrblStage<DuplexStream>, DuplexStream) {
-        let (host, mut dev) = tokio::io::duplex(4096);
-        let script = async move {
-            expect(&mut dev, &[0x18]).await;
-            dev.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n").await.unwrap();
-            expect(&mut dev, b"?").await;
-            dev.write_all(b"<Idle|MPos:0.000,0.000,1.000|FS:0,0|WCO:0.000,0.000,0.000>\r\n").await.unwrap();
-            dev
-        };
-        let (stage, dev) = tokio::join!(GrblStage::connect(host, cfg()), script);
-        (stage.unwrap(), dev)
-    }
-
-    #[tokio::test]
-    async fn connect_resets_and_reads_banner() {
-        let (stage, _dev) = connected().await;
-        assert_eq!(stage.version(), Some("1.1h"));
-        assert_eq!(stage.alarm(), None);
-    }
-
-    #[tokio::test]
-    async fn rejected_line_is_device_reported_with_meaning() {
-        let (mut stage, mut dev) = connected().await;
-        let script = async move {
-            expect(&mut dev, b"G90 G1 Z2.0000 F60.0000\n").await;
-            dev.write_all(b"error:22\r\n").await.unwrap();
-            dev
-        };
-        let (r, _dev) = tokio::join!(stage.start_move_to_mm(2.0), script);
-        let e = r.unwrap_err();
-        assert_eq!(e.kind(), FaultKind::DeviceReported);
-        assert!(matches!(e, GrblError::Rejected { code: ErrorCode(22), .. }));
-        assert!(e.to_string().contains("Feed rate has not yet been set"), "{e}");
-        assert_eq!(stage.unacknowledged_bytes(), 0);
-    }
-
-    #[tokio::test]
-    async fn out_of_travel_sends_nothing() {
-        let (mut stage, mut dev) = connected().await;
-        let e = stage.start_move_to_mm(25.5).await.unwrap_err();
-        assert_eq!(e.kind(), FaultKind::Limit);
-        let e = stage.start_move_to_mm(f64::NAN).await.unwrap_err();
-        assert_eq!(e.kind(), FaultKind::Limit);
-        drop(stage);
-        let mut rest = Vec::new();
-        dev.read_to_end(&mut rest).await.unwrap();
-        assert!(rest.is_empty(), "{rest:?}");
-    }
-
-    #[tokio::test]
-    async fn relative_move_starts_from_reported_position_and_waits() {
-        let (mut stage, mut dev) = connected().await;
-        let script = async move {
-            expect(&mut dev, b"?").await;
-            dev.write_all(b"<Idle|MPos:0.000,0.000,1.000|FS:0,0>\r\n").await.unwrap();
-            expect(&mut dev, b"G91 G1 Z0.5000 F60.0000\n").await;
-            dev.write_all(b"ok\r\n").await.unwrap();
-            expect(&mut dev, b"?").await;
-            dev.write_all(b"<Run|MPos:0.000,0.000,1.200|FS:60,0>\r\n").await.unwrap();
-            expect(&mut dev, b"?").await;
-            dev.write_all(b"<Idle|MPos:0.000,0.000,1.500|FS:0,0>\r\n").await.unwrap();
-            dev
-        };
-        let run = async {
-            stage.start_move_by_mm(0.5).await?;
-            stage.wait_until_stopped(Duration::from_secs(2)).await
-        };
-        let (r, _dev) = tokio::join!(run, script);
-        assert!((r.unwrap() - 1.5).abs() < 1e-9);
-    }
-
-    #[tokio::test]
-    async fn relative_move_beyond_travel_is_refused_before_sending() {
-        let (mut stage, mut dev) = connected().await;
-        let script = async move {
-            expect(&mut dev, b"?").await;
-            dev.write_all(b"<Idle|MPos:0.000,0.000,24.900|FS:0,0>\r\n").await.unwrap();
-            dev
-        };
-        let (r, mut dev) = tokio::join!(stage.start_move_by_mm(0.2), script);
-        assert_eq!(r.unwrap_err().kind(), FaultKind::Limit);
-        drop(stage);
-        let mut rest = Vec::new();
-        dev.read_to_end(&mut rest).await.unwrap();
-        assert!(rest.is_empty());
-    }
-
-    #[tokio::test]
-    async fn alarm_during_wait_is_device_reported() {
-        let (mut stage, mut dev) = connected().await;
-        let script = async move {
-            expect(&mut dev, b"G90 G1 Z3.0000 F60.0000\n").await;
-            dev.write_all(b"ok\r\n").await.unwrap();
-            expect(&mut dev, b"?").await;
-            dev.write_all(b"<Run|MPos:0.000,0.000,1.200|FS:60,0>\r\nALARM:1\r\n[MSG:Reset to continue]\r\n")
-                .await
-                .unwrap();
-            dev
-        };
-        let run = async {
-            stage.start_move_to_mm(3.0).await?;
-            stage.wait_until_stopped(Duration::from_secs(2)).await
-        };
-        let (r, _dev) = tokio::join!(run, script);
-        let e = r.unwrap_err();
-        assert!(matches!(e, GrblError::Alarm { code: AlarmCode(1) }), "{e}");
-        assert_eq!(e.kind(), FaultKind::DeviceReported);
-        assert!(e.to_string().contains("Hard limit triggered"));
-        // Locked: further moves are refused without sending.
-        assert!(matches!(stage.start_move_to_mm(1.0).await, Err(GrblError::Alarm { .. })));
-    }
-
-    #[tokio::test]
-    async fn closed_link_is_disconnected_not_timeout() {
-        let (mut stage, dev) = connected().await;
-        drop(dev);
-        let e = stage.position_mm().await.unwrap_err();
-        assert_eq!(e.kind(), FaultKind::Disconnected, "{e}");
-    }
-
-    #[tokio::test]
-    async fn silent_device_times_out() {
-        let (mut stage, _dev) = connected().await;
-        let e = stage.position_mm().await.unwrap_err();
-        assert_eq!(e.kind(), FaultKind::Timeout, "{e}");
-    }
-
-    #[tokio::test]
-    async fn character_counting_never_exceeds_rx_buffer() {
-        // A device that answers `ok` to each line only after a delay lets the
-        // driver queue lines; the count of unanswered bytes must stay <= 128.
-        let (host, dev) = tokio::io::duplex(4096);
-        let (mut rd, mut wr) = tokio::io::split(dev);
-        let device = tokio::spawn(async move {
-            let mut b = [0u8; 1];
-            rd.read_exact(&mut b).await.unwrap();
-            assert_eq!(b[0], 0x18);
-            wr.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
-            rd.read_exact(&mut b).await.unwrap();
-            assert_eq!(b[0], b'?');
-            wr.write_all(b"<Idle|MPos:0.000,0.000,0.000|FS:0,0>\r\n").await.unwrap();
-            let mut reader = BufReader::new(rd);
-            let mut in_buffer = 0usize;
-            let mut max_seen = 0usize;
-            let mut queued = VecDeque::new();
-            for _ in 0..20 {
-                let mut line = String::new();
-                reader.read_line(&mut line).await.unwrap();
-                in_buffer += line.len();
-                queued.push_back(line.len());
-                max_seen = max_seen.max(in_buffer);
-                // Answer only when the buffer holds three or more lines.
-                while queued.len() >= 3 {
-                    in_buffer -= queued.pop_front().unwrap();
-                    wr.write_all(b"ok\r\n").await.unwrap();
-                }
-            }
-            while queued.pop_front().is_some() {
-                wr.write_all(b"ok\r\n").await.unwrap();
-            }
-            max_seen
-        });
-        let mut stage = GrblStage::connect(host, cfg()).await.unwrap();
-        let mut seqs = Vec::new();
-        let cmd = Command::Feed { distance: Distance::Absolute, axis: 'Z', mm: 12.3456, feed_mm_min: 1234.5 };
-        for _ in 0..20 {
-            seqs.push(stage.send_line(&cmd, "test").await.unwrap());
-            assert!(stage.unacknowledged_bytes() <= RX_BUFFER_SIZE);
-        }
-        for s in seqs {
-            stage.wait_answer(s, &cmd, Duration::from_secs(1), "test").await.unwrap();
-        }
-        let max_seen = device.await.unwrap();
-        assert!(max_seen <= RX_BUFFER_SIZE, "{max_seen}");
-        // 27-byte lines: the driver really did queue several (4 fit in 128).
-        assert!(max_seen > 2 * 25, "{max_seen}");
-    }
-
-    proptest::proptest! {
-        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
-        /// Whatever a device sends before hanging up, connecting ends in a
-        /// typed error (or a session, if the bytes happen to hold a banner and
-        /// a status report) and never panics.
-        #[test]
-        fn garbage_from_the_device_never_panics(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..400)) {
-            let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-            rt.block_on(async {
-                let (host, mut dev) = tokio::io::duplex(4096);
-                dev.write_all(&bytes).await.unwrap();
-                drop(dev);
-                match GrblStage::connect(host, cfg()).await {
-                    Ok(_) => {}
-                    Err(e) => {
-                        assert!(matches!(e.kind(), FaultKind::Disconnected | FaultKind::Protocol | FaultKind::Timeout), "{e}");
-                    }
-                }
-            });
-        }
-    }
-}
+#[path = "driver_tests.rs"]
+mod tests;

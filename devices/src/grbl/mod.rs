@@ -2,7 +2,7 @@
 //! low-cost alternative to the Thorlabs stage (hardware.md section B).
 //!
 //! [`codec`] is the pure line protocol; [`driver`] runs it over any async byte
-//! stream and implements [`crate::LinearStage`] for one axis; [`probe`] asks a
+//! stream and implements [`crate::Axis`] in [`crate::Mm`] for one axis; [`probe`] asks a
 //! port whether it is a GRBL without moving anything.
 
 pub mod codec;

@@ -7,18 +7,23 @@
 //!
 //! It fakes the instrument, not a driver: the real drivers over emulators are
 //! the other way to run the sequencer. Every commanded target is logged so a
-//! test can check it against the soft limits.
+//! test can check it against the soft limits. The stage and the mount are one
+//! [`SimAxis`], told apart by their unit ([`SimUnit`]), as the drivers are.
+//!
+//! Test support, not production code: included with
+//! `#[path = "support/simrig.rs"] mod simrig;` by the tests (and benches) that
+//! run the sequencer on it.
 
+use std::marker::PhantomData;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use async_trait::async_trait;
-use devices::motion::{AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, LinearStage, RotationMount};
+use devices::motion::{Axis, AxisStatus, Deg, DeviceFault, DeviceInfo, FaultKind, Identify, Mm, Unit};
+use easycalib::run::events::SensorStatus;
+use easycalib::run::gauge::{Gauge, GaugeError, GaugeReading};
 use sim::physics::{ContactPair, NormalModel, torsion_at};
 use sim::rng::Rng;
-
-use super::events::SensorStatus;
-use super::gauge::{Gauge, GaugeError, GaugeReading};
 
 /// A simulated device's error.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -203,10 +208,10 @@ impl SimRig {
     }
 
     pub fn stage(&self) -> SimStage {
-        SimStage { rig: self.clone() }
+        SimAxis { rig: self.clone(), unit: PhantomData }
     }
     pub fn mount(&self) -> SimMount {
-        SimMount { rig: self.clone() }
+        SimAxis { rig: self.clone(), unit: PhantomData }
     }
     pub fn gauge(&self) -> SimGauge {
         SimGauge { rig: self.clone() }
@@ -217,184 +222,197 @@ fn fault(device: &'static str, kind: FaultKind, message: impl Into<String>) -> S
     SimFault { device, kind, message: message.into() }
 }
 
-pub struct SimStage {
+/// One simulated axis: the stage ([`SimStage`], in [`Mm`]) or the mount
+/// ([`SimMount`], in [`Deg`]).
+pub struct SimAxis<U> {
     rig: SimRig,
+    unit: PhantomData<U>,
 }
-pub struct SimMount {
-    rig: SimRig,
-}
+pub type SimStage = SimAxis<Mm>;
+pub type SimMount = SimAxis<Deg>;
 pub struct SimGauge {
     rig: SimRig,
 }
 
-fn dead_stage(st: &SimState) -> Result<(), SimFault> {
-    if st.stage_dead { Err(fault("sim stage", FaultKind::Disconnected, "port closed (cable cut)")) } else { Ok(()) }
+/// One axis' share of the [`SimState`].
+pub struct Side<'a> {
+    position: &'a mut f64,
+    homed: &'a mut bool,
+    target: &'a mut Option<f64>,
+    dead: &'a mut bool,
+    moves: &'a mut usize,
+    targets: &'a mut Vec<f64>,
+    stops: &'a mut usize,
 }
-fn dead_mount(st: &SimState) -> Result<(), SimFault> {
-    if st.mount_dead { Err(fault("sim mount", FaultKind::Disconnected, "port closed (cable cut)")) } else { Ok(()) }
+
+/// What tells the stage and the mount apart: their unit.
+pub trait SimUnit: Unit {
+    /// Name in fault messages.
+    const DEVICE: &'static str;
+    const MODEL: &'static str;
+    const SERIAL: &'static str;
+    fn side(st: &mut SimState) -> Side<'_>;
+    fn travel(cfg: &SimRigConfig) -> (f64, f64);
+    /// Where homing leaves the axis.
+    fn home(cfg: &SimRigConfig) -> f64;
+    /// Speed in rig time, unit per s.
+    fn speed(cfg: &SimRigConfig) -> f64;
+    fn move_fault(cfg: &SimRigConfig) -> Option<(usize, FaultKind)>;
+}
+
+impl SimUnit for Mm {
+    const DEVICE: &'static str = "sim stage";
+    const MODEL: &'static str = "SIM-STAGE";
+    const SERIAL: &'static str = "0001";
+    fn side(st: &mut SimState) -> Side<'_> {
+        Side {
+            position: &mut st.stage_mm,
+            homed: &mut st.stage_homed,
+            target: &mut st.stage_target,
+            dead: &mut st.stage_dead,
+            moves: &mut st.stage_moves,
+            targets: &mut st.stage_targets,
+            stops: &mut st.stage_stops,
+        }
+    }
+    fn travel(cfg: &SimRigConfig) -> (f64, f64) {
+        cfg.stage_travel_mm
+    }
+    fn home(cfg: &SimRigConfig) -> f64 {
+        cfg.stage_travel_mm.0.max(0.0)
+    }
+    fn speed(cfg: &SimRigConfig) -> f64 {
+        cfg.stage_speed
+    }
+    fn move_fault(cfg: &SimRigConfig) -> Option<(usize, FaultKind)> {
+        cfg.faults.stage_move
+    }
+}
+
+impl SimUnit for Deg {
+    const DEVICE: &'static str = "sim mount";
+    const MODEL: &'static str = "SIM-MOUNT";
+    const SERIAL: &'static str = "0002";
+    fn side(st: &mut SimState) -> Side<'_> {
+        Side {
+            position: &mut st.mount_deg,
+            homed: &mut st.mount_homed,
+            target: &mut st.mount_target,
+            dead: &mut st.mount_dead,
+            moves: &mut st.mount_moves,
+            targets: &mut st.mount_targets,
+            stops: &mut st.mount_stops,
+        }
+    }
+    fn travel(cfg: &SimRigConfig) -> (f64, f64) {
+        cfg.mount_travel_deg
+    }
+    fn home(_cfg: &SimRigConfig) -> f64 {
+        0.0
+    }
+    fn speed(cfg: &SimRigConfig) -> f64 {
+        cfg.mount_speed
+    }
+    fn move_fault(cfg: &SimRigConfig) -> Option<(usize, FaultKind)> {
+        cfg.faults.mount_move
+    }
+}
+
+impl<U: SimUnit> SimAxis<U> {
+    /// The shared state, once this axis' cable is known to be intact.
+    fn alive(&self) -> Result<MutexGuard<'_, SimState>, SimFault> {
+        let mut st = self.rig.state();
+        if *U::side(&mut st).dead {
+            return Err(fault(U::DEVICE, FaultKind::Disconnected, "port closed (cable cut)"));
+        }
+        Ok(st)
+    }
+
+    /// Let the rig time of a move from here to `to` pass, then be there.
+    fn travel_to(st: &mut SimState, to: f64) {
+        let dt = (to - *U::side(st).position).abs() / U::speed(&st.cfg) + st.cfg.move_overhead_s;
+        // The elastomer follows the indenter during the move; lag shows after.
+        st.advance(dt);
+        *U::side(st).position = to;
+    }
 }
 
 #[async_trait]
-impl Identify for SimStage {
+impl<U: SimUnit> Identify for SimAxis<U> {
     type Error = SimFault;
     async fn identify(&mut self) -> Result<DeviceInfo, SimFault> {
-        dead_stage(&self.rig.state())?;
-        Ok(DeviceInfo { model: "SIM-STAGE".into(), serial: "0001".into(), firmware: "1.0.0".into() })
+        drop(self.alive()?);
+        Ok(DeviceInfo { model: U::MODEL.into(), serial: U::SERIAL.into(), firmware: "1.0.0".into() })
     }
 }
 
 #[async_trait]
-impl LinearStage for SimStage {
-    type Error = SimFault;
+impl<U: SimUnit> Axis for SimAxis<U> {
+    type Unit = U;
 
-    fn travel_mm(&self) -> (f64, f64) {
-        self.rig.state().cfg.stage_travel_mm
+    fn travel(&self) -> (U, U) {
+        let (lo, hi) = U::travel(&self.rig.state().cfg);
+        (U::new(lo), U::new(hi))
     }
     async fn home(&mut self, _timeout: Duration) -> Result<(), SimFault> {
-        let mut st = self.rig.state();
-        dead_stage(&st)?;
-        let dt = st.stage_mm.abs() / st.cfg.stage_speed + st.cfg.move_overhead_s;
+        let mut st = self.alive()?;
+        let home = U::home(&st.cfg);
+        let dt = U::side(&mut st).position.abs() / U::speed(&st.cfg) + st.cfg.move_overhead_s;
         st.advance(dt);
-        st.stage_mm = st.cfg.stage_travel_mm.0.max(0.0);
-        st.stage_homed = true;
+        let side = U::side(&mut st);
+        *side.position = home;
+        *side.homed = true;
         Ok(())
     }
-    async fn start_move_to_mm(&mut self, target_mm: f64) -> Result<(), SimFault> {
-        let mut st = self.rig.state();
-        dead_stage(&st)?;
-        st.stage_moves += 1;
-        if let Some((n, kind)) = st.cfg.faults.stage_move.filter(|f| f.0 == st.stage_moves) {
+    async fn start_move_to(&mut self, target: U) -> Result<(), SimFault> {
+        let target = target.value();
+        let mut st = self.alive()?;
+        let (fault_at, (lo, hi)) = (U::move_fault(&st.cfg), U::travel(&st.cfg));
+        let side = U::side(&mut st);
+        *side.moves += 1;
+        if let Some((n, kind)) = fault_at.filter(|f| f.0 == *side.moves) {
             if kind == FaultKind::Disconnected {
-                st.stage_dead = true;
+                *side.dead = true;
             }
-            return Err(fault("sim stage", kind, format!("injected fault on move {n}")));
+            return Err(fault(U::DEVICE, kind, format!("injected fault on move {n}")));
         }
-        let (lo, hi) = st.cfg.stage_travel_mm;
-        if !(target_mm >= lo && target_mm <= hi) {
-            return Err(fault("sim stage", FaultKind::Limit, format!("target {target_mm} mm outside travel")));
+        if !(target >= lo && target <= hi) {
+            return Err(fault(U::DEVICE, FaultKind::Limit, format!("target {target} {} outside travel", U::SYMBOL)));
         }
-        st.stage_targets.push(target_mm);
-        st.stage_target = Some(target_mm);
+        side.targets.push(target);
+        *side.target = Some(target);
         Ok(())
     }
-    async fn start_move_by_mm(&mut self, delta_mm: f64) -> Result<(), SimFault> {
-        let target = self.rig.state().stage_mm + delta_mm;
-        self.start_move_to_mm(target).await
+    async fn start_move_by(&mut self, delta: U) -> Result<(), SimFault> {
+        let here = *U::side(&mut self.rig.state()).position;
+        self.start_move_to(U::new(here + delta.value())).await
     }
-    async fn wait_until_stopped(&mut self, _timeout: Duration) -> Result<f64, SimFault> {
-        let mut st = self.rig.state();
-        dead_stage(&st)?;
-        if let Some(t) = st.stage_target.take() {
-            let dt = (t - st.stage_mm).abs() / st.cfg.stage_speed + st.cfg.move_overhead_s;
-            // The elastomer follows the indenter during the move; lag shows after.
-            st.advance(dt);
-            st.stage_mm = t;
+    async fn wait_until_stopped(&mut self, _timeout: Duration) -> Result<U, SimFault> {
+        let mut st = self.alive()?;
+        if let Some(t) = U::side(&mut st).target.take() {
+            Self::travel_to(&mut st, t);
             let (g1, _, _) = st.truth();
             st.max_true_gamma1 = st.max_true_gamma1.max(g1);
         }
-        Ok(st.stage_mm)
+        Ok(U::new(*U::side(&mut st).position))
     }
     async fn stop(&mut self) -> Result<(), SimFault> {
-        let mut st = self.rig.state();
-        st.stage_stops += 1;
-        dead_stage(&st)?;
-        st.stage_target = None;
+        *U::side(&mut self.rig.state()).stops += 1;
+        let mut st = self.alive()?;
+        *U::side(&mut st).target = None;
         Ok(())
     }
-    async fn position_mm(&mut self) -> Result<f64, SimFault> {
-        let st = self.rig.state();
-        dead_stage(&st)?;
-        Ok(st.stage_mm)
+    async fn position(&mut self) -> Result<U, SimFault> {
+        let mut st = self.alive()?;
+        Ok(U::new(*U::side(&mut st).position))
     }
     async fn status(&mut self) -> Result<AxisStatus, SimFault> {
-        let st = self.rig.state();
-        dead_stage(&st)?;
+        let mut st = self.alive()?;
+        let side = U::side(&mut st);
         Ok(AxisStatus {
-            position: st.stage_mm,
-            moving: st.stage_target.is_some(),
-            homed: st.stage_homed,
-            enabled: true,
-            ..Default::default()
-        })
-    }
-}
-
-#[async_trait]
-impl Identify for SimMount {
-    type Error = SimFault;
-    async fn identify(&mut self) -> Result<DeviceInfo, SimFault> {
-        dead_mount(&self.rig.state())?;
-        Ok(DeviceInfo { model: "SIM-MOUNT".into(), serial: "0002".into(), firmware: "1.0.0".into() })
-    }
-}
-
-#[async_trait]
-impl RotationMount for SimMount {
-    type Error = SimFault;
-
-    fn travel_deg(&self) -> (f64, f64) {
-        self.rig.state().cfg.mount_travel_deg
-    }
-    async fn home(&mut self, _timeout: Duration) -> Result<(), SimFault> {
-        let mut st = self.rig.state();
-        dead_mount(&st)?;
-        let dt = st.mount_deg.abs() / st.cfg.mount_speed + st.cfg.move_overhead_s;
-        st.advance(dt);
-        st.mount_deg = 0.0;
-        st.mount_homed = true;
-        Ok(())
-    }
-    async fn start_move_to_deg(&mut self, target_deg: f64) -> Result<(), SimFault> {
-        let mut st = self.rig.state();
-        dead_mount(&st)?;
-        st.mount_moves += 1;
-        if let Some((n, kind)) = st.cfg.faults.mount_move.filter(|f| f.0 == st.mount_moves) {
-            if kind == FaultKind::Disconnected {
-                st.mount_dead = true;
-            }
-            return Err(fault("sim mount", kind, format!("injected fault on move {n}")));
-        }
-        let (lo, hi) = st.cfg.mount_travel_deg;
-        if !(target_deg >= lo && target_deg <= hi) {
-            return Err(fault("sim mount", FaultKind::Limit, format!("target {target_deg} deg outside travel")));
-        }
-        st.mount_targets.push(target_deg);
-        st.mount_target = Some(target_deg);
-        Ok(())
-    }
-    async fn start_move_by_deg(&mut self, delta_deg: f64) -> Result<(), SimFault> {
-        let target = self.rig.state().mount_deg + delta_deg;
-        self.start_move_to_deg(target).await
-    }
-    async fn wait_until_stopped(&mut self, _timeout: Duration) -> Result<f64, SimFault> {
-        let mut st = self.rig.state();
-        dead_mount(&st)?;
-        if let Some(t) = st.mount_target.take() {
-            let dt = (t - st.mount_deg).abs() / st.cfg.mount_speed + st.cfg.move_overhead_s;
-            st.advance(dt);
-            st.mount_deg = t;
-        }
-        Ok(st.mount_deg)
-    }
-    async fn stop(&mut self) -> Result<(), SimFault> {
-        let mut st = self.rig.state();
-        st.mount_stops += 1;
-        dead_mount(&st)?;
-        st.mount_target = None;
-        Ok(())
-    }
-    async fn position_deg(&mut self) -> Result<f64, SimFault> {
-        let st = self.rig.state();
-        dead_mount(&st)?;
-        Ok(st.mount_deg)
-    }
-    async fn status(&mut self) -> Result<AxisStatus, SimFault> {
-        let st = self.rig.state();
-        dead_mount(&st)?;
-        Ok(AxisStatus {
-            position: st.mount_deg,
-            moving: st.mount_target.is_some(),
-            homed: st.mount_homed,
+            position: *side.position,
+            moving: side.target.is_some(),
+            homed: *side.homed,
             enabled: true,
             ..Default::default()
         })
