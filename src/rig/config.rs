@@ -77,10 +77,20 @@ pub struct SensorConfig {
 pub enum ConfigError {
     #[error("cannot read rig file {path}: {source}")]
     Read { path: PathBuf, source: std::io::Error },
-    #[error("rig file{}: {message}", at.as_ref().map(|p| format!(" {}", p.display())).unwrap_or_default())]
-    Parse { at: Option<PathBuf>, message: String },
+    #[error("rig file{}: {source}", at.as_ref().map(|p| format!(" {}", p.display())).unwrap_or_default())]
+    Parse {
+        at: Option<PathBuf>,
+        #[source]
+        source: toml::de::Error,
+    },
     #[error("rig file `{key}`: {message}")]
     Invalid { key: String, message: String },
+    #[error("rig file `{key}`: {source}")]
+    Value {
+        key: String,
+        #[source]
+        source: toml::de::Error,
+    },
 }
 
 fn invalid(key: &str, message: impl Into<String>) -> ConfigError {
@@ -95,8 +105,7 @@ impl RigConfig {
 
     /// Parse and check a rig file's text against `drivers`.
     pub fn from_toml_with(text: &str, drivers: &Drivers) -> Result<RigConfig, ConfigError> {
-        let cfg: RigConfig =
-            toml::from_str(text).map_err(|e| ConfigError::Parse { at: None, message: e.to_string() })?;
+        let cfg: RigConfig = toml::from_str(text).map_err(|source| ConfigError::Parse { at: None, source })?;
         cfg.to_spec_with(drivers)?;
         Ok(cfg)
     }
@@ -111,7 +120,7 @@ impl RigConfig {
         let text =
             std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
         let mut cfg = Self::from_toml_with(&text, drivers).map_err(|e| match e {
-            ConfigError::Parse { message, .. } => ConfigError::Parse { at: Some(path.to_path_buf()), message },
+            ConfigError::Parse { source, .. } => ConfigError::Parse { at: Some(path.to_path_buf()), source },
             other => other,
         })?;
         if let Some(s) = &cfg.script

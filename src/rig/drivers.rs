@@ -197,13 +197,17 @@ impl Keys {
     pub fn take<T: DeserializeOwned>(&mut self, key: &str) -> Result<Option<T>, ConfigError> {
         match self.table.remove(key) {
             None => Ok(None),
-            Some(v) => v.try_into().map(Some).map_err(|e: toml::de::Error| self.invalid(key, e.to_string())),
+            Some(v) => v.try_into().map(Some).map_err(|source| ConfigError::Value { key: self.key(key), source }),
         }
     }
 
     /// An error naming `section.key`.
     pub fn invalid(&self, key: &str, message: impl Into<String>) -> ConfigError {
-        ConfigError::Invalid { key: format!("{}.{key}", self.section), message: message.into() }
+        ConfigError::Invalid { key: self.key(key), message: message.into() }
+    }
+
+    fn key(&self, key: &str) -> String {
+        format!("{}.{key}", self.section)
     }
 }
 
