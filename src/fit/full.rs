@@ -259,6 +259,8 @@ pub struct FullFit {
     pub warnings: Vec<Warning>,
 }
 
+/// The full fit's 95 % intervals: E1 and nu1 as in [`super::Ci95`], and the
+/// contact offset it fits with them.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct FullCi95 {
     #[serde(rename = "E1_MPa")]

@@ -344,6 +344,8 @@ where
 
 #[cfg(test)]
 mod tests {
+    use nalgebra::{Matrix2, U2, Vector2};
+
     use super::*;
 
     #[test]
@@ -402,5 +404,52 @@ mod tests {
             ),
             Err(LmError::BadStart)
         ));
+    }
+
+    /// Rosenbrock's valley with its analytic Jacobian on fixed-size matrices,
+    /// optionally held on the parabola x1 = x0^2 (a projection, as the frame
+    /// fit ties the contact radius to the depth).
+    struct Valley {
+        on_parabola: bool,
+    }
+
+    impl Valley {
+        fn residuals(x: &Vector2<f64>) -> [f64; 2] {
+            [10.0 * (x[1] - x[0] * x[0]), 1.0 - x[0]]
+        }
+    }
+
+    impl Problem<U2> for Valley {
+        fn start(&mut self, x: &Vector2<f64>) -> Result<f64, LmError> {
+            self.cost(x).ok_or(LmError::BadStart)
+        }
+        fn cost(&mut self, x: &Vector2<f64>) -> Option<f64> {
+            Some(sum_of_squares(&Self::residuals(x)))
+        }
+        fn normal_equations(&mut self, x: &Vector2<f64>) -> Option<NormalEquations<U2>> {
+            let j = Matrix2::new(-20.0 * x[0], 10.0, -1.0, 0.0);
+            let r = Vector2::from(Self::residuals(x));
+            Some((j.transpose() * j, j.transpose() * r))
+        }
+        fn project(&self, x: &mut Vector2<f64>) {
+            if self.on_parabola {
+                x[1] = x[0] * x[0];
+            }
+        }
+    }
+
+    #[test]
+    fn both_strategies_solve_an_analytic_problem_on_the_stack() {
+        let opts = LmOptions { max_iterations: 500, cost_tolerance: 1e-16, step_tolerance: 1e-12, fd_step: 0.0 };
+        for strategy in [Strategy::FIT, Strategy::FIELD] {
+            for on_parabola in [false, true] {
+                let out = solve(&mut Valley { on_parabola }, Vector2::new(-1.2, 1.0), &opts, &strategy).unwrap();
+                assert!((out.x[0] - 1.0).abs() < 1e-6 && (out.x[1] - 1.0).abs() < 1e-6, "{strategy:?}: {:?}", out.x);
+                assert!(out.cost < 1e-12 && out.iterations < opts.max_iterations, "{strategy:?}: {out:?}");
+                if on_parabola {
+                    assert_eq!(out.x[1], out.x[0] * out.x[0]);
+                }
+            }
+        }
     }
 }

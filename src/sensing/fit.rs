@@ -6,7 +6,7 @@
 use nalgebra::{Matrix2, Matrix4, SMatrix, SVector, U4, Vector4};
 
 use crate::numerics::lm::{self, LmError, LmOptions, NormalEquations, Problem, Strategy};
-use crate::numerics::stats::{MAD_TO_SIGMA, median};
+use crate::numerics::stats::{MAD_TO_SIGMA, median, rms};
 
 /// w = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2, in coordinates local to the window.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -314,7 +314,7 @@ pub fn fit_rotation(p: &[[f64; 2]], q: &[[f64; 2]], centre: [f64; 2], k: f64, fl
             })
             .collect();
         let mut kept_r: Vec<f64> = (0..n).filter(|&i| kept[i]).map(|i| resid[i]).collect();
-        let rms = (kept_r.iter().map(|e| e * e).sum::<f64>() / m as f64).sqrt();
+        let rms = rms(&kept_r);
         let sigma = MAD_TO_SIGMA * median(&mut kept_r);
         let limit = (k * sigma).max(floor);
         // Re-judge every marker against the current fit (one wrongly dropped
@@ -390,8 +390,7 @@ pub fn fit_hertz(
         let [g, cx, cy, a] = params;
         let resid: Vec<f64> = pts.iter().map(|p| p[2] - g * hertz_shape((p[0] - cx).hypot(p[1] - cy) / a)).collect();
         let mut kr: Vec<f64> = (0..n).filter(|&i| kept[i]).map(|i| resid[i].abs()).collect();
-        let m = kr.len();
-        let rms = (kr.iter().map(|e| e * e).sum::<f64>() / m.max(1) as f64).sqrt();
+        let rms = rms(&kr);
         let limit = (k * MAD_TO_SIGMA * median(&mut kr)).max(floor);
         let next: Vec<bool> = resid.iter().map(|e| e.abs() <= limit).collect();
         if round + 1 == ROUNDS || next == kept || next.iter().filter(|&&b| b).count() < 5 {
