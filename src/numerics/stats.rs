@@ -2,14 +2,30 @@
 //! quantiles of the Student t, chi-square and normal distributions (`statrs`),
 //! and the small summaries of residuals.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use statrs::distribution::{ChiSquared, ContinuousCDF, Normal, StudentsT};
 
 /// Two-sided 95 % quantile of Student's t with `dof` degrees of freedom
-/// (infinite for none).
+/// (infinite for none). Each is computed once per process: the inverse takes
+/// microseconds, longer than the paper's whole regression, and every fit asks
+/// for the same few.
 pub fn t_quantile_975(dof: usize) -> f64 {
-    match StudentsT::new(0.0, 1.0, dof as f64) {
+    static KNOWN: [AtomicU64; 4096] = [const { AtomicU64::new(0) }; 4096];
+    let quantile = || match StudentsT::new(0.0, 1.0, dof as f64) {
         Ok(t) if dof > 0 => t.inverse_cdf(0.975),
         _ => f64::INFINITY,
+    };
+    let Some(slot) = KNOWN.get(dof) else {
+        return quantile();
+    };
+    match slot.load(Ordering::Relaxed) {
+        0 => {
+            let t = quantile();
+            slot.store(t.to_bits(), Ordering::Relaxed);
+            t
+        }
+        bits => f64::from_bits(bits),
     }
 }
 
