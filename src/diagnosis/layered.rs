@@ -7,8 +7,8 @@ use sim::recording::{Phase, Recording};
 
 use super::{Ci95, DiagnoseError, Diagnosis, FitSummary, Rms, SampleResidual};
 use crate::fit::full::{predict, residuals};
-use crate::fit::stats::rms;
 use crate::fit::{FitOptions, FullOptions, ModelParams, Warning, calibrate};
+use crate::numerics::stats::rms;
 
 pub fn diagnose_layered(rec: &Recording, noise_um: Option<f64>) -> Result<Diagnosis, DiagnoseError> {
     let opts = FitOptions {

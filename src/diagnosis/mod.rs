@@ -20,8 +20,8 @@ use serde::Serialize;
 use sim::effects::{Reading, SimProfile};
 use sim::recording::{Phase, Recording};
 
-use crate::fit::stats::t_quantile_975;
 use crate::fit::{FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper, plausible};
+use crate::numerics::stats::{chi2_quantile, t_quantile_975};
 use locate::{Floor, Quantity, Segment, SegmentReport};
 use model::{Base, Candidate, Fitted, Model};
 
@@ -92,12 +92,7 @@ pub struct FitSummary {
     pub chi2_per_dof: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Ci95 {
-    #[serde(rename = "E1_MPa")]
-    pub e1_mpa: [f64; 2],
-    pub nu1: [f64; 2],
-}
+pub use crate::fit::Ci95;
 
 /// A systematic residual: where and what shape.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -226,19 +221,7 @@ pub struct Diagnosis {
 
 /// chi² quantile at p = 0.999 for k degrees of freedom (the significance guard).
 fn chi2_crit(k: usize) -> f64 {
-    match k {
-        0 => 0.0,
-        1 => 10.828,
-        2 => 13.816,
-        3 => 16.266,
-        4 => 18.467,
-        _ => {
-            // Wilson–Hilferty with z = 3.090.
-            let k = k as f64;
-            let c = 2.0 / (9.0 * k);
-            k * (1.0 - c + 3.090 * c.sqrt()).powi(3)
-        }
-    }
+    chi2_quantile(0.999, k)
 }
 
 fn rms_of(rec: &Recording, pred: &[Reading]) -> Rms {
@@ -521,9 +504,8 @@ fn diagnose_all(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         {
             starts.push(Base { e1_mpa: p.e1_mpa, nu1: p.nu1.clamp(0.05, 0.49), z0_mm: 0.0 });
         }
-        let e2 = rec.meta.indenter.e_mpa;
-        for f in [0.3, 1.0, 0.1, 3.0] {
-            starts.push(Base { e1_mpa: f * e2, nu1: 0.4, z0_mm: 0.0 });
+        for m in crate::fit::start_points::stiffness_ladder(rec.meta.indenter.e_mpa) {
+            starts.push(Base { e1_mpa: m.e1_mpa, nu1: m.nu1, z0_mm: 0.0 });
         }
         starts.extend(pinned_start);
     }

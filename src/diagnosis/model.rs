@@ -11,7 +11,7 @@ use sim::effects::{
 use sim::physics::{Body, ContactPair};
 use sim::recording::{Phase, Recording};
 
-use crate::fit::lm::{self, LmOptions};
+use crate::numerics::lm::{self, LmOptions};
 
 /// An effect of the library the diagnosis can fit, with its parametrisation.
 /// `contact_offset` is not here: z0 is part of every fit (the baseline's third parameter).

@@ -59,6 +59,10 @@ pub mod corpus;
 
 use serde::{Deserialize, Serialize};
 
+/// A profile's `material`: the elastomer's E1, nu1 when a profile also fixes
+/// them (a diagnosis writes its fitted values there so the simulated rig
+/// reproduces the recording).
+pub use crate::physics::Material;
 pub use rig::{Command, Reading, TrueRig, simulate};
 
 /// One parameter of an effect, with the range the model accepts.
@@ -147,16 +151,6 @@ pub(crate) fn check(effect: &'static EffectInfo, idx: usize, value: f64) -> Resu
     } else {
         Err(EffectError::OutOfBounds { effect: effect.name, param: p.name, value, min: p.min, max: p.max })
     }
-}
-
-/// The elastomer's material, when a profile also fixes it (a diagnosis writes
-/// its fitted E1, nu1 here so the simulated rig reproduces the recording).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Material {
-    #[serde(rename = "E1_MPa")]
-    pub e1_mpa: f64,
-    pub nu1: f64,
 }
 
 /// Which effects a simulated rig has, with their parameters. Absent sections
