@@ -94,7 +94,7 @@ impl Default for GeneratorConfig {
             pair: crate::defaults::pair(),
             plan: SweepPlan::default(),
             noise: NoiseSpec::default(),
-            seed: 1,
+            seed: crate::defaults::SEED,
             sensor: "sim-tac3d".to_string(),
             profile: SimProfile::default(),
         }

@@ -128,8 +128,7 @@ mod tests {
         let s = sim_setup(args(&none)).unwrap();
         assert_eq!(*s.pair(), defaults::pair());
         assert_eq!(s.seed(), defaults::SEED);
-        let mut script = Script::default();
-        script.indenter = Body::new(2.0, 0.45, 4.0);
+        let mut script = Script { indenter: Body::new(2.0, 0.45, 4.0), ..Script::default() };
         script.sensor.elastomer_r_mm = f64::INFINITY;
         let e = ElastomerArgs { e1_mpa: Some(0.5), seed: Some(7), ..ElastomerArgs::default() };
         let s = sim_setup(SimSetupArgs { script: Some((Path::new("s.toml"), &script)), ..args(&e) }).unwrap();
