@@ -86,19 +86,18 @@ impl ElastomerArgs {
     /// The contact pair the flags describe (defaults for what is not given),
     /// with R1 and the indenter from `script` when there is one.
     fn pair(&self, script: Option<&Script>) -> ContactPair {
-        let given = |v: Option<f64>, default: f64| v.unwrap_or(default);
-        let r1_mm = match script {
+        let elastomer_r_mm = match script {
             Some(s) => s.sensor.elastomer_r_mm,
-            None => given(self.elastomer_r_mm, defaults::ELASTOMER_R_MM),
+            None => self.elastomer_r_mm.unwrap_or(defaults::ELASTOMER_R_MM),
         };
-        let elastomer =
-            Body::new(given(self.e1_mpa, defaults::ELASTOMER_E_MPA), given(self.nu1, defaults::ELASTOMER_NU), r1_mm);
+        let e1_mpa = self.e1_mpa.unwrap_or(defaults::ELASTOMER_E_MPA);
+        let elastomer = Body::new(e1_mpa, self.nu1.unwrap_or(defaults::ELASTOMER_NU), elastomer_r_mm);
         let indenter = match script {
             Some(s) => s.indenter,
             None => Body::new(
-                given(self.indenter_e_mpa, defaults::INDENTER_E_MPA),
-                given(self.indenter_nu, defaults::INDENTER_NU),
-                given(self.indenter_r_mm, defaults::INDENTER_R_MM),
+                self.indenter_e_mpa.unwrap_or(defaults::INDENTER_E_MPA),
+                self.indenter_nu.unwrap_or(defaults::INDENTER_NU),
+                self.indenter_r_mm.unwrap_or(defaults::INDENTER_R_MM),
             ),
         };
         ContactPair { elastomer, indenter }

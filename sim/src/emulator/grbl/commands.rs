@@ -80,39 +80,44 @@ impl Emulator {
                     self.cfg.build_info = info.to_string();
                     return self.ok();
                 }
-                let Some((n, v)) = rest.split_once('=') else {
-                    return self.error(3);
-                };
-                let (Ok(n), Ok(v)) = (n.parse::<u16>(), v.parse::<f64>()) else {
-                    return self.error(3);
-                };
-                if !v.is_finite() {
-                    return self.error(2);
-                }
-                if v < 0.0 {
-                    return self.error(4);
-                }
-                if !self.settings.iter().any(|(k, _)| *k == n) {
-                    return self.error(3);
-                }
-                if !matches!(self.state, State::Idle | State::Alarm) {
-                    return self.error(8);
-                }
-                if n == 20 && v != 0.0 && self.setting(22) == 0.0 {
-                    return self.error(10);
-                }
-                if let Some(e) = self.settings.iter_mut().find(|(k, _)| *k == n) {
-                    e.1 = v;
-                }
-                match n {
-                    20 => self.cfg.soft_limits = v != 0.0,
-                    21 => self.cfg.hard_limits = v != 0.0,
-                    22 => self.cfg.homing_enabled = v != 0.0,
-                    _ => {}
-                }
-                self.ok();
+                self.set_setting(rest);
             }
         }
+    }
+
+    /// `$N=value`: change setting N (GRBL's checks and error codes).
+    fn set_setting(&mut self, rest: &str) {
+        let Some((n, v)) = rest.split_once('=') else {
+            return self.error(3);
+        };
+        let (Ok(n), Ok(v)) = (n.parse::<u16>(), v.parse::<f64>()) else {
+            return self.error(3);
+        };
+        if !v.is_finite() {
+            return self.error(2);
+        }
+        if v < 0.0 {
+            return self.error(4);
+        }
+        if !self.settings.iter().any(|(k, _)| *k == n) {
+            return self.error(3);
+        }
+        if !matches!(self.state, State::Idle | State::Alarm) {
+            return self.error(8);
+        }
+        if n == 20 && v != 0.0 && self.setting(22) == 0.0 {
+            return self.error(10);
+        }
+        if let Some(e) = self.settings.iter_mut().find(|(k, _)| *k == n) {
+            e.1 = v;
+        }
+        match n {
+            20 => self.cfg.soft_limits = v != 0.0,
+            21 => self.cfg.hard_limits = v != 0.0,
+            22 => self.cfg.homing_enabled = v != 0.0,
+            _ => {}
+        }
+        self.ok();
     }
 
     /// Parse and run one G-code block (or the body of a `$J=` jog).
