@@ -251,7 +251,7 @@ fn summary(rec: &Recording, fit: &Fitted) -> FitSummary {
     FitSummary {
         e1_mpa: b.e1_mpa,
         nu1: b.nu1,
-        contact_offset_mm: b.z0_mm,
+        contact_offset_mm: b.contact_offset_mm,
         ci95: Ci95 {
             e1_mpa: [(fit.x[0] - t * s0).exp(), (fit.x[0] + t * s0).exp()],
             nu1: [nu(fit.x[1] - t * s1), nu(fit.x[1] + t * s1)],
@@ -482,8 +482,11 @@ fn diagnose_all(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
             st0 = pos(c.full.noise_floor.torsion_deg, st0);
             // A fit pinned at a bound of nu1 is a poor start: keep it, but try the others too.
             fallback = c.warnings.iter().any(|w| w.code == "nu1_at_bound");
-            let start =
-                Base { e1_mpa: c.full.e1_mpa, nu1: c.full.nu1.clamp(0.05, 0.49), z0_mm: c.full.contact_offset_mm };
+            let start = Base {
+                e1_mpa: c.full.e1_mpa,
+                nu1: c.full.nu1.clamp(0.05, 0.49),
+                contact_offset_mm: c.full.contact_offset_mm,
+            };
             if fallback {
                 pinned_start = Some(start);
             } else {
@@ -502,10 +505,10 @@ fn diagnose_all(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
             && p.e1_mpa.is_finite()
             && p.e1_mpa > 0.0
         {
-            starts.push(Base { e1_mpa: p.e1_mpa, nu1: p.nu1.clamp(0.05, 0.49), z0_mm: 0.0 });
+            starts.push(Base { e1_mpa: p.e1_mpa, nu1: p.nu1.clamp(0.05, 0.49), contact_offset_mm: 0.0 });
         }
         for m in crate::fit::start_points::stiffness_ladder(rec.meta.indenter.e_mpa) {
-            starts.push(Base { e1_mpa: m.e1_mpa, nu1: m.nu1, z0_mm: 0.0 });
+            starts.push(Base { e1_mpa: m.e1_mpa, nu1: m.nu1, contact_offset_mm: 0.0 });
         }
         starts.extend(pinned_start);
     }
@@ -668,7 +671,7 @@ fn diagnose_all(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     };
     let mut explanation = if unexplained || !ambiguous.is_empty() { Vec::new() } else { explained(&final_fit) };
     // contact_offset is every fit's z0: named when it is significant at the same guard.
-    let (z0, z0_se) = (final_fit.base().z0_mm, final_fit.se(2));
+    let (z0, z0_se) = (final_fit.base().contact_offset_mm, final_fit.se(2));
     if !unexplained && z0_se.is_finite() && z0_se > 0.0 && (z0 / z0_se).powi(2) > chi2_crit(1) {
         let t = t_quantile_975(final_fit.dof);
         let info = &sim::effects::contact_offset::INFO;

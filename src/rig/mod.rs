@@ -13,5 +13,5 @@ pub use connect::{
     ConnectError, RigDevices, RigGauge, RigSpec, RotationSpec, SensorDriver, SensorSpec, StageDriver, StageError,
     StageSpec, measure_frame, open_rig,
 };
-pub use emulated::{EmulatedRig, EmulatedRigOptions, EmulatedSensor, StageEmulator};
+pub use emulated::{EmulatedRig, EmulatedSensor, ServeOptions, StageEmulator};
 pub use session::{RECORDING_FILE, RunRequest, RunResult, StartError, fit_and_report, run_calibration};

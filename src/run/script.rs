@@ -197,7 +197,7 @@ mod radius {
 
 impl Default for SensorSection {
     fn default() -> Self {
-        Self { elastomer_r_mm: 33.0, name: None }
+        Self { elastomer_r_mm: sim::defaults::ELASTOMER_R_MM, name: None }
     }
 }
 impl Default for ApproachSection {
