@@ -32,6 +32,7 @@ use super::frame::SensorFrame;
 use super::inbox::Inbox;
 use super::stats::{BadReason, LinkStats};
 use super::yaml::{self, Yaml};
+pub use super::yaml::{YamlError, YamlErrorKind};
 use crate::motion::{DeviceFault, FaultKind};
 
 /// UDP port the PyTac3D client binds by default.
@@ -212,8 +213,8 @@ pub enum Tac3dError {
     FrameTooLarge { serial: u32, bytes: usize, limit: usize },
     #[error("frame header is not ASCII (byte {at})")]
     NotAscii { at: usize },
-    #[error("frame header YAML, line {line}: {what}")]
-    Yaml { line: usize, what: String },
+    #[error("frame header YAML, {0}")]
+    Yaml(#[from] YamlError),
     #[error("frame header lacks `{field}`")]
     MissingField { field: String },
     #[error("frame header field `{field}` {what}")]
@@ -237,7 +238,7 @@ impl Tac3dError {
             }
             Tac3dError::FrameTooLarge { .. } => BadReason::Length,
             Tac3dError::DuplicatePacket { .. } => BadReason::DuplicatePacket,
-            Tac3dError::NotAscii { .. } | Tac3dError::Yaml { .. } => BadReason::Yaml,
+            Tac3dError::NotAscii { .. } | Tac3dError::Yaml(_) => BadReason::Yaml,
             Tac3dError::MissingField { .. } | Tac3dError::BadField { .. } => BadReason::MissingField,
             Tac3dError::Length { .. } | Tac3dError::Shape { .. } => BadReason::Length,
             Tac3dError::NotFinite { .. } => BadReason::NotFinite,
@@ -265,47 +266,6 @@ pub enum Tac3dEncodeError {
     Timestamp(f64),
 }
 
-/// Write a scalar the way a YAML emitter would: plain when that reads back as
-/// the same string (so `3D_Positions` and `AD2-0065L` stay plain, as the
-/// vendor writes them), single-quoted otherwise.
-fn yaml_str(out: &mut String, s: &str) {
-    let plain = !s.is_empty()
-        && s.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
-        && s.as_bytes()[0].is_ascii_alphanumeric()
-        // A letter no YAML number can contain rules out every int/float
-        // reading (hex and octal digits, exponents, `.inf` are excluded).
-        && s.bytes().any(|b| b.is_ascii_alphabetic() && !b"abcdefABCDEFxXoObB".contains(&b))
-        && !matches!(
-            s.to_ascii_lowercase().as_str(),
-            "true" | "false" | "null" | "yes" | "no" | "on" | "off" | "y" | "n"
-        );
-    if plain {
-        out.push_str(s);
-    } else {
-        out.push('\'');
-        for c in s.chars() {
-            match c {
-                '\'' => out.push_str("''"),
-                // The header is ASCII on one line per key: map anything else to '?'/' '.
-                c if c.is_ascii_control() => out.push(' '),
-                c if !c.is_ascii() => out.push('?'),
-                c => out.push(c),
-            }
-        }
-        out.push('\'');
-    }
-}
-
-/// A float that a YAML 1.1 or 1.2 loader reads back as the same float: Rust's
-/// shortest round-trip decimal, never in exponent form, always with a point.
-fn yaml_f64(out: &mut String, x: f64) {
-    let s = format!("{x}");
-    out.push_str(&s);
-    if !s.contains('.') {
-        out.push_str(".0");
-    }
-}
-
 /// The YAML header text of packet 0 and the blob of packets 1..N.
 pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncodeError> {
     if !frame.timestamp.is_finite() {
@@ -314,16 +274,16 @@ pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncode
     let mut head = String::with_capacity(256 + 128 * frame.items.len());
     let _ = writeln!(head, "index: {}", frame.index);
     head.push_str("SN: ");
-    yaml_str(&mut head, &frame.sn);
+    yaml::write_str(&mut head, &frame.sn);
     head.push_str("\ntimestamp: ");
-    yaml_f64(&mut head, frame.timestamp);
+    yaml::write_f64(&mut head, frame.timestamp);
     head.push('\n');
     if let Some(msg) = &frame.msg {
         head.push_str("msg: ");
         if msg.is_empty() {
             head.push_str("''");
         } else {
-            yaml_str(&mut head, msg);
+            yaml::write_str(&mut head, msg);
         }
         head.push('\n');
     }
@@ -333,7 +293,7 @@ pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncode
     for item in &frame.items {
         let offset = blob.len();
         head.push_str("  - name: ");
-        yaml_str(&mut head, &item.name);
+        yaml::write_str(&mut head, &item.name);
         let _ = write!(head, "\n    type: {}\n", item.value.type_name());
         match &item.value {
             Tac3dValue::Mat { rows, cols, data } => {
@@ -413,7 +373,7 @@ pub fn parse_packet_header(datagram: &[u8]) -> Result<PacketHeader, Tac3dError> 
     })
 }
 
-fn field<'a>(y: &'a Yaml, key: &str) -> Result<&'a Yaml, Tac3dError> {
+fn field<'a, 'y>(y: &'a Yaml<'y>, key: &str) -> Result<&'a Yaml<'y>, Tac3dError> {
     y.get(key).ok_or_else(|| Tac3dError::MissingField { field: key.to_string() })
 }
 
@@ -425,7 +385,7 @@ fn field_u64(y: &Yaml, key: &str, ctx: &str) -> Result<u64, Tac3dError> {
     })
 }
 
-fn field_str<'a>(y: &'a Yaml, key: &str, ctx: &str) -> Result<&'a str, Tac3dError> {
+fn field_str<'a>(y: &'a Yaml<'_>, key: &str, ctx: &str) -> Result<&'a str, Tac3dError> {
     let v = y.get(key).ok_or_else(|| Tac3dError::MissingField { field: format!("{ctx}{key}") })?;
     v.as_str().ok_or_else(|| Tac3dError::BadField { field: format!("{ctx}{key}"), what: "is not a scalar".into() })
 }
@@ -439,9 +399,9 @@ pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> 
         return Err(Tac3dError::NotAscii { at });
     }
     let text = std::str::from_utf8(head).map_err(|e| Tac3dError::NotAscii { at: e.valid_up_to() })?;
-    let y = yaml::parse(text).map_err(|e| Tac3dError::Yaml { line: e.line, what: e.what })?;
+    let y = yaml::parse(text)?;
     if !matches!(y, Yaml::Map(_)) {
-        return Err(Tac3dError::Yaml { line: 1, what: "header is not a mapping".into() });
+        return Err(YamlError { line: 1, kind: YamlErrorKind::NotMapping }.into());
     }
     let index = field_u64(&y, "index", "")?;
     let sn = field_str(&y, "SN", "")?.to_string();

@@ -1,49 +1,76 @@
-//! The small subset of YAML that a Tac3D frame header uses: a block mapping of
-//! scalars with one block (or flow) sequence of mappings under `data`. Writing
-//! a full YAML parser is not the point, and the workspace carries no YAML crate;
-//! this reads block mappings and sequences (including `- key: value` items),
-//! flow collections on one line, plain / single- / double-quoted scalars and
-//! comments, and rejects anything else with the line it stopped at.
+//! The YAML of a Tac3D frame header, read with `saphyr-parser` (a YAML 1.2
+//! parser) into a small tree, and the two scalar writers the header encoder
+//! uses.
+//!
+//! The tree keeps what the decoder needs and a generic loader drops: whether a
+//! scalar was quoted (a quoted `'12'` is text, a plain `12` may be a number)
+//! and the scalar's text as written (`SN: 0065` stays `0065`). Building the
+//! tree from the parser's events also lets the header's limits
+//! (docs/hardening.md) stop a hostile document early: nesting, entries per
+//! collection, duplicate keys. Aliases, anchors, tags and block scalars have
+//! no place in a frame header and are refused.
 
-use std::fmt;
+use std::borrow::Cow;
+
+use saphyr_parser::{Event, Parser, ScalarStyle, ScanError, Span};
 
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) enum Yaml {
+pub(crate) enum Yaml<'a> {
     /// A scalar; `quoted` scalars are always strings, plain ones may be numbers.
     Scalar {
-        text: String,
+        text: Cow<'a, str>,
         quoted: bool,
     },
-    Map(Vec<(String, Yaml)>),
-    Seq(Vec<Yaml>),
-}
-
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub(crate) struct YamlError {
-    /// 1-based line in the header text.
-    pub line: usize,
-    pub what: String,
-}
-
-impl fmt::Display for YamlError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "line {}: {}", self.line, self.what)
-    }
+    Map(Vec<(Cow<'a, str>, Yaml<'a>)>),
+    Seq(Vec<Yaml<'a>>),
 }
 
 /// Limits (docs/hardening.md): a Tac3D header is a few kilobytes, nested four
 /// levels deep, with a dozen keys; anything far beyond is refused before it can
-/// cost stack or time. Nesting is bounded in both the block and the flow reader.
+/// cost stack or time. Nesting counts block and flow collections alike.
 pub(crate) const MAX_DEPTH: usize = 16;
 pub(crate) const MAX_HEADER_BYTES: usize = 256 * 1024;
 pub(crate) const MAX_ENTRIES: usize = 4096;
 
-fn err<T>(line: usize, what: impl Into<String>) -> Result<T, YamlError> {
-    Err(YamlError { line, what: what.into() })
+/// A header that is not the YAML a frame header may be, with the line it
+/// stopped at.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("line {line}: {kind}")]
+pub struct YamlError {
+    /// 1-based line in the header text.
+    pub line: usize,
+    #[source]
+    pub kind: YamlErrorKind,
 }
 
-impl Yaml {
-    pub fn get(&self, key: &str) -> Option<&Yaml> {
+/// What was wrong with a header's YAML.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum YamlErrorKind {
+    /// Not YAML at all (the parser's own message).
+    #[error("{}", .0.info())]
+    Syntax(ScanError),
+    #[error("header of {bytes} bytes exceeds the limit of {MAX_HEADER_BYTES}")]
+    TooLarge { bytes: usize },
+    #[error("empty document")]
+    Empty,
+    #[error("more than one document")]
+    ExtraDocument,
+    #[error("header is not a mapping")]
+    NotMapping,
+    #[error("nesting deeper than {MAX_DEPTH} levels")]
+    TooDeep,
+    #[error("more than {MAX_ENTRIES} entries in a collection")]
+    TooManyEntries,
+    #[error("duplicate key `{0}`")]
+    DuplicateKey(String),
+    #[error("collection used as a key")]
+    CollectionKey,
+    #[error("unsupported YAML construct: {0}")]
+    Unsupported(&'static str),
+}
+
+impl<'a> Yaml<'a> {
+    pub fn get(&self, key: &str) -> Option<&Yaml<'a>> {
         match self {
             Yaml::Map(entries) => entries.iter().find(|(k, _)| k == key).map(|(_, v)| v),
             _ => None,
@@ -70,7 +97,7 @@ impl Yaml {
     /// `.nan` and `.inf`, which the caller then rejects as not finite).
     pub fn as_f64(&self) -> Option<f64> {
         match self {
-            Yaml::Scalar { text, quoted: false } => match text.as_str() {
+            Yaml::Scalar { text, quoted: false } => match text.as_ref() {
                 ".nan" | ".NaN" | ".NAN" => Some(f64::NAN),
                 ".inf" | ".Inf" | ".INF" | "+.inf" | "+.Inf" | "+.INF" => Some(f64::INFINITY),
                 "-.inf" | "-.Inf" | "-.INF" => Some(f64::NEG_INFINITY),
@@ -86,399 +113,166 @@ impl Yaml {
     }
 }
 
-#[derive(Debug, Clone)]
-struct Line<'a> {
-    no: usize,
-    indent: usize,
-    text: &'a str,
+/// A collection whose end event has not come yet.
+enum Open<'a> {
+    /// Entries so far, and the key read for the next value.
+    Map(Vec<(Cow<'a, str>, Yaml<'a>)>, Option<Cow<'a, str>>),
+    Seq(Vec<Yaml<'a>>),
 }
 
-/// Remove a trailing comment (`#` at the start or after whitespace, outside quotes).
-fn strip_comment(s: &str) -> &str {
-    let bytes = s.as_bytes();
-    let mut quote: Option<u8> = None;
-    let mut i = 0;
-    while i < bytes.len() {
-        let b = bytes[i];
-        match quote {
-            Some(q) => {
-                if b == b'\\' && q == b'"' {
-                    i += 1;
-                } else if b == q {
-                    quote = None;
-                }
-            }
-            None => {
-                if b == b'\'' || b == b'"' {
-                    quote = Some(b);
-                } else if b == b'#' && (i == 0 || bytes[i - 1] == b' ' || bytes[i - 1] == b'\t') {
-                    return s[..i].trim_end();
-                }
-            }
-        }
-        i += 1;
-    }
-    s.trim_end()
+/// Builds the tree from the parser's events, checking the limits as it goes.
+struct Builder<'a> {
+    open: Vec<Open<'a>>,
+    root: Option<Yaml<'a>>,
 }
 
-fn lines(text: &str) -> Result<Vec<Line<'_>>, YamlError> {
-    let mut out = Vec::new();
-    for (i, raw) in text.lines().enumerate() {
-        let no = i + 1;
-        let body = raw.trim_start_matches(' ');
-        if body.starts_with('\t') {
-            return err(no, "tab in indentation");
-        }
-        let indent = raw.len() - body.len();
-        let body = strip_comment(body);
-        if body.is_empty() {
-            continue;
-        }
-        if indent == 0 && (body == "---" || body == "..." || body.starts_with("%YAML")) {
-            continue;
-        }
-        out.push(Line { no, indent, text: body });
-    }
-    Ok(out)
+fn fail<T>(span: &Span, kind: YamlErrorKind) -> Result<T, YamlError> {
+    Err(YamlError { line: span.start.line(), kind })
 }
 
-/// Parse a header document. An empty document is an error: a frame header is never empty.
-pub(crate) fn parse(text: &str) -> Result<Yaml, YamlError> {
-    if text.len() > MAX_HEADER_BYTES {
-        return err(1, format!("header of {} bytes exceeds the limit of {MAX_HEADER_BYTES}", text.len()));
-    }
-    let mut ls = lines(text)?;
-    if ls.is_empty() {
-        return err(1, "empty document");
-    }
-    let mut pos = 0;
-    let indent = ls[0].indent;
-    let v = block(&mut ls, &mut pos, indent, 0)?;
-    if let Some(l) = ls.get(pos) {
-        return err(l.no, format!("unexpected indentation {}", l.indent));
-    }
-    Ok(v)
-}
-
-fn is_seq_item(s: &str) -> bool {
-    s == "-" || s.starts_with("- ")
-}
-
-fn too_deep<T>(no: usize) -> Result<T, YamlError> {
-    err(no, format!("nesting deeper than {MAX_DEPTH} levels"))
-}
-
-fn block(ls: &mut [Line<'_>], pos: &mut usize, indent: usize, depth: usize) -> Result<Yaml, YamlError> {
-    let first = ls[*pos].clone();
-    if depth >= MAX_DEPTH {
-        return too_deep(first.no);
-    }
-    if first.indent != indent {
-        return err(first.no, format!("expected indentation {indent}"));
-    }
-    if is_seq_item(first.text) {
-        return sequence(ls, pos, indent, depth);
-    }
-    if split_key(first.text).is_none() {
-        // A lone scalar or flow collection.
-        *pos += 1;
-        return value(first.text, first.no, depth);
-    }
-    mapping(ls, pos, indent, depth)
-}
-
-fn sequence(ls: &mut [Line<'_>], pos: &mut usize, indent: usize, depth: usize) -> Result<Yaml, YamlError> {
-    let mut items = Vec::new();
-    while let Some(l) = ls.get(*pos).cloned() {
-        if l.indent < indent || !is_seq_item(l.text) {
-            break;
-        }
-        if items.len() == MAX_ENTRIES {
-            return err(l.no, format!("more than {MAX_ENTRIES} items in a sequence"));
-        }
-        if l.indent > indent {
-            return err(l.no, "unexpected indentation in sequence");
-        }
-        let rest = l.text[1..].trim_start_matches(' ');
-        if rest.is_empty() {
-            *pos += 1;
-            match ls.get(*pos) {
-                Some(n) if n.indent > indent => {
-                    let ni = n.indent;
-                    items.push(block(ls, pos, ni, depth + 1)?);
-                }
-                _ => items.push(Yaml::Scalar { text: String::new(), quoted: false }),
-            }
-            continue;
-        }
-        // `- key: value` opens a mapping whose keys line up with `key`.
-        let col = indent + (l.text.len() - rest.len());
-        ls[*pos] = Line { no: l.no, indent: col, text: rest };
-        items.push(block(ls, pos, col, depth + 1)?);
-    }
-    Ok(Yaml::Seq(items))
-}
-
-fn mapping(ls: &mut [Line<'_>], pos: &mut usize, indent: usize, depth: usize) -> Result<Yaml, YamlError> {
-    let mut entries: Vec<(String, Yaml)> = Vec::new();
-    while let Some(l) = ls.get(*pos).cloned() {
-        if l.indent < indent {
-            break;
-        }
-        if l.indent > indent {
-            return err(l.no, "unexpected indentation in mapping");
-        }
-        if is_seq_item(l.text) {
-            break;
-        }
-        let Some((k, v)) = split_key(l.text) else {
-            return err(l.no, format!("expected `key: value`, found `{}`", l.text));
-        };
-        let key = match value(k, l.no, depth)? {
-            Yaml::Scalar { text, .. } => text,
-            _ => return err(l.no, "collection used as a key"),
-        };
-        if entries.len() == MAX_ENTRIES {
-            return err(l.no, format!("more than {MAX_ENTRIES} keys in a mapping"));
-        }
-        if entries.iter().any(|(e, _)| *e == key) {
-            return err(l.no, format!("duplicate key `{key}`"));
-        }
-        *pos += 1;
-        let val = if !v.is_empty() {
-            value(v, l.no, depth + 1)?
-        } else {
-            match ls.get(*pos) {
-                Some(n) if n.indent > indent => {
-                    let ni = n.indent;
-                    block(ls, pos, ni, depth + 1)?
-                }
-                // YAML lets a sequence under a key sit at the key's own indentation.
-                Some(n) if n.indent == indent && is_seq_item(n.text) => sequence(ls, pos, indent, depth + 1)?,
-                _ => Yaml::Scalar { text: String::new(), quoted: false },
-            }
-        };
-        entries.push((key, val));
-    }
-    Ok(Yaml::Map(entries))
-}
-
-/// Split `key: value` at the first `:` followed by a space or the end, outside
-/// quotes and brackets. `None` when the line is not a mapping entry.
-fn split_key(s: &str) -> Option<(&str, &str)> {
-    let bytes = s.as_bytes();
-    if matches!(bytes.first(), Some(b'{') | Some(b'[')) {
-        return None;
-    }
-    let mut quote: Option<u8> = None;
-    let mut i = 0;
-    while i < bytes.len() {
-        let b = bytes[i];
-        match quote {
-            Some(q) => {
-                if b == b'\\' && q == b'"' {
-                    i += 1;
-                } else if b == q {
-                    quote = None;
-                }
-            }
-            None => {
-                if (b == b'\'' || b == b'"') && i == 0 {
-                    quote = Some(b);
-                } else if b == b':' && (i + 1 == bytes.len() || bytes[i + 1] == b' ') {
-                    return Some((s[..i].trim_end(), s[i + 1..].trim()));
-                }
-            }
-        }
-        i += 1;
-    }
-    None
-}
-
-/// A value written on one line: a scalar or a flow collection.
-fn value(s: &str, no: usize, depth: usize) -> Result<Yaml, YamlError> {
-    let s = s.trim();
-    if s.starts_with('{') || s.starts_with('[') {
-        let mut p = Flow { b: s.as_bytes(), s, i: 0, no, depth };
-        let v = p.node()?;
-        p.ws();
-        if p.i != p.b.len() {
-            return err(no, format!("text after flow collection at column {}", p.i + 1));
-        }
-        return Ok(v);
-    }
-    if s.starts_with('\'') || s.starts_with('"') {
-        let (text, used) = quoted(s, no)?;
-        if used != s.len() {
-            return err(no, "text after quoted scalar");
-        }
-        return Ok(Yaml::Scalar { text, quoted: true });
-    }
-    if s.starts_with(['|', '>', '&', '*', '!', '%', '@', '`']) {
-        return err(no, format!("unsupported YAML construct `{s}`"));
-    }
-    Ok(Yaml::Scalar { text: s.to_string(), quoted: false })
-}
-
-/// Read a quoted scalar at the start of `s`; returns the text and the bytes used.
-fn quoted(s: &str, no: usize) -> Result<(String, usize), YamlError> {
-    let q = s.as_bytes()[0];
-    let mut out = String::new();
-    let mut chars = s.char_indices().skip(1);
-    while let Some((i, c)) = chars.next() {
-        if q == b'\'' && c == '\'' {
-            if s[i + 1..].starts_with('\'') {
-                out.push('\'');
-                chars.next();
-                continue;
-            }
-            return Ok((out, i + 1));
-        }
-        if q == b'"' && c == '"' {
-            return Ok((out, i + 1));
-        }
-        if q == b'"' && c == '\\' {
-            let Some((_, e)) = chars.next() else { break };
-            let hex = |n: usize, chars: &mut dyn Iterator<Item = (usize, char)>| {
-                let h: String = chars.take(n).map(|(_, c)| c).collect();
-                u32::from_str_radix(&h, 16).ok().filter(|_| h.len() == n).and_then(char::from_u32)
-            };
-            let ch = match e {
-                'n' => Some('\n'),
-                't' => Some('\t'),
-                'r' => Some('\r'),
-                '0' => Some('\0'),
-                '\\' => Some('\\'),
-                '"' => Some('"'),
-                '/' => Some('/'),
-                ' ' => Some(' '),
-                'x' => hex(2, &mut chars),
-                'u' => hex(4, &mut chars),
-                _ => None,
-            };
-            match ch {
-                Some(ch) => out.push(ch),
-                None => return err(no, format!("bad escape `\\{e}` in double-quoted scalar")),
-            }
-            continue;
-        }
-        out.push(c);
-    }
-    err(no, "unterminated quoted scalar")
-}
-
-struct Flow<'a> {
-    s: &'a str,
-    b: &'a [u8],
-    i: usize,
-    no: usize,
-    /// Nesting of the collection being read (block levels included).
-    depth: usize,
-}
-
-impl Flow<'_> {
-    fn ws(&mut self) {
-        while self.i < self.b.len() && self.b[self.i] == b' ' {
-            self.i += 1;
-        }
-    }
-
-    fn node(&mut self) -> Result<Yaml, YamlError> {
-        self.ws();
-        if matches!(self.b.get(self.i), Some(b'{') | Some(b'[')) {
-            if self.depth >= MAX_DEPTH {
-                return too_deep(self.no);
-            }
-            self.depth += 1;
-            let v = self.collection();
-            self.depth -= 1;
-            return v;
-        }
-        self.scalar(false)
-    }
-
-    fn collection(&mut self) -> Result<Yaml, YamlError> {
-        match self.b.get(self.i) {
-            Some(b'{') => {
-                self.i += 1;
-                let mut entries = Vec::new();
-                loop {
-                    self.ws();
-                    if self.b.get(self.i) == Some(&b'}') {
-                        self.i += 1;
-                        return Ok(Yaml::Map(entries));
+impl<'a> Builder<'a> {
+    fn event(&mut self, event: Event<'a>, span: &Span) -> Result<(), YamlError> {
+        match event {
+            Event::DocumentStart(_) if self.root.is_some() => fail(span, YamlErrorKind::ExtraDocument),
+            Event::Alias(_) => fail(span, YamlErrorKind::Unsupported("alias")),
+            Event::Scalar(text, style, anchor, tag) => {
+                plain_node(span, anchor, tag.is_some())?;
+                let quoted = match style {
+                    ScalarStyle::Plain => false,
+                    ScalarStyle::SingleQuoted | ScalarStyle::DoubleQuoted => true,
+                    ScalarStyle::Literal | ScalarStyle::Folded => {
+                        return fail(span, YamlErrorKind::Unsupported("block scalar"));
                     }
-                    let key = match self.scalar(true)? {
-                        Yaml::Scalar { text, .. } => text,
-                        _ => return err(self.no, "collection used as a key"),
-                    };
-                    self.ws();
-                    if self.b.get(self.i) != Some(&b':') {
-                        return err(self.no, format!("expected `:` at column {}", self.i + 1));
-                    }
-                    self.i += 1;
-                    let v = self.node()?;
-                    if entries.len() == MAX_ENTRIES {
-                        return err(self.no, format!("more than {MAX_ENTRIES} keys in a mapping"));
-                    }
-                    entries.push((key, v));
-                    self.sep(b'}')?;
-                }
+                };
+                self.node(Yaml::Scalar { text, quoted }, span)
             }
-            Some(b'[') => {
-                self.i += 1;
-                let mut items = Vec::new();
-                loop {
-                    self.ws();
-                    if self.b.get(self.i) == Some(&b']') {
-                        self.i += 1;
-                        return Ok(Yaml::Seq(items));
-                    }
-                    if items.len() == MAX_ENTRIES {
-                        return err(self.no, format!("more than {MAX_ENTRIES} items in a sequence"));
-                    }
-                    items.push(self.node()?);
-                    self.sep(b']')?;
-                }
-            }
-            _ => self.scalar(false),
-        }
-    }
-
-    /// After an entry: `,` or the closing bracket (left for the caller).
-    fn sep(&mut self, close: u8) -> Result<(), YamlError> {
-        self.ws();
-        match self.b.get(self.i) {
-            Some(b',') => {
-                self.i += 1;
+            Event::MappingStart(anchor, tag) => self.open(Open::Map(Vec::new(), None), span, anchor, tag.is_some()),
+            Event::SequenceStart(anchor, tag) => self.open(Open::Seq(Vec::new()), span, anchor, tag.is_some()),
+            Event::MappingEnd | Event::SequenceEnd => match self.open.pop() {
+                Some(Open::Map(entries, _)) => self.node(Yaml::Map(entries), span),
+                Some(Open::Seq(items)) => self.node(Yaml::Seq(items), span),
+                None => Ok(()),
+            },
+            Event::Nothing | Event::StreamStart | Event::StreamEnd | Event::DocumentStart(_) | Event::DocumentEnd => {
                 Ok(())
             }
-            Some(c) if *c == close => Ok(()),
-            _ => err(self.no, format!("expected `,` or `{}` at column {}", close as char, self.i + 1)),
         }
     }
 
-    fn scalar(&mut self, is_key: bool) -> Result<Yaml, YamlError> {
-        self.ws();
-        if matches!(self.b.get(self.i), Some(b'\'') | Some(b'"')) {
-            let (text, used) = quoted(&self.s[self.i..], self.no)?;
-            self.i += used;
-            return Ok(Yaml::Scalar { text, quoted: true });
+    fn open(&mut self, c: Open<'a>, span: &Span, anchor: usize, tagged: bool) -> Result<(), YamlError> {
+        plain_node(span, anchor, tagged)?;
+        if let Some(Open::Map(_, None)) = self.open.last() {
+            return fail(span, YamlErrorKind::CollectionKey);
         }
-        let start = self.i;
-        while let Some(&c) = self.b.get(self.i) {
-            let stop = matches!(c, b',' | b']' | b'}')
-                || (c == b':' && (is_key || matches!(self.b.get(self.i + 1), Some(b' ') | None)));
-            if stop {
-                break;
+        if self.open.len() >= MAX_DEPTH {
+            return fail(span, YamlErrorKind::TooDeep);
+        }
+        self.open.push(c);
+        Ok(())
+    }
+
+    /// A finished node: the root, the next item of a sequence, or a key or
+    /// value of a mapping.
+    fn node(&mut self, node: Yaml<'a>, span: &Span) -> Result<(), YamlError> {
+        match self.open.last_mut() {
+            None => self.root = Some(node),
+            Some(Open::Seq(items)) => {
+                if items.len() == MAX_ENTRIES {
+                    return fail(span, YamlErrorKind::TooManyEntries);
+                }
+                items.push(node);
             }
-            self.i += 1;
+            Some(Open::Map(entries, key)) => match (key.take(), node) {
+                (Some(k), value) => entries.push((k, value)),
+                (None, Yaml::Scalar { text, .. }) => {
+                    if entries.len() == MAX_ENTRIES {
+                        return fail(span, YamlErrorKind::TooManyEntries);
+                    }
+                    if entries.iter().any(|(e, _)| *e == text) {
+                        return fail(span, YamlErrorKind::DuplicateKey(text.into_owned()));
+                    }
+                    *key = Some(text);
+                }
+                (None, _) => return fail(span, YamlErrorKind::CollectionKey),
+            },
         }
-        let text = self.s[start..self.i].trim();
-        if text.starts_with(['{', '[', '&', '*', '!', '|', '>']) {
-            return err(self.no, format!("unsupported flow scalar `{text}`"));
+        Ok(())
+    }
+}
+
+/// Anchors and tags are refused: a header needs neither.
+fn plain_node(span: &Span, anchor: usize, tagged: bool) -> Result<(), YamlError> {
+    match (anchor, tagged) {
+        (0, false) => Ok(()),
+        (0, true) => fail(span, YamlErrorKind::Unsupported("tag")),
+        _ => fail(span, YamlErrorKind::Unsupported("anchor")),
+    }
+}
+
+/// Parse a header document. An empty document is an error: a frame header is
+/// never empty. A parse error at the end of the text is reported on its last
+/// line.
+pub(crate) fn parse(text: &str) -> Result<Yaml<'_>, YamlError> {
+    if text.len() > MAX_HEADER_BYTES {
+        return Err(YamlError { line: 1, kind: YamlErrorKind::TooLarge { bytes: text.len() } });
+    }
+    let mut b = Builder { open: Vec::new(), root: None };
+    for event in Parser::new_from_str(text) {
+        let (event, span) = event.map_err(|e| scan_error(text, e))?;
+        b.event(event, &span)?;
+    }
+    b.root.ok_or(YamlError { line: 1, kind: YamlErrorKind::Empty })
+}
+
+/// The parser's error, on the line it names (its end-of-text marker lies past
+/// the last line). The scanner refuses flow nesting beyond 255 levels before
+/// the builder sees the first of them: that is the nesting limit, met early.
+fn scan_error(text: &str, e: ScanError) -> YamlError {
+    let line = e.marker().line().clamp(1, text.lines().count().max(1));
+    let kind = if e.info() == "recursion limit exceeded" { YamlErrorKind::TooDeep } else { YamlErrorKind::Syntax(e) };
+    YamlError { line, kind }
+}
+
+/// Write a scalar the way a YAML emitter would: plain when that reads back as
+/// the same string (so `3D_Positions` and `AD2-0065L` stay plain, as the
+/// vendor writes them), single-quoted otherwise. The header's byte layout is
+/// the vendor's (two-space item indentation, `''` for an empty `msg`), which a
+/// generic emitter does not reproduce, so the header is written line by line.
+pub(crate) fn write_str(out: &mut String, s: &str) {
+    let plain = !s.is_empty()
+        && s.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
+        && s.as_bytes()[0].is_ascii_alphanumeric()
+        // A letter no YAML number can contain rules out every int/float
+        // reading (hex and octal digits, exponents, `.inf` are excluded).
+        && s.bytes().any(|b| b.is_ascii_alphabetic() && !b"abcdefABCDEFxXoObB".contains(&b))
+        && !matches!(
+            s.to_ascii_lowercase().as_str(),
+            "true" | "false" | "null" | "yes" | "no" | "on" | "off" | "y" | "n"
+        );
+    if plain {
+        out.push_str(s);
+    } else {
+        out.push('\'');
+        for c in s.chars() {
+            match c {
+                '\'' => out.push_str("''"),
+                // The header is ASCII on one line per key: map anything else to '?'/' '.
+                c if c.is_ascii_control() => out.push(' '),
+                c if !c.is_ascii() => out.push('?'),
+                c => out.push(c),
+            }
         }
-        Ok(Yaml::Scalar { text: text.to_string(), quoted: false })
+        out.push('\'');
+    }
+}
+
+/// A float that a YAML 1.1 or 1.2 loader reads back as the same float: Rust's
+/// shortest round-trip decimal, never in exponent form, always with a point.
+pub(crate) fn write_f64(out: &mut String, x: f64) {
+    let s = format!("{x}");
+    out.push_str(&s);
+    if !s.contains('.') {
+        out.push_str(".0");
     }
 }
 
@@ -486,7 +280,7 @@ impl Flow<'_> {
 mod tests {
     use super::*;
 
-    fn s(t: &str) -> Yaml {
+    fn s(t: &str) -> Yaml<'_> {
         Yaml::Scalar { text: t.into(), quoted: false }
     }
 
