@@ -12,14 +12,15 @@ use std::time::Duration;
 use devices::apt::AptConfig;
 use devices::grbl::GrblConfig;
 use devices::sensor::SensorFrame;
-use devices::sensor::link::{Command, LinkDevice};
-use devices::sensor::tac3d::{Tac3dSender, Tac3dSenderConfig};
+use devices::sensor::link::LinkCommand;
 use sim::clock::VirtualClock;
 use sim::effects::{EffectError, SimProfile};
 use sim::emulator::apt::{EmulatorHandle, InjectedError, k10cr1_axis, spawn_apt_rotation, spawn_apt_stage, z8_axis};
 use sim::emulator::grbl::{GrblEmulatorConfig, GrblPort, serve_grbl_stage, stepper_stage_axis};
 use sim::emulator::pty::PtyMaster;
 use sim::emulator::rig::{Rig, RigPose};
+use sim::emulator::sensor_link::LinkDevice;
+use sim::emulator::tac3d::{Tac3dSender, Tac3dSenderConfig};
 use sim::physics::ContactPair;
 use sim::sensor::rig::RigSensor;
 use sim::sensor::rig::SensorSimConfig;
@@ -320,7 +321,7 @@ impl SlaveBacklog {
 
 impl LinkPtySink {
     /// The next command already received, without waiting.
-    async fn poll_command(&mut self) -> Option<Command> {
+    async fn poll_command(&mut self) -> Option<LinkCommand> {
         tokio::select! {
             biased;
             c = self.device.next_command() => c.ok(),
@@ -333,10 +334,10 @@ impl FrameSink for LinkPtySink {
     async fn send(&mut self, frame: &SensorFrame) -> Result<(), SinkError> {
         while let Some(cmd) = self.poll_command().await {
             match cmd {
-                Command::Start => self.streaming = true,
-                Command::Stop => self.streaming = false,
+                LinkCommand::Start => self.streaming = true,
+                LinkCommand::Stop => self.streaming = false,
                 // The simulated elastomer reads exact zeros untouched: nothing to re-zero.
-                Command::Tare => {}
+                LinkCommand::Tare => {}
             }
             self.device.ack(cmd).await.map_err(|e| SinkError::Other(e.to_string()))?;
         }
