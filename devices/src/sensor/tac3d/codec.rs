@@ -3,8 +3,7 @@
 
 use std::fmt::Write as _;
 
-use super::yaml::{self, Yaml, YamlError, YamlErrorKind};
-use super::{HEADER_LEN, INITIALIZE_PROGRESS, Tac3dEncodeError, Tac3dError, Tac3dFrame, Tac3dItem, Tac3dValue};
+use super::{HEADER_LEN, Tac3dEncodeError, Tac3dError, Tac3dFrame, Tac3dValue, header, yaml};
 
 /// The YAML header text of packet 0 and the blob of packets 1..N.
 pub fn encode_parts(frame: &Tac3dFrame) -> Result<(String, Vec<u8>), Tac3dEncodeError> {
@@ -113,132 +112,20 @@ pub fn parse_packet_header(datagram: &[u8]) -> Result<PacketHeader, Tac3dError> 
     })
 }
 
-fn field<'a, 'y>(y: &'a Yaml<'y>, key: &str) -> Result<&'a Yaml<'y>, Tac3dError> {
-    y.get(key).ok_or_else(|| Tac3dError::MissingField { field: key.to_string() })
-}
-
-fn field_u64(y: &Yaml, key: &str, ctx: &str) -> Result<u64, Tac3dError> {
-    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField { field: format!("{ctx}{key}") })?;
-    v.as_u64().ok_or_else(|| Tac3dError::BadField {
-        field: format!("{ctx}{key}"),
-        what: format!("is not an unsigned integer: {v:?}"),
-    })
-}
-
-fn field_str<'a>(y: &'a Yaml<'_>, key: &str, ctx: &str) -> Result<&'a str, Tac3dError> {
-    let v = y.get(key).ok_or_else(|| Tac3dError::MissingField { field: format!("{ctx}{key}") })?;
-    v.as_str().ok_or_else(|| Tac3dError::BadField { field: format!("{ctx}{key}"), what: "is not a scalar".into() })
-}
-
 /// Decode a frame from its header text bytes (packet 0's payload) and the
 /// concatenated blob (packets 1..N). Items of a type or dtype this decoder does
 /// not know are skipped, as the vendor's client does. A frame carrying
 /// `InitializeProgress` other than 100 is refused, as the client refuses it.
+///
+/// The header is YAML; consecutive frames of one sensor send the same header
+/// but for `index` and `timestamp`, so the last header read on this thread is
+/// remembered and a header that differs from it only there is decoded without
+/// parsing it again (see `header.rs`: same frames, same errors, a fraction of the
+/// time).
 pub fn decode_frame(head: &[u8], blob: &[u8]) -> Result<Tac3dFrame, Tac3dError> {
     if let Some(at) = head.iter().position(|b| !b.is_ascii()) {
         return Err(Tac3dError::NotAscii { at });
     }
     let text = std::str::from_utf8(head).map_err(|e| Tac3dError::NotAscii { at: e.valid_up_to() })?;
-    let y = yaml::parse(text)?;
-    if !matches!(y, Yaml::Map(_)) {
-        return Err(YamlError { line: 1, kind: YamlErrorKind::NotMapping }.into());
-    }
-    let index = field_u64(&y, "index", "")?;
-    let sn = field_str(&y, "SN", "")?.to_string();
-    let ts = field(&y, "timestamp")?;
-    let timestamp = ts
-        .as_f64()
-        .ok_or_else(|| Tac3dError::BadField { field: "timestamp".into(), what: format!("is not a number: {ts:?}") })?;
-    if !timestamp.is_finite() {
-        return Err(Tac3dError::NotFinite { item: "timestamp".into(), at: 0 });
-    }
-    let msg = match y.get("msg") {
-        None => None,
-        Some(m) => Some(
-            m.as_str()
-                .ok_or_else(|| Tac3dError::BadField { field: "msg".into(), what: "is not a scalar".into() })?
-                .to_string(),
-        ),
-    };
-    let items_y = match field(&y, "data")? {
-        Yaml::Seq(v) => v.as_slice(),
-        // `data:` with nothing under it: a frame without items.
-        Yaml::Scalar { text, quoted: false } if text.is_empty() => &[],
-        other => {
-            return Err(Tac3dError::BadField { field: "data".into(), what: format!("is not a list: {other:?}") });
-        }
-    };
-    let mut items = Vec::with_capacity(items_y.len());
-    for (k, it) in items_y.iter().enumerate() {
-        let ctx = format!("data[{k}].");
-        let name = field_str(it, "name", &ctx)?.to_string();
-        let ty = field_str(it, "type", &ctx)?;
-        let known = match ty {
-            "mat" => field_str(it, "dtype", &ctx)? == "f64",
-            "f64" | "i32" | "img" => true,
-            _ => false,
-        };
-        if !known {
-            continue;
-        }
-        let offset = field_u64(it, "offset", &ctx)?;
-        let length = field_u64(it, "length", &ctx)?;
-        let end = offset.checked_add(length).filter(|e| *e <= blob.len() as u64);
-        let Some(end) = end else {
-            return Err(Tac3dError::Length {
-                item: name,
-                what: format!("offset {offset} + length {length} runs past the {} B blob", blob.len()),
-            });
-        };
-        let bytes = &blob[offset as usize..end as usize];
-        let value = match ty {
-            "mat" => {
-                let cols = field_u64(it, "width", &ctx)?;
-                let rows = field_u64(it, "height", &ctx)?;
-                let want = rows.checked_mul(cols).and_then(|n| n.checked_mul(8));
-                if want != Some(length) {
-                    return Err(Tac3dError::Length {
-                        item: name,
-                        what: format!("{rows} x {cols} f64 matrix needs {want:?} B, length says {length}"),
-                    });
-                }
-                let data = bytes
-                    .chunks_exact(8)
-                    .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
-                    .collect();
-                Tac3dValue::Mat { rows: rows as usize, cols: cols as usize, data }
-            }
-            "f64" => match <[u8; 8]>::try_from(bytes) {
-                Ok(b) => Tac3dValue::F64(f64::from_le_bytes(b)),
-                Err(_) => {
-                    return Err(Tac3dError::Length {
-                        item: name,
-                        what: format!("f64 needs 8 B, length says {length}"),
-                    });
-                }
-            },
-            "i32" => match <[u8; 4]>::try_from(bytes) {
-                Ok(b) => Tac3dValue::I32(i32::from_le_bytes(b)),
-                Err(_) => {
-                    return Err(Tac3dError::Length {
-                        item: name,
-                        what: format!("i32 needs 4 B, length says {length}"),
-                    });
-                }
-            },
-            _ => Tac3dValue::Img(bytes.to_vec()),
-        };
-        if name == INITIALIZE_PROGRESS {
-            let progress = match value {
-                Tac3dValue::I32(p) => f64::from(p),
-                Tac3dValue::F64(p) => p,
-                _ => 100.0,
-            };
-            if progress != 100.0 {
-                return Err(Tac3dError::Initializing { progress });
-            }
-        }
-        items.push(Tac3dItem { name, value });
-    }
-    Ok(Tac3dFrame { index, sn, timestamp, msg, items })
+    header::decode(text, blob)
 }

@@ -23,6 +23,7 @@ use super::stats::BadReason;
 use crate::motion::{DeviceFault, FaultKind};
 
 mod codec;
+mod header;
 mod reassembly;
 mod receiver;
 mod yaml;

@@ -11,6 +11,7 @@
 //! no place in a frame header and are refused.
 
 use std::borrow::Cow;
+use std::ops::Range;
 
 use saphyr_parser::{Event, Parser, ScalarStyle, ScanError, Span};
 
@@ -120,10 +121,15 @@ enum Open<'a> {
     Seq(Vec<Yaml<'a>>),
 }
 
+/// A key of the root mapping whose value is a plain scalar, and the value's
+/// range in the text (characters, which are bytes in an ASCII header).
+pub(crate) type TopScalar<'a> = (Cow<'a, str>, Range<usize>);
+
 /// Builds the tree from the parser's events, checking the limits as it goes.
 struct Builder<'a> {
     open: Vec<Open<'a>>,
     root: Option<Yaml<'a>>,
+    top: Vec<TopScalar<'a>>,
 }
 
 fn fail<T>(span: &Span, kind: YamlErrorKind) -> Result<T, YamlError> {
@@ -174,6 +180,7 @@ impl<'a> Builder<'a> {
     /// A finished node: the root, the next item of a sequence, or a key or
     /// value of a mapping.
     fn node(&mut self, node: Yaml<'a>, span: &Span) -> Result<(), YamlError> {
+        let in_root = self.open.len() == 1;
         match self.open.last_mut() {
             None => self.root = Some(node),
             Some(Open::Seq(items)) => {
@@ -183,7 +190,12 @@ impl<'a> Builder<'a> {
                 items.push(node);
             }
             Some(Open::Map(entries, key)) => match (key.take(), node) {
-                (Some(k), value) => entries.push((k, value)),
+                (Some(k), value) => {
+                    if in_root && matches!(value, Yaml::Scalar { quoted: false, .. }) {
+                        self.top.push((k.clone(), span.start.index()..span.end.index()));
+                    }
+                    entries.push((k, value));
+                }
                 (None, Yaml::Scalar { text, .. }) => {
                     if entries.len() == MAX_ENTRIES {
                         return fail(span, YamlErrorKind::TooManyEntries);
@@ -212,16 +224,23 @@ fn plain_node(span: &Span, anchor: usize, tagged: bool) -> Result<(), YamlError>
 /// Parse a header document. An empty document is an error: a frame header is
 /// never empty. A parse error at the end of the text is reported on its last
 /// line.
+#[cfg(test)]
 pub(crate) fn parse(text: &str) -> Result<Yaml<'_>, YamlError> {
+    parse_with_spans(text).map(|(y, _)| y)
+}
+
+/// [`parse`], and where the plain scalar values of the root mapping stand.
+pub(crate) fn parse_with_spans(text: &str) -> Result<(Yaml<'_>, Vec<TopScalar<'_>>), YamlError> {
     if text.len() > MAX_HEADER_BYTES {
         return Err(YamlError { line: 1, kind: YamlErrorKind::TooLarge { bytes: text.len() } });
     }
-    let mut b = Builder { open: Vec::new(), root: None };
+    let mut b = Builder { open: Vec::new(), root: None, top: Vec::new() };
     for event in Parser::new_from_str(text) {
         let (event, span) = event.map_err(|e| scan_error(text, e))?;
         b.event(event, &span)?;
     }
-    b.root.ok_or(YamlError { line: 1, kind: YamlErrorKind::Empty })
+    let root = b.root.ok_or(YamlError { line: 1, kind: YamlErrorKind::Empty })?;
+    Ok((root, b.top))
 }
 
 /// The parser's error, on the line it names (its end-of-text marker lies past
