@@ -1,4 +1,4 @@
-//! Pure codec for the Thorlabs APT wire protocol (hardware.md A.2/A.3): bytes
+//! Pure codec for the Thorlabs APT wire protocol (docs/hardware.md A.2/A.3): bytes
 //! in, messages out and back, with no I/O. Every frame has a 6-byte header;
 //! bit 7 of byte 4 marks a "long" frame whose header carries a data length
 //! and is followed by that many bytes. All multi-byte fields are little-endian.
@@ -27,7 +27,7 @@ pub(crate) const LONG_FLAG: u8 = 0x80;
 pub const MAX_DATA_LEN: usize = 255;
 pub const HEADER_LEN: usize = 6;
 
-/// Message ids (hardware.md A.3).
+/// Message ids (docs/hardware.md A.3).
 pub mod id {
     pub const HW_DISCONNECT: u16 = 0x0002;
     pub const HW_REQ_INFO: u16 = 0x0005;
@@ -89,7 +89,7 @@ pub mod id {
     pub const MOT_ACK_DCSTATUSUPDATE: u16 = 0x0492;
 }
 
-/// Status bits (hardware.md A.4), named as in the protocol document.
+/// Status bits (docs/hardware.md A.4), named as in the protocol document.
 pub mod status {
     pub const CW_HW_LIMIT: u32 = 0x0000_0001;
     pub const CCW_HW_LIMIT: u32 = 0x0000_0002;

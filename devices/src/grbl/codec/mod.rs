@@ -1,6 +1,6 @@
 //! GRBL 1.1 line protocol as a pure codec: text lines from the controller
 //! become [`Response`]s, commands become the exact bytes to send. No I/O here,
-//! so every rule is tested with plain strings (hardware.md section B).
+//! so every rule is tested with plain strings (docs/hardware.md section B).
 
 use std::fmt;
 

@@ -1,4 +1,4 @@
-//! Tac3D's UDP frame format (hardware.md C.1), as the vendor's main program
+//! Tac3D's UDP frame format (docs/hardware.md C.1), as the vendor's main program
 //! sends it and the PyTac3D client reads it, plus a receiver for the rig.
 //!
 //! One frame = N+1 datagrams. Each starts with an 8-byte header
@@ -53,7 +53,7 @@ pub const INITIALIZE_PROGRESS: &str = "InitializeProgress";
 
 /// Largest UDP payload that fits one Ethernet frame without IP fragmentation
 /// (1500 MTU - 20 IP - 8 UDP). The vendor's packet size is not documented
-/// (hardware.md C.1 [U]); any size up to 65 507 B reads back through PyTac3D,
+/// (docs/hardware.md C.1 [U]); any size up to 65 507 B reads back through PyTac3D,
 /// which receives with a 65 535-byte buffer. Smaller packets also exercise the
 /// reassembly path on loopback.
 pub const DEFAULT_MAX_DATAGRAM: usize = 1472;
