@@ -5,9 +5,10 @@
 use std::path::Path;
 use std::time::Duration;
 
+use super::sensor_link::LinkDevice;
+use super::tac3d::Tac3dSender;
 use devices::sensor::SensorFrame;
-use devices::sensor::link::{Command, LinkDevice};
-use devices::sensor::tac3d::Tac3dSender;
+use devices::sensor::link::LinkCommand;
 
 use super::pty::{PtyMaster, SlaveBacklog};
 use crate::sensor::stream::{FrameSink, SinkError};
@@ -39,7 +40,7 @@ impl LinkPtySink {
     }
 
     /// The next command already received, without waiting.
-    async fn poll_command(&mut self) -> Option<Command> {
+    async fn poll_command(&mut self) -> Option<LinkCommand> {
         tokio::select! {
             biased;
             c = self.device.next_command() => c.ok(),
@@ -52,10 +53,10 @@ impl FrameSink for LinkPtySink {
     async fn send(&mut self, frame: &SensorFrame) -> Result<(), SinkError> {
         while let Some(cmd) = self.poll_command().await {
             match cmd {
-                Command::Start => self.streaming = true,
-                Command::Stop => self.streaming = false,
+                LinkCommand::Start => self.streaming = true,
+                LinkCommand::Stop => self.streaming = false,
                 // The simulated elastomer reads exact zeros untouched: nothing to re-zero.
-                Command::Tare => {}
+                LinkCommand::Tare => {}
             }
             self.device.ack(cmd).await?;
         }

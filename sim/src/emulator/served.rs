@@ -9,7 +9,7 @@ use std::io;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
-use devices::sensor::tac3d::{Tac3dSender, Tac3dSenderConfig};
+use super::tac3d::{Tac3dSender, Tac3dSenderConfig};
 
 use super::apt::{EmulatorHandle, InjectedError, k10cr1_axis, spawn_apt_rotation, spawn_apt_stage, z8_axis};
 use super::grbl::{GrblEmulatorConfig, GrblPort, serve_grbl_stage, stepper_stage_axis};
