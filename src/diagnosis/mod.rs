@@ -17,7 +17,7 @@ mod layered;
 pub mod locate;
 pub mod model;
 pub mod plot;
-mod prose;
+pub mod prose;
 mod schema;
 mod search;
 
