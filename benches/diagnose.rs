@@ -10,7 +10,7 @@ use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use easycalib::diagnosis::{DiagnoseOptions, diagnose};
-use sim::effects::{Command, SimProfile, simulate, stage_backlash};
+use sim::effects::{CommandedPose, SimProfile, simulate, stage_backlash};
 use sim::generator::{GeneratorConfig, SweepPlan, generate};
 use sim::recording::{Phase, Recording};
 use sim::rng::Rng;
@@ -23,8 +23,8 @@ fn recordings(plan: SweepPlan) -> (Recording, Recording) {
         stage_backlash: Some(stage_backlash::Params { b_mm: 0.008, engaged: true }),
         ..Default::default()
     };
-    let cmds: Vec<Command> =
-        clean.samples.iter().map(|s| Command { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }).collect();
+    let cmds: Vec<CommandedPose> =
+        clean.samples.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }).collect();
     let readings = simulate(cfg.pair, &profile, &cmds).expect("backlash profile simulates");
     let mut rng = Rng::seed_from(5);
     let mut backlash = clean.clone();

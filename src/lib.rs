@@ -3,6 +3,7 @@
 pub mod cli;
 pub mod diagnosis;
 pub mod fit;
+pub mod numerics;
 pub mod report;
 pub mod rig;
 pub mod run;

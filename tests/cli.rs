@@ -140,3 +140,34 @@ fn absurd_durations_are_refused_with_the_flag_named() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// Issue 10: on the emulated rig the script describes the indenter and R1, so
+/// flags that would be silently dropped are refused before anything starts;
+/// the simulated-hardware flags mean nothing with a real rig file.
+#[test]
+fn flags_a_script_or_rig_file_would_drop_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let script = dir.path().join("s.toml");
+    std::fs::write(&script, "[indenter]\ne_mpa = 1.1\nnu = 0.39\nr_mm = 4.0\n").unwrap();
+    let out_dir = dir.path().join("out");
+    let out = easycalib(&[
+        "run",
+        "--script",
+        script.to_str().unwrap(),
+        "--indenter-r-mm",
+        "6",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--indenter-r-mm cannot be used with --script") && err.contains("[indenter]"), "{err}");
+    assert!(!out_dir.exists(), "nothing is written for refused flags");
+
+    let rig = dir.path().join("rig.toml");
+    std::fs::write(&rig, "").unwrap();
+    let out = easycalib(&["run", "--rig", rig.to_str().unwrap(), "--e1-mpa", "0.3"]);
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--rig") && err.contains("--e1-mpa"), "{err}");
+}

@@ -1,7 +1,7 @@
 //! The concealed-data corpus really conceals (issue 6, deliverable 3).
 //!
 //! For every case of `tests/data/corpus.toml`:
-//! * the committed CSV is exactly what `sim::effects::corpus` generates from the
+//! * the committed CSV is exactly what `sim::corpus` generates from the
 //!   manifest's seed and parameters (so the corpus is reproducible);
 //! * the paper's fit still looks excellent: R² > 0.995 on both sweeps;
 //! * the full-model fit's residual RMS is at most 2x the noise on both sweeps;
@@ -12,7 +12,7 @@
 use std::path::PathBuf;
 
 use easycalib::fit::{Calibration, FitOptions, FullOptions, calibrate};
-use sim::effects::corpus::{BiasIn, CorpusCase, CorpusManifest};
+use sim::corpus::{BiasIn, CorpusCase, CorpusManifest};
 use sim::recording::Recording;
 
 fn data_dir() -> PathBuf {
@@ -42,7 +42,7 @@ fn pct(x: f64, truth: f64) -> f64 {
 #[test]
 fn manifest_matches_the_corpus_table_and_files_regenerate() {
     let m = manifest();
-    assert_eq!(m.cases, sim::effects::corpus::cases(), "corpus.toml is stale: rerun make_corpus");
+    assert_eq!(m.cases, sim::corpus::cases(), "corpus.toml is stale: rerun make_corpus");
     for c in &m.cases {
         let text = std::fs::read_to_string(data_dir().join(&c.file)).unwrap();
         assert_eq!(text, c.generate().unwrap().to_csv_string(), "{} is stale: rerun make_corpus", c.file);

@@ -9,7 +9,7 @@
 
 use easycalib::diagnosis::{DiagnoseOptions, Diagnosis, diagnose};
 use sim::effects::{
-    Command, SimProfile, adhesion, finite_thickness, partial_slip, sensor_gain, stage_backlash, thermal_drift,
+    CommandedPose, SimProfile, adhesion, finite_thickness, partial_slip, sensor_gain, stage_backlash, thermal_drift,
     viscoelastic,
 };
 use sim::generator::{GeneratorConfig, generate};
@@ -220,8 +220,8 @@ fn profile_out_reproduces_the_recording() {
     let prof = SimProfile::from_toml_str(&text).unwrap();
     assert!(prof.stage_backlash.is_some() && prof.material.is_some(), "{text}");
     // Re-simulate the recording's commanded history with the written profile.
-    let cmds: Vec<Command> =
-        rec.samples.iter().map(|s| Command { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }).collect();
+    let cmds: Vec<CommandedPose> =
+        rec.samples.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }).collect();
     let again = sim::effects::simulate(pair(), &prof, &cmds).unwrap();
     let diffs: Vec<f64> = rec
         .samples
@@ -322,8 +322,9 @@ fn thin_layers_are_corrected() {
         let p = SimProfile { finite_thickness: Some(finite_thickness::Params { h_mm: h }), ..Default::default() };
         let rec = record(&p, seed);
         let top = rec.samples.iter().map(|s| s.stage_mm).fold(0.0, f64::max);
-        let a = sim::effects::simulate(pair(), &p, &[Command { t_s: 0.0, stage_mm: top, rot_deg: 0.0 }]).unwrap()[0]
-            .contact_radius_mm;
+        let a = sim::effects::simulate(pair(), &p, &[CommandedPose { t_s: 0.0, stage_mm: top, rot_deg: 0.0 }]).unwrap()
+            [0]
+        .contact_radius_mm;
         let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
         let paper = easycalib::fit::fit_paper(&rec, &Default::default()).ok();
         println!(

@@ -1,7 +1,7 @@
 //! Rates of the diagnosis over many seeds (issue 6, "Must show"):
 //!
 //! * each identifiable effect is named in at least 90 % of its concealed seeds
-//!   (the corpus case's parameters, `sim::effects::corpus::cases`, with the seed
+//!   (the corpus case's parameters, `sim::corpus::cases`, with the seed
 //!   varied), and its parameters' 95 % intervals cover the truth on the named
 //!   seeds — at least 80 % of them, the slack a nominal 95 % interval needs over
 //!   ten seeds (P(fewer than 8 of 10 cover) ~ 1 % at the nominal rate);
@@ -23,7 +23,7 @@
 //! of each effect run on two threads.
 
 use easycalib::diagnosis::{DiagnoseOptions, Diagnosis, diagnose};
-use sim::effects::corpus::{CorpusCase, cases};
+use sim::corpus::{CorpusCase, cases};
 use sim::effects::{Identifiability, SimProfile, info};
 
 /// Seeds per effect and of clean controls.

@@ -17,11 +17,12 @@ use async_trait::async_trait;
 use devices::motion::arrival::{self, deadline_after};
 use devices::{Axis, AxisStatus, DeviceFault, DeviceInfo, DynAxis, FaultKind, Identify, Mm};
 use easycalib::rig::drivers::{Driver, Drivers, Keys, OpenAxis, OpenError};
-use easycalib::rig::emulated::{EmulatedRig, EmulatedRigOptions, SensorEndpoint};
+use easycalib::rig::emulated::{EmulatedRig, SensorEndpoint, ServeOptions};
 use easycalib::rig::{ConfigError, RigConfig, RunRequest, run_calibration};
 use easycalib::run::{RunStatus, Script};
 use sim::emulator::rig::Rig;
 use sim::recording::Recording;
+use sim::setup::SimSetupInput;
 use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc::unbounded_channel;
@@ -221,8 +222,12 @@ fn rig_file(stage_addr: &str, rig: &EmulatedRig) -> String {
 fn a_registered_third_stage_driver_runs_a_calibration_from_a_rig_file() {
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     rt.block_on(async {
-        let rig =
-            EmulatedRig::start(EmulatedRigOptions { speedup: 40.0, ..EmulatedRigOptions::default() }).await.unwrap();
+        let rig = EmulatedRig::start(
+            SimSetupInput { speedup: 40.0, ..SimSetupInput::default() }.resolve().unwrap(),
+            ServeOptions::default(),
+        )
+        .await
+        .unwrap();
         let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap().to_string();
         let device = tokio::spawn(serve_loop_stage(listener, rig.rig().clone()));

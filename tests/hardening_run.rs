@@ -133,7 +133,7 @@ mod in_process {
 
     use std::time::Duration;
 
-    use easycalib::rig::emulated::{EmulatedRig, EmulatedRigOptions, EmulatedSensor};
+    use easycalib::rig::emulated::{EmulatedRig, EmulatedSensor, ServeOptions};
     use easycalib::rig::{RunRequest, run_calibration};
     use easycalib::run::events::RunEvent;
     use easycalib::run::{Backoff, Culprit, RunStatus, Script};
@@ -169,9 +169,8 @@ mod in_process {
         let port = std::net::UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
         let to: std::net::SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
         let sensor = if kind == "datagrams" { EmulatedSensor::Tac3d { to } } else { EmulatedSensor::LinkPty };
-        let rig = EmulatedRig::start(EmulatedRigOptions { speedup: SPEEDUP, sensor, ..EmulatedRigOptions::default() })
-            .await
-            .unwrap();
+        let setup = sim::setup::SimSetupInput { speedup: SPEEDUP, ..Default::default() }.resolve().unwrap();
+        let rig = EmulatedRig::start(setup, ServeOptions { sensor, ..ServeOptions::default() }).await.unwrap();
         let mut script = Script::default();
         script.timeouts.sensor_dropout_s = 1.0;
         let req = RunRequest {

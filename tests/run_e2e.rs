@@ -17,12 +17,13 @@ use devices::apt::{AptConfig, AptStage};
 use devices::serial::open_serial_settle;
 use devices::{Axis, Identify, Mm};
 use easycalib::fit::{FitOptions, calibrate};
-use easycalib::rig::emulated::{CONTACT_STAGE_MM, EmulatedRig, EmulatedRigOptions};
+use easycalib::rig::emulated::{CONTACT_STAGE_MM, EmulatedRig, ServeOptions};
 use easycalib::rig::{RunRequest, RunResult, run_calibration};
 use easycalib::run::events::RunEvent;
 use easycalib::run::{Backoff, Culprit, RunStatus, Script};
 use sim::emulator::apt::InjectedError;
 use sim::recording::{Phase, Recording};
+use sim::setup::{SimSetup, SimSetupInput};
 use tokio::sync::mpsc::unbounded_channel;
 
 /// One rig at a time: two cores, real timeouts.
@@ -37,8 +38,13 @@ fn one_at_a_time<F: std::future::Future>(body: F) -> F::Output {
     rt.block_on(body)
 }
 
+/// The default simulated rig at the tests' speed-up.
+fn setup() -> SimSetup {
+    SimSetupInput { speedup: SPEEDUP, ..SimSetupInput::default() }.resolve().unwrap()
+}
+
 async fn rig(grbl: bool) -> EmulatedRig {
-    EmulatedRig::start(EmulatedRigOptions { speedup: SPEEDUP, grbl, ..EmulatedRigOptions::default() }).await.unwrap()
+    EmulatedRig::start(setup(), ServeOptions { grbl, ..ServeOptions::default() }).await.unwrap()
 }
 
 /// Run the default script (with `tweak`) on `rig`; after the `at`-th recorded
@@ -331,11 +337,10 @@ fn tac3d_sensor_over_loopback_udp_reads_the_emulated_press() {
         // A free loopback port for the receiver (the emulated Tac3D sends to it).
         let port = std::net::UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
         let to: std::net::SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
-        let rig = EmulatedRig::start(EmulatedRigOptions {
-            speedup: SPEEDUP,
-            sensor: EmulatedSensor::Tac3d { to },
-            ..EmulatedRigOptions::default()
-        })
+        let rig = EmulatedRig::start(
+            setup(),
+            ServeOptions { sensor: EmulatedSensor::Tac3d { to }, ..ServeOptions::default() },
+        )
         .await
         .unwrap();
         assert_eq!(rig.spec().sensor, SensorSpec::Tac3d { bind: to, source: None });

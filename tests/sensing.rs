@@ -277,7 +277,7 @@ async fn end_to_end_stage_move_reaches_gamma1_over_loopback_tac3d() {
     let socket = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
     let sink = Tac3dUdpSink { socket, to: rx.local_addr().unwrap() };
     let cfg = SensorSimConfig::default();
-    let model = NormalModel::new(cfg.pair).unwrap();
+    let model = NormalModel::new(*cfg.setup.pair()).unwrap();
     let stream = sim::sensor::stream::spawn_sensor_stream(rig.clone(), cfg, sink).unwrap();
     let scfg = SensingConfig::default();
 

@@ -3,7 +3,7 @@
 //! rejected with its reason and never a panic.
 
 use devices::sensor::link::{
-    Command, LinkDecoder, LinkError, LinkMessage, MAX_PAYLOAD, crc32, decode_datagram, encode, encode_raw,
+    LinkCommand, LinkDecoder, LinkError, LinkMessage, MAX_PAYLOAD, crc32, decode_datagram, encode, encode_raw,
     encode_raw_version, kind,
 };
 use devices::sensor::{BadReason, SensorFrame};
@@ -72,11 +72,11 @@ fn the_documented_worked_example_is_what_the_codec_writes_and_reads() {
     assert_eq!(frames(&decode_stream(&bytes, 1)), vec![f]);
 
     let start = doc_example("start");
-    assert_eq!(encode(&LinkMessage::Command(Command::Start)).unwrap(), start);
-    assert_eq!(decode_datagram(&start).unwrap(), LinkMessage::Command(Command::Start));
+    assert_eq!(encode(&LinkMessage::Command(LinkCommand::Start)).unwrap(), start);
+    assert_eq!(decode_datagram(&start).unwrap(), LinkMessage::Command(LinkCommand::Start));
     let ack = doc_example("ack-start");
-    assert_eq!(encode(&LinkMessage::Ack(Command::Start)).unwrap(), ack);
-    assert_eq!(decode_datagram(&ack).unwrap(), LinkMessage::Ack(Command::Start));
+    assert_eq!(encode(&LinkMessage::Ack(LinkCommand::Start)).unwrap(), ack);
+    assert_eq!(decode_datagram(&ack).unwrap(), LinkMessage::Ack(LinkCommand::Start));
 }
 
 #[test]
@@ -95,7 +95,7 @@ fn header_fields_sit_at_the_documented_offsets() {
     assert_eq!(f32::from_le_bytes(b[32 + 24 + 4..32 + 24 + 8].try_into().unwrap()), -9.5);
     assert_eq!(f32::from_le_bytes(b[32 + 36 + 8..32 + 36 + 12].try_into().unwrap()), -0.5);
     assert_eq!(u32::from_le_bytes(b[12 + n..].try_into().unwrap()), crc32(&b[12..12 + n]));
-    for c in [Command::Start, Command::Stop, Command::Tare] {
+    for c in [LinkCommand::Start, LinkCommand::Stop, LinkCommand::Tare] {
         let m = encode(&LinkMessage::Command(c)).unwrap();
         assert_eq!(m[3], c.kind());
         assert_eq!(m.len(), 16);
@@ -109,7 +109,7 @@ fn header_fields_sit_at_the_documented_offsets() {
 fn a_stream_decodes_the_same_in_any_chunking() {
     let msgs = [
         LinkMessage::Frame(frame(1, 400)),
-        LinkMessage::Ack(Command::Start),
+        LinkMessage::Ack(LinkCommand::Start),
         LinkMessage::Frame(frame(2, 0)),
         LinkMessage::Frame(frame(3, 7)),
     ];

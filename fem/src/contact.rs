@@ -274,6 +274,66 @@ impl FrictionalContact {
         }
     }
 
+    /// The forces of the current active set: normal forces `p` on the nodes in
+    /// contact (closing them by `need`), friction `q` on those off the axis
+    /// (sticking ones keep their slip `s_ref`, slipping ones carry mu p).
+    /// Returns the nodes in contact.
+    fn solve_active_set(
+        &self,
+        need: &[f64],
+        mu: f64,
+        status: &[Node],
+        s_ref: &[f64],
+        p: &mut [f64],
+        q: &mut [f64],
+    ) -> Result<Vec<usize>, FemError> {
+        let n = self.r.len();
+        // Unknowns: p on the nodes in contact, then q on those off the axis.
+        let contact: Vec<usize> = (0..n).filter(|&i| status[i] != Node::Free).collect();
+        let shear: Vec<usize> = contact.iter().copied().filter(|&i| i > 0).collect();
+        let m = contact.len() + shear.len();
+        let mut a = vec![vec![0.0; m]; m];
+        let mut b = vec![0.0; m];
+        for (row, &i) in contact.iter().enumerate() {
+            for (c, &j) in contact.iter().enumerate() {
+                a[row][c] = self.sum.zz[j][i];
+            }
+            for (c, &j) in shear.iter().enumerate() {
+                a[row][contact.len() + c] = -self.sum.zr[j][i];
+            }
+            b[row] = need[i];
+        }
+        for (k, &i) in shear.iter().enumerate() {
+            let row = contact.len() + k;
+            match status[i] {
+                Node::Slip(d) => {
+                    a[row][contact.len() + k] = 1.0;
+                    let c = contact.iter().position(|&x| x == i).unwrap_or(0);
+                    a[row][c] = if d == 0.0 { 0.0 } else { mu * d };
+                }
+                _ => {
+                    for (c, &j) in contact.iter().enumerate() {
+                        a[row][c] = -self.sum.rz[j][i];
+                    }
+                    for (c, &j) in shear.iter().enumerate() {
+                        a[row][contact.len() + c] = self.sum.rr[j][i];
+                    }
+                    b[row] = s_ref[i];
+                }
+            }
+        }
+        let x = if m == 0 { Vec::new() } else { dense_solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
+        p.iter_mut().for_each(|v| *v = 0.0);
+        q.iter_mut().for_each(|v| *v = 0.0);
+        for (c, &i) in contact.iter().enumerate() {
+            p[i] = x[c];
+        }
+        for (c, &i) in shear.iter().enumerate() {
+            q[i] = x[contact.len() + c];
+        }
+        Ok(contact)
+    }
+
     /// One load step to approach `delta`, from the converged state in the arguments.
     fn step(
         &self,
@@ -296,49 +356,7 @@ impl FrictionalContact {
             status.iter_mut().filter(|st| **st == Node::Slip(0.0)).for_each(|st| *st = Node::Stick);
         }
         for _ in 0..limit {
-            // Unknowns: p on the nodes in contact, then q on those off the axis.
-            let contact: Vec<usize> = (0..n).filter(|&i| status[i] != Node::Free).collect();
-            let shear: Vec<usize> = contact.iter().copied().filter(|&i| i > 0).collect();
-            let m = contact.len() + shear.len();
-            let mut a = vec![vec![0.0; m]; m];
-            let mut b = vec![0.0; m];
-            for (row, &i) in contact.iter().enumerate() {
-                for (c, &j) in contact.iter().enumerate() {
-                    a[row][c] = self.sum.zz[j][i];
-                }
-                for (c, &j) in shear.iter().enumerate() {
-                    a[row][contact.len() + c] = -self.sum.zr[j][i];
-                }
-                b[row] = need[i];
-            }
-            for (k, &i) in shear.iter().enumerate() {
-                let row = contact.len() + k;
-                match status[i] {
-                    Node::Slip(d) => {
-                        a[row][contact.len() + k] = 1.0;
-                        let c = contact.iter().position(|&x| x == i).unwrap_or(0);
-                        a[row][c] = if d == 0.0 { 0.0 } else { mu * d };
-                    }
-                    _ => {
-                        for (c, &j) in contact.iter().enumerate() {
-                            a[row][c] = -self.sum.rz[j][i];
-                        }
-                        for (c, &j) in shear.iter().enumerate() {
-                            a[row][contact.len() + c] = self.sum.rr[j][i];
-                        }
-                        b[row] = s_ref[i];
-                    }
-                }
-            }
-            let x = if m == 0 { Vec::new() } else { dense_solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
-            p.iter_mut().for_each(|v| *v = 0.0);
-            q.iter_mut().for_each(|v| *v = 0.0);
-            for (c, &i) in contact.iter().enumerate() {
-                p[i] = x[c];
-            }
-            for (c, &i) in shear.iter().enumerate() {
-                q[i] = x[contact.len() + c];
-            }
+            let contact = self.solve_active_set(&need, mu, status, s_ref, p, q)?;
             // Pulling nodes let go (all at once while that converges, then the worst).
             let pulling: Vec<usize> = contact.iter().copied().filter(|&i| p[i] < 0.0).collect();
             if !pulling.is_empty() {

@@ -1,12 +1,12 @@
 //! Writes the concealed-data corpus: `tests/data/<effect>.csv` for every case
-//! of `sim::effects::corpus::cases()` and the manifest `tests/data/corpus.toml`.
+//! of `sim::corpus::cases()` and the manifest `tests/data/corpus.toml`.
 //! Deterministic: the same seeds give the same files.
 //!
 //!     cargo run -p sim --example make_corpus [-- OUT_DIR]
 
 use std::path::PathBuf;
 
-use sim::effects::corpus::{CorpusManifest, cases};
+use sim::corpus::{CorpusManifest, cases};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = std::env::args()

@@ -1,6 +1,8 @@
 //! The one home of the simulated set-up's defaults: the Tac3D-like sensor and
-//! the paper's PDMS indenter (paper Sec. IV), and the noise a Tac3D-class
-//! sensor shows. Everything that needs "the default rig" takes it from here.
+//! the paper's PDMS indenter (paper Sec. IV), the noise a Tac3D-class sensor
+//! shows, the noise seed and the emulated rig's time acceleration. Everything
+//! that needs "the default rig" takes it from here (the resolved set-up is
+//! [`crate::setup::SimSetup`]).
 
 use crate::physics::{Body, ContactPair};
 
@@ -14,6 +16,9 @@ pub const ELASTOMER_R_MM: f64 = 33.0;
 pub const INDENTER_E_MPA: f64 = 1.1;
 pub const INDENTER_NU: f64 = 0.39;
 pub const INDENTER_R_MM: f64 = 5.0;
+/// Per-component noise of a simulated marker displacement, mm (4 um measured
+/// on a Tac3D, docs/hardware.md C.1).
+pub const MARKER_SIGMA_MM: f64 = 0.004;
 /// Per-sample noise of the depth reading gamma1, mm.
 pub const GAMMA1_SIGMA_MM: f64 = 0.002;
 /// Per-sample noise of the twist reading theta1, degrees.
@@ -21,6 +26,11 @@ pub const THETA1_SIGMA_DEG: f64 = 0.02;
 /// Resolution of the micrometer stage, mm, and of the rotation mount, degrees.
 pub const STAGE_RESOLUTION_MM: f64 = 0.001;
 pub const ROTATION_RESOLUTION_DEG: f64 = 0.01;
+/// Seed of the simulated noise.
+pub const SEED: u64 = 1;
+/// Time acceleration of the emulated rig for a calibration run: rig time runs
+/// this many times faster than wall time.
+pub const SPEEDUP: f64 = 40.0;
 
 /// The default sensor elastomer.
 pub fn elastomer() -> Body {

@@ -16,7 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::effects::{Command, EffectError, SimProfile, TrueRig};
+use crate::effects::{CommandedPose, EffectError, SimProfile, TrueRig};
 use crate::physics::{ContactPair, NormalError, NormalModel, ParamError, torsion_at};
 use crate::recording::{Direction, Metadata, Phase, Recording, Sample};
 use crate::rng::Rng;
@@ -94,7 +94,7 @@ impl Default for GeneratorConfig {
             pair: crate::defaults::pair(),
             plan: SweepPlan::default(),
             noise: NoiseSpec::default(),
-            seed: 1,
+            seed: crate::defaults::SEED,
             sensor: "sim-tac3d".to_string(),
             profile: SimProfile::default(),
         }
@@ -167,7 +167,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
 
     // The sensor reads exactly 0 without contact (dead band, no noise).
     let read = |rig: &mut TrueRig, rng: &mut Rng, t: f64, stage: f64, rot: f64| -> Result<(f64, f64), GenerateError> {
-        let r = rig.read(Command { t_s: t, stage_mm: stage, rot_deg: rot })?;
+        let r = rig.read(CommandedPose { t_s: t, stage_mm: stage, rot_deg: rot })?;
         let g1 = if r.in_contact { r.gamma1_mm + rng.gaussian(noise.gamma1_sigma_mm) } else { 0.0 };
         Ok((g1, r.theta1_deg))
     };
@@ -272,7 +272,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
 fn torsion_stage(rig: &TrueRig, t: f64, gamma2_target: f64, top_stage: f64) -> Result<f64, GenerateError> {
     let measured = |stage: f64| -> Result<f64, GenerateError> {
         let mut probe = rig.clone();
-        let r = probe.read(Command { t_s: t, stage_mm: stage, rot_deg: 0.0 })?;
+        let r = probe.read(CommandedPose { t_s: t, stage_mm: stage, rot_deg: 0.0 })?;
         Ok(stage - r.gamma1_mm - gamma2_target)
     };
     let mut lo = 0.0;
@@ -375,8 +375,11 @@ mod tests {
         let noiseless = NoiseSpec { gamma1_sigma_mm: 0.0, theta1_sigma_deg: 0.0, ..NoiseSpec::default() };
         let cfg = GeneratorConfig { profile: profile.clone(), noise: noiseless, ..Default::default() };
         let rec = generate(&cfg).unwrap();
-        let cmds: Vec<Command> =
-            rec.samples.iter().map(|s| Command { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }).collect();
+        let cmds: Vec<CommandedPose> = rec
+            .samples
+            .iter()
+            .map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg })
+            .collect();
         let replay = effects::simulate(cfg.pair, &profile, &cmds).unwrap();
         for (s, r) in rec.samples.iter().zip(&replay) {
             assert_eq!(s.gamma1_mm, r.gamma1_mm);

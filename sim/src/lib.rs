@@ -3,6 +3,7 @@
 //! synthetic recording generator, and emulators of the rig's hardware.
 
 pub mod clock;
+pub mod corpus;
 pub mod defaults;
 pub mod effects;
 pub mod emulator;
@@ -11,3 +12,4 @@ pub mod physics;
 pub mod recording;
 pub mod rng;
 pub mod sensor;
+pub mod setup;

@@ -151,215 +151,23 @@ impl Recording {
         Recording::parse(&text)
     }
 
+    /// Read a recording from its text: the metadata block, the header row, the
+    /// sample rows, each checked where it stands.
     pub fn parse(text: &str) -> Result<Recording, RecordingError> {
         let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r')));
-        let mut version: Option<(usize, String)> = None;
-        let mut e2 = None;
-        let mut nu2 = None;
-        let mut r2 = None;
-        let mut r1 = f64::INFINITY;
-        let mut r1_line = 0;
-        let mut sensor = None;
-        let mut thickness: Option<(usize, f64)> = None;
-        let mut base: Option<(usize, LayerBase)> = None;
-        let mut thickness_tol: Option<(usize, f64)> = None;
-        let mut created = None;
-        let mut extra = Vec::new();
-        let mut seen: HashSet<&str> = HashSet::new();
-        let mut header: Option<(usize, &str)> = None;
-        let mut last_line = 0;
-
-        let mut meta_lines = 0usize;
-        for (n, line) in lines.by_ref() {
-            last_line = n;
-            if line.len() > MAX_LINE_BYTES {
-                return Err(err(n, format!("line is {} bytes long; the limit is {MAX_LINE_BYTES}", line.len())));
-            }
-            if line.trim().is_empty() {
-                continue;
-            }
-            let Some(rest) = line.strip_prefix('#') else {
-                header = Some((n, line));
-                break;
-            };
-            let Some((key, value)) = rest.split_once(':') else {
-                // A plain comment line: allowed, carries no data.
-                continue;
-            };
-            let key = key.trim();
-            let value = value.trim();
-            meta_lines += 1;
-            if meta_lines > MAX_METADATA_LINES {
-                return Err(err(n, format!("more than {MAX_METADATA_LINES} metadata lines")));
-            }
-            if !seen.insert(key) {
-                return Err(err(n, format!("metadata key `{key}` appears twice")));
-            }
-            match key {
-                "easycalib-recording" => version = Some((n, value.to_string())),
-                "indenter_E_MPa" => e2 = Some((n, parse_meta_number(n, key, value)?)),
-                "indenter_nu" => nu2 = Some((n, parse_meta_number(n, key, value)?)),
-                "indenter_R_mm" => r2 = Some((n, parse_meta_number(n, key, value)?)),
-                "elastomer_R_mm" => {
-                    r1 = parse_meta_number(n, key, value)?;
-                    r1_line = n;
-                }
-                "elastomer_thickness_mm" => thickness = Some((n, parse_meta_number(n, key, value)?)),
-                "elastomer_thickness_tol_mm" => thickness_tol = Some((n, parse_meta_number(n, key, value)?)),
-                "elastomer_base" => {
-                    let b = LayerBase::parse(value).ok_or_else(|| {
-                        err(n, format!("elastomer_base must be `bonded` or `sliding`, got `{value}`"))
-                    })?;
-                    base = Some((n, b));
-                }
-                "sensor" => sensor = Some(value.to_string()),
-                "created" => created = Some(value.to_string()),
-                _ => extra.push((key.to_string(), value.to_string())),
-            }
-        }
-
-        let Some((vline, v)) = version else {
-            return Err(err(
-                1,
-                "missing required metadata `# easycalib-recording: 1` (is this an easycalib recording?)",
-            ));
+        let block = read_metadata(&mut lines)?;
+        let (indenter, r1) = block.indenter()?;
+        let layer = layer_from_meta(block.thickness, block.base, block.thickness_tol)?;
+        let Some((hline, header)) = block.header else {
+            return Err(err(block.last_line.max(1), "missing the column header row after the metadata"));
         };
-        if v.trim() != "1" {
-            return Err(err(
-                vline,
-                format!("unsupported recording format version `{v}` (this easycalib reads version 1)"),
-            ));
-        }
-        // A missing key has no line of its own: point at where the metadata block ends.
-        let meta_end = header.map(|(n, _)| n).unwrap_or(last_line).max(1);
-        let need = |x: Option<(usize, f64)>, key: &str| {
-            x.ok_or_else(|| err(meta_end, format!("missing required metadata key `{key}` before the header row")))
-        };
-        let (e2_line, e2) = need(e2, "indenter_E_MPa")?;
-        let (nu2_line, nu2) = need(nu2, "indenter_nu")?;
-        let (r2_line, r2) = need(r2, "indenter_R_mm")?;
-        let [e_lo, e_hi] = INDENTER_E_RANGE_MPA;
-        if !(e_lo..=e_hi).contains(&e2) {
-            return Err(err(
-                e2_line,
-                format!("indenter_E_MPa must lie in [{e_lo}, {e_hi}] MPa (a gel to steel), got {e2}"),
-            ));
-        }
-        if !(nu2 > 0.0 && nu2 < 0.5) {
-            return Err(err(nu2_line, format!("indenter_nu must lie in (0, 0.5), got {nu2}")));
-        }
-        let [r_lo, r_hi] = INDENTER_R_RANGE_MM;
-        if !(r_lo..=r_hi).contains(&r2) {
-            return Err(err(r2_line, format!("indenter_R_mm must be a radius in [{r_lo}, {r_hi}] mm, got {r2}")));
-        }
-        if r1 < r_lo {
-            return Err(err(r1_line, format!("elastomer_R_mm must be at least {r_lo} mm (or inf), got {r1}")));
-        }
-        let layer = layer_from_meta(thickness, base, thickness_tol)?;
-
-        let Some((hline, header)) = header else {
-            return Err(err(last_line.max(1), "missing the column header row after the metadata"));
-        };
-        let names: Vec<&str> = header.split(',').map(str::trim).collect();
-        let mut idx = [0usize; 6];
-        for (k, want) in REQUIRED_COLUMNS.iter().enumerate() {
-            let hits: Vec<usize> = names.iter().enumerate().filter(|(_, n)| *n == want).map(|(i, _)| i).collect();
-            match hits.as_slice() {
-                [i] => idx[k] = *i,
-                [] => return Err(err(hline, format!("header row lacks the required column `{want}`"))),
-                _ => return Err(err(hline, format!("header row names column `{want}` twice"))),
-            }
-        }
-        let rep_idx = names.iter().position(|n| *n == "rep");
-        let dir_idx = names.iter().position(|n| *n == "dir");
-
-        let mut samples = Vec::new();
-        let mut last_t = f64::NEG_INFINITY;
-        for (n, line) in lines {
-            if line.len() > MAX_LINE_BYTES {
-                return Err(err(n, format!("line is {} bytes long; the limit is {MAX_LINE_BYTES}", line.len())));
-            }
-            if line.trim().is_empty() {
-                continue;
-            }
-            if samples.len() == MAX_SAMPLES {
-                return Err(err(n, format!("more than {MAX_SAMPLES} samples; split the recording")));
-            }
-            if line.starts_with('#') {
-                return Err(err(n, "metadata line after the header row"));
-            }
-            let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-            if fields.len() != names.len() {
-                return Err(err(
-                    n,
-                    format!(
-                        "expected {} fields as in the header, found {} (truncated or malformed row)",
-                        names.len(),
-                        fields.len()
-                    ),
-                ));
-            }
-            let col_err = |i: usize, msg: String| RecordingError {
-                line: n,
-                column: Some((i + 1, names[i].to_string())),
-                message: msg,
-            };
-            let num = |k: usize| -> Result<f64, RecordingError> {
-                let i = idx[k];
-                let s = fields[i];
-                let x: f64 = s.parse().map_err(|_| col_err(i, format!("`{s}` is not a number")))?;
-                if !x.is_finite() {
-                    return Err(col_err(i, format!("`{s}` is not a finite number")));
-                }
-                Ok(x)
-            };
-            let t_s = num(0)?;
-            let phase = match fields[idx[1]] {
-                "normal" => Phase::Normal,
-                "torsion" => Phase::Torsion,
-                other => {
-                    return Err(col_err(idx[1], format!("unknown phase `{other}` (expected `normal` or `torsion`)")));
-                }
-            };
-            let stage_mm = num(2)?;
-            let rot_deg = num(3)?;
-            let gamma1_mm = num(4)?;
-            let theta1_deg = num(5)?;
-            if t_s < last_t {
-                return Err(col_err(
-                    idx[0],
-                    format!("time {t_s} s goes backwards (previous row {last_t} s); rows must be in time order"),
-                ));
-            }
-            last_t = t_s;
-            let rep = match rep_idx {
-                Some(i) if !fields[i].is_empty() => Some(
-                    fields[i]
-                        .parse::<u32>()
-                        .map_err(|_| col_err(i, format!("`{}` is not a repeat index", fields[i])))?,
-                ),
-                _ => None,
-            };
-            let dir = match dir_idx {
-                Some(i) => match fields[i] {
-                    "" => None,
-                    "load" => Some(Direction::Load),
-                    "unload" => Some(Direction::Unload),
-                    other => {
-                        return Err(col_err(i, format!("unknown direction `{other}` (expected `load` or `unload`)")));
-                    }
-                },
-                None => None,
-            };
-            samples.push(Sample { t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg, rep, dir });
-        }
+        let columns = Columns::from_header(hline, header)?;
+        let samples = read_samples(lines, &columns)?;
         if samples.is_empty() {
             return Err(err(hline, "the recording has a header but no samples"));
         }
-        Ok(Recording {
-            meta: Metadata { sensor, indenter: Body::new(e2, nu2, r2), elastomer_r_mm: r1, layer, created, extra },
-            samples,
-        })
+        let MetaBlock { sensor, created, extra, .. } = block;
+        Ok(Recording { meta: Metadata { sensor, indenter, elastomer_r_mm: r1, layer, created, extra }, samples })
     }
 
     /// The whole recording as text, exactly as `RecordingWriter` writes it.
@@ -381,6 +189,269 @@ impl Recording {
     pub fn phase(&self, phase: Phase) -> impl Iterator<Item = &Sample> {
         self.samples.iter().filter(move |s| s.phase == phase)
     }
+}
+
+/// The metadata block as read, each value with its line (for errors that
+/// name where the offending key stands).
+struct MetaBlock<'t> {
+    version: Option<(usize, String)>,
+    e2: Option<(usize, f64)>,
+    nu2: Option<(usize, f64)>,
+    r2: Option<(usize, f64)>,
+    r1: f64,
+    r1_line: usize,
+    sensor: Option<String>,
+    thickness: Option<(usize, f64)>,
+    base: Option<(usize, LayerBase)>,
+    thickness_tol: Option<(usize, f64)>,
+    created: Option<String>,
+    extra: Vec<(String, String)>,
+    /// The header row (the first line that is neither blank nor `#`), with its line.
+    header: Option<(usize, &'t str)>,
+    /// The last line read.
+    last_line: usize,
+}
+
+/// Reads the `# key: value` lines up to and including the header row.
+fn read_metadata<'t>(lines: &mut impl Iterator<Item = (usize, &'t str)>) -> Result<MetaBlock<'t>, RecordingError> {
+    let mut m = MetaBlock {
+        version: None,
+        e2: None,
+        nu2: None,
+        r2: None,
+        r1: f64::INFINITY,
+        r1_line: 0,
+        sensor: None,
+        thickness: None,
+        base: None,
+        thickness_tol: None,
+        created: None,
+        extra: Vec::new(),
+        header: None,
+        last_line: 0,
+    };
+    let mut seen: HashSet<&str> = HashSet::new();
+    let mut meta_lines = 0usize;
+    for (n, line) in lines {
+        m.last_line = n;
+        if line.len() > MAX_LINE_BYTES {
+            return Err(err(n, format!("line is {} bytes long; the limit is {MAX_LINE_BYTES}", line.len())));
+        }
+        if line.trim().is_empty() {
+            continue;
+        }
+        let Some(rest) = line.strip_prefix('#') else {
+            m.header = Some((n, line));
+            break;
+        };
+        let Some((key, value)) = rest.split_once(':') else {
+            // A plain comment line: allowed, carries no data.
+            continue;
+        };
+        let key = key.trim();
+        let value = value.trim();
+        meta_lines += 1;
+        if meta_lines > MAX_METADATA_LINES {
+            return Err(err(n, format!("more than {MAX_METADATA_LINES} metadata lines")));
+        }
+        if !seen.insert(key) {
+            return Err(err(n, format!("metadata key `{key}` appears twice")));
+        }
+        m.take(n, key, value)?;
+    }
+    Ok(m)
+}
+
+impl MetaBlock<'_> {
+    /// Keeps one metadata value (line `n`); numbers and the layer base are parsed here.
+    fn take(&mut self, n: usize, key: &str, value: &str) -> Result<(), RecordingError> {
+        match key {
+            "easycalib-recording" => self.version = Some((n, value.to_string())),
+            "indenter_E_MPa" => self.e2 = Some((n, parse_meta_number(n, key, value)?)),
+            "indenter_nu" => self.nu2 = Some((n, parse_meta_number(n, key, value)?)),
+            "indenter_R_mm" => self.r2 = Some((n, parse_meta_number(n, key, value)?)),
+            "elastomer_R_mm" => {
+                self.r1 = parse_meta_number(n, key, value)?;
+                self.r1_line = n;
+            }
+            "elastomer_thickness_mm" => self.thickness = Some((n, parse_meta_number(n, key, value)?)),
+            "elastomer_thickness_tol_mm" => self.thickness_tol = Some((n, parse_meta_number(n, key, value)?)),
+            "elastomer_base" => {
+                let b = LayerBase::parse(value)
+                    .ok_or_else(|| err(n, format!("elastomer_base must be `bonded` or `sliding`, got `{value}`")))?;
+                self.base = Some((n, b));
+            }
+            "sensor" => self.sensor = Some(value.to_string()),
+            "created" => self.created = Some(value.to_string()),
+            _ => self.extra.push((key.to_string(), value.to_string())),
+        }
+        Ok(())
+    }
+
+    /// The format version, then the indenter (E2, nu2, R2) and the elastomer
+    /// radius R1, each required where the format requires it and in its range.
+    fn indenter(&self) -> Result<(Body, f64), RecordingError> {
+        let Some((vline, v)) = &self.version else {
+            return Err(err(
+                1,
+                "missing required metadata `# easycalib-recording: 1` (is this an easycalib recording?)",
+            ));
+        };
+        if v.trim() != "1" {
+            return Err(err(
+                *vline,
+                format!("unsupported recording format version `{v}` (this easycalib reads version 1)"),
+            ));
+        }
+        // A missing key has no line of its own: point at where the metadata block ends.
+        let meta_end = self.header.map(|(n, _)| n).unwrap_or(self.last_line).max(1);
+        let need = |x: Option<(usize, f64)>, key: &str| {
+            x.ok_or_else(|| err(meta_end, format!("missing required metadata key `{key}` before the header row")))
+        };
+        let (e2_line, e2) = need(self.e2, "indenter_E_MPa")?;
+        let (nu2_line, nu2) = need(self.nu2, "indenter_nu")?;
+        let (r2_line, r2) = need(self.r2, "indenter_R_mm")?;
+        let [e_lo, e_hi] = INDENTER_E_RANGE_MPA;
+        if !(e_lo..=e_hi).contains(&e2) {
+            return Err(err(
+                e2_line,
+                format!("indenter_E_MPa must lie in [{e_lo}, {e_hi}] MPa (a gel to steel), got {e2}"),
+            ));
+        }
+        if !(nu2 > 0.0 && nu2 < 0.5) {
+            return Err(err(nu2_line, format!("indenter_nu must lie in (0, 0.5), got {nu2}")));
+        }
+        let [r_lo, r_hi] = INDENTER_R_RANGE_MM;
+        if !(r_lo..=r_hi).contains(&r2) {
+            return Err(err(r2_line, format!("indenter_R_mm must be a radius in [{r_lo}, {r_hi}] mm, got {r2}")));
+        }
+        let r1 = self.r1;
+        if r1 < r_lo {
+            return Err(err(self.r1_line, format!("elastomer_R_mm must be at least {r_lo} mm (or inf), got {r1}")));
+        }
+        Ok((Body::new(e2, nu2, r2), r1))
+    }
+}
+
+/// Where the columns stand in the header row (any order, extra columns allowed).
+struct Columns<'t> {
+    names: Vec<&'t str>,
+    /// Positions of [`REQUIRED_COLUMNS`], in that order.
+    idx: [usize; 6],
+    rep: Option<usize>,
+    dir: Option<usize>,
+}
+
+impl<'t> Columns<'t> {
+    fn from_header(hline: usize, header: &'t str) -> Result<Self, RecordingError> {
+        let names: Vec<&str> = header.split(',').map(str::trim).collect();
+        let mut idx = [0usize; 6];
+        for (k, want) in REQUIRED_COLUMNS.iter().enumerate() {
+            let hits: Vec<usize> = names.iter().enumerate().filter(|(_, n)| *n == want).map(|(i, _)| i).collect();
+            match hits.as_slice() {
+                [i] => idx[k] = *i,
+                [] => return Err(err(hline, format!("header row lacks the required column `{want}`"))),
+                _ => return Err(err(hline, format!("header row names column `{want}` twice"))),
+            }
+        }
+        let rep = names.iter().position(|n| *n == "rep");
+        let dir = names.iter().position(|n| *n == "dir");
+        Ok(Columns { names, idx, rep, dir })
+    }
+}
+
+/// The sample rows after the header, in time order.
+fn read_samples<'t>(
+    lines: impl Iterator<Item = (usize, &'t str)>,
+    columns: &Columns,
+) -> Result<Vec<Sample>, RecordingError> {
+    let mut samples = Vec::new();
+    let mut last_t = f64::NEG_INFINITY;
+    for (n, line) in lines {
+        if line.len() > MAX_LINE_BYTES {
+            return Err(err(n, format!("line is {} bytes long; the limit is {MAX_LINE_BYTES}", line.len())));
+        }
+        if line.trim().is_empty() {
+            continue;
+        }
+        if samples.len() == MAX_SAMPLES {
+            return Err(err(n, format!("more than {MAX_SAMPLES} samples; split the recording")));
+        }
+        if line.starts_with('#') {
+            return Err(err(n, "metadata line after the header row"));
+        }
+        let s = parse_row(n, line, columns, last_t)?;
+        last_t = s.t_s;
+        samples.push(s);
+    }
+    Ok(samples)
+}
+
+/// An error at column `i` (0-based) of line `n`.
+fn column_err(n: usize, columns: &Columns, i: usize, message: String) -> RecordingError {
+    RecordingError { line: n, column: Some((i + 1, columns.names[i].to_string())), message }
+}
+
+/// One sample row (line `n`), taken after a row at time `last_t`.
+fn parse_row(n: usize, line: &str, columns: &Columns, last_t: f64) -> Result<Sample, RecordingError> {
+    let (names, idx) = (&columns.names, &columns.idx);
+    let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+    if fields.len() != names.len() {
+        return Err(err(
+            n,
+            format!(
+                "expected {} fields as in the header, found {} (truncated or malformed row)",
+                names.len(),
+                fields.len()
+            ),
+        ));
+    }
+    let col_err = |i: usize, msg: String| column_err(n, columns, i, msg);
+    let num = |k: usize| -> Result<f64, RecordingError> {
+        let i = idx[k];
+        let s = fields[i];
+        let x: f64 = s.parse().map_err(|_| col_err(i, format!("`{s}` is not a number")))?;
+        if !x.is_finite() {
+            return Err(col_err(i, format!("`{s}` is not a finite number")));
+        }
+        Ok(x)
+    };
+    let t_s = num(0)?;
+    let phase = match fields[idx[1]] {
+        "normal" => Phase::Normal,
+        "torsion" => Phase::Torsion,
+        other => {
+            return Err(col_err(idx[1], format!("unknown phase `{other}` (expected `normal` or `torsion`)")));
+        }
+    };
+    let stage_mm = num(2)?;
+    let rot_deg = num(3)?;
+    let gamma1_mm = num(4)?;
+    let theta1_deg = num(5)?;
+    if t_s < last_t {
+        return Err(col_err(
+            idx[0],
+            format!("time {t_s} s goes backwards (previous row {last_t} s); rows must be in time order"),
+        ));
+    }
+    let rep = match columns.rep {
+        Some(i) if !fields[i].is_empty() => {
+            Some(fields[i].parse::<u32>().map_err(|_| col_err(i, format!("`{}` is not a repeat index", fields[i])))?)
+        }
+        _ => None,
+    };
+    let dir = match columns.dir {
+        Some(i) => match fields[i] {
+            "" => None,
+            "load" => Some(Direction::Load),
+            "unload" => Some(Direction::Unload),
+            other => {
+                return Err(col_err(i, format!("unknown direction `{other}` (expected `load` or `unload`)")));
+            }
+        },
+        None => None,
+    };
+    Ok(Sample { t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg, rep, dir })
 }
 
 /// The declared layer from its three keys: a base or a tolerance without a

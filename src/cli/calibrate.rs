@@ -2,9 +2,9 @@
 
 use history::Source;
 use sim::generator::{GeneratorConfig, generate};
-use sim::physics::{Body, ContactPair};
 use sim::recording::Recording;
 
+use super::sim_setup::{SimSetupArgs, sim_setup};
 use super::{CliError, ElastomerArgs, FitArgs, SimulateArgs};
 use crate::fit::{FitError, FitOptions, calibrate};
 
@@ -154,13 +154,10 @@ fn print_output(out: &CalibrationOutput, rec: &Recording, json: bool) -> Result<
     Ok(())
 }
 
+/// The generator for the simulated elastomer and indenter of the flags.
 pub fn generator_config(a: &ElastomerArgs) -> Result<GeneratorConfig, CliError> {
-    let pair = ContactPair {
-        elastomer: Body::new(a.e1_mpa, a.nu1, a.r1_mm),
-        indenter: Body::new(a.indenter_e_mpa, a.indenter_nu, a.indenter_r_mm),
-    };
-    pair.validate().map_err(|e| CliError::bad_input(e.to_string()))?;
-    Ok(GeneratorConfig { pair, seed: a.seed, ..GeneratorConfig::default() })
+    let setup = sim_setup(SimSetupArgs { elastomer: a, script: None, profile: None, speedup: sim::defaults::SPEEDUP })?;
+    Ok(GeneratorConfig { pair: *setup.pair(), seed: setup.seed(), ..GeneratorConfig::default() })
 }
 
 pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {

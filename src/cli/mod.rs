@@ -8,6 +8,7 @@ pub mod run;
 mod script;
 pub mod sensor;
 pub mod sim;
+pub mod sim_setup;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -98,29 +99,26 @@ pub struct FitArgs {
     pub db: history::DbArg,
 }
 
-#[derive(Debug, Clone, Args)]
+/// The simulated elastomer, indenter and noise seed. A flag not given takes
+/// the default of `sim::defaults`; [`sim_setup`] turns them into the one
+/// simulated set-up.
+#[derive(Debug, Clone, Default, Args)]
 pub struct ElastomerArgs {
-    /// True Young's modulus of the simulated elastomer, MPa.
-    #[arg(long, default_value_t = ::sim::defaults::ELASTOMER_E_MPA)]
-    pub e1_mpa: f64,
-    /// True Poisson's ratio of the simulated elastomer.
-    #[arg(long, default_value_t = ::sim::defaults::ELASTOMER_NU)]
-    pub nu1: f64,
-    /// Effective radius of the elastomer's dome, mm (`inf` for flat).
-    #[arg(long, default_value_t = ::sim::defaults::ELASTOMER_R_MM)]
-    pub r1_mm: f64,
-    /// Young's modulus of the calibration indenter, MPa.
-    #[arg(long, default_value_t = ::sim::defaults::INDENTER_E_MPA)]
-    pub indenter_e_mpa: f64,
-    /// Poisson's ratio of the calibration indenter.
-    #[arg(long, default_value_t = ::sim::defaults::INDENTER_NU)]
-    pub indenter_nu: f64,
-    /// Radius of the hemispherical indenter, mm.
-    #[arg(long, default_value_t = ::sim::defaults::INDENTER_R_MM)]
-    pub indenter_r_mm: f64,
-    /// Seed of the simulated measurement noise.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
+    #[arg(long, help = format!("True Young's modulus of the simulated elastomer, MPa [default: {}]", ::sim::defaults::ELASTOMER_E_MPA))]
+    pub e1_mpa: Option<f64>,
+    #[arg(long, help = format!("True Poisson's ratio of the simulated elastomer [default: {}]", ::sim::defaults::ELASTOMER_NU))]
+    pub nu1: Option<f64>,
+    // R1; the flag keeps its short name `--r1-mm`.
+    #[arg(long = "r1-mm", value_name = "R1_MM", help = format!("Effective radius R1 of the elastomer's dome, mm (`inf` for flat) [default: {}]", ::sim::defaults::ELASTOMER_R_MM))]
+    pub elastomer_r_mm: Option<f64>,
+    #[arg(long, help = format!("Young's modulus of the calibration indenter, MPa [default: {}]", ::sim::defaults::INDENTER_E_MPA))]
+    pub indenter_e_mpa: Option<f64>,
+    #[arg(long, help = format!("Poisson's ratio of the calibration indenter [default: {}]", ::sim::defaults::INDENTER_NU))]
+    pub indenter_nu: Option<f64>,
+    #[arg(long, help = format!("Radius of the hemispherical indenter, mm [default: {}]", ::sim::defaults::INDENTER_R_MM))]
+    pub indenter_r_mm: Option<f64>,
+    #[arg(long, help = format!("Seed of the simulated measurement noise [default: {}]", ::sim::defaults::SEED))]
+    pub seed: Option<u64>,
 }
 
 #[derive(Debug, Args)]
@@ -135,9 +133,11 @@ pub struct SimulateArgs {
 #[derive(Debug, Args)]
 pub struct RunArgs {
     /// Run on the real rig described by this file (default: the built-in emulated rig).
-    #[arg(long, value_name = "RIG_TOML")]
+    #[arg(long, value_name = "RIG_TOML", conflicts_with_all = sim_setup::SIMULATED_HARDWARE_FLAGS)]
     pub rig: Option<PathBuf>,
-    /// Calibration script (default: the rig file's, else the built-in one).
+    /// Calibration script (default: the rig file's, else the built-in one). On
+    /// the emulated rig the script's indenter and R1 are the simulated ones:
+    /// --indenter-* and --r1-mm are refused with it.
     #[arg(long, value_name = "SCRIPT_TOML")]
     pub script: Option<PathBuf>,
     /// Folder for the recording and the report (default: runs/<UTC time>-<sensor>).

@@ -5,15 +5,15 @@
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
-use sim::physics::{Body, ContactPair};
 use sim::recording::Recording;
 use tokio::sync::mpsc::unbounded_channel;
 
 use super::calibrate::human_summary;
-use super::{CliError, ElastomerArgs, RunArgs};
+use super::sim_setup::{SimSetupArgs, sim_setup};
+use super::{CliError, RunArgs};
 use crate::report::{Truth, calibration_output, default_run_dir};
-use crate::rig::emulated::{DEFAULT_SPEEDUP, EmulatedRig, EmulatedRigOptions, EmulatedSensor};
-use crate::rig::{RigConfig, RunRequest, RunResult, run_calibration};
+use crate::rig::emulated::{EmulatedRig, ServeOptions};
+use crate::rig::{RigConfig, RigSpec, RunRequest, RunResult, run_calibration};
 use crate::run::events::{RunControl, format_duration};
 use crate::run::{RunStatus, Script};
 
@@ -27,29 +27,6 @@ fn read_script(path: &Path) -> Result<Script, CliError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| CliError::bad_input(format!("cannot read script {}: {e}", path.display())))?;
     Script::from_toml(&text).map_err(|e| CliError::bad_input(format!("{}: {e}", path.display())))
-}
-
-/// The simulated hardware for an elastomer given on the command line; the
-/// indenter and R1 follow the script when one is given, so the script
-/// describes the rig it runs on.
-fn simulated_pair(a: &ElastomerArgs, script: Option<&Script>) -> Result<ContactPair, CliError> {
-    let pair = match script {
-        Some(s) => ContactPair { elastomer: Body::new(a.e1_mpa, a.nu1, s.sensor.elastomer_r_mm), indenter: s.indenter },
-        None => ContactPair {
-            elastomer: Body::new(a.e1_mpa, a.nu1, a.r1_mm),
-            indenter: Body::new(a.indenter_e_mpa, a.indenter_nu, a.indenter_r_mm),
-        },
-    };
-    pair.validate().map_err(|e| CliError::bad_input(e.to_string()))?;
-    Ok(pair)
-}
-
-pub fn speedup(args: &RunArgs) -> Result<f64, CliError> {
-    let s = if args.realtime { 1.0 } else { args.speedup.unwrap_or(DEFAULT_SPEEDUP) };
-    if !(s.is_finite() && s > 0.0) {
-        return Err(CliError::bad_input(format!("--speedup must be a positive number, got {s}")));
-    }
-    Ok(s)
 }
 
 pub fn run(args: &RunArgs) -> Result<(), CliError> {
@@ -83,45 +60,49 @@ fn write_history(db: &super::history::DbArg, done: Completed) -> Vec<String> {
     }
 }
 
-async fn run_async(args: &RunArgs) -> Result<(), CliError> {
-    // The rig and the script.
+/// The rig a run drives and what it knows of it.
+struct RigChoice {
+    spec: RigSpec,
+    /// The simulated elastomer's truth (emulated rig only).
+    truth: Option<Truth>,
+    script: Script,
+    /// The running emulators, kept until the run ends.
+    emulated: Option<EmulatedRig>,
+}
+
+/// A real rig from `--rig`, or the emulated rig for the simulated set-up the
+/// command line asks for (resolved once, here).
+async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
     let rig_cfg = match &args.rig {
         Some(p) => Some(RigConfig::read_path(p).map_err(|e| CliError::bad_input(e.to_string()))?),
         None => None,
     };
     let script_path = args.script.clone().or_else(|| rig_cfg.as_ref().and_then(|c| c.script.clone()));
     let given_script = script_path.as_deref().map(read_script).transpose()?;
-    let mut emulated = None;
-    let (spec, truth, script) = match &rig_cfg {
-        Some(cfg) => {
-            let spec = cfg.to_spec().map_err(|e| CliError::bad_input(e.to_string()))?;
-            (spec, None, given_script.unwrap_or_default())
-        }
-        None => {
-            let pair = simulated_pair(&args.elastomer, given_script.as_ref())?;
-            let opts = EmulatedRigOptions {
-                speedup: speedup(args)?,
-                grbl: args.grbl,
-                pair,
-                seed: args.elastomer.seed,
-                sensor: EmulatedSensor::LinkPty,
-                profile: load_profile(args.profile.as_deref())?,
-                ..EmulatedRigOptions::default()
-            };
-            let rig = EmulatedRig::start(opts)
-                .await
-                .map_err(|e| CliError::other(format!("cannot start the emulated rig: {e}")))?;
-            let script = given_script.unwrap_or_else(|| {
-                let mut s = Script { indenter: pair.indenter, ..Script::default() };
-                s.sensor.elastomer_r_mm = pair.elastomer.r_mm;
-                s
-            });
-            let spec = rig.spec();
-            let truth = rig.truth();
-            emulated = Some(rig);
-            (spec, Some(truth), script)
-        }
-    };
+    if let Some(cfg) = &rig_cfg {
+        let spec = cfg.to_spec().map_err(|e| CliError::bad_input(e.to_string()))?;
+        return Ok(RigChoice { spec, truth: None, script: given_script.unwrap_or_default(), emulated: None });
+    }
+    let setup = sim_setup(SimSetupArgs {
+        elastomer: &args.elastomer,
+        script: script_path.as_deref().zip(given_script.as_ref()),
+        profile: args.profile.as_deref(),
+        speedup: if args.realtime { 1.0 } else { args.speedup.unwrap_or(sim::defaults::SPEEDUP) },
+    })?;
+    // Without a script, the built-in one on the simulated indenter and R1.
+    let script = given_script.unwrap_or_else(|| {
+        let mut s = Script { indenter: setup.pair().indenter, ..Script::default() };
+        s.sensor.elastomer_r_mm = setup.pair().elastomer.r_mm;
+        s
+    });
+    let rig = EmulatedRig::start(setup, ServeOptions { grbl: args.grbl, ..ServeOptions::default() })
+        .await
+        .map_err(|e| CliError::other(format!("cannot start the emulated rig: {e}")))?;
+    Ok(RigChoice { spec: rig.spec(), truth: Some(rig.truth()), script, emulated: Some(rig) })
+}
+
+async fn run_async(args: &RunArgs) -> Result<(), CliError> {
+    let RigChoice { spec, truth, script, emulated } = choose_rig(args).await?;
     let out_dir = match &args.out {
         Some(d) => d.clone(),
         None => default_run_dir(Path::new("runs"), Some(&spec.sensor_name), SystemTime::now()),
@@ -309,13 +290,4 @@ fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<()
         show(&files.torsion_svg)
     );
     Ok(())
-}
-
-/// The sim profile given with `--profile` (clean without one).
-pub fn load_profile(path: Option<&std::path::Path>) -> Result<sim::effects::SimProfile, CliError> {
-    match path {
-        None => Ok(sim::effects::SimProfile::default()),
-        Some(p) => sim::effects::SimProfile::load(p)
-            .map_err(|e| CliError::bad_input(format!("sim profile {}: {e}", p.display()))),
-    }
 }

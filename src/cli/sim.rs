@@ -5,10 +5,10 @@ use std::io::Write;
 use std::net::SocketAddr;
 
 use clap::{Args, Subcommand};
-use sim::physics::{Body, ContactPair};
 
+use super::sim_setup::{SimSetupArgs, sim_setup};
 use super::{CliError, ElastomerArgs};
-use crate::rig::emulated::{EmulatedRig, EmulatedRigOptions, EmulatedSensor};
+use crate::rig::emulated::{CONTACT_STAGE_MM, EmulatedRig, EmulatedSensor, ServeOptions};
 
 #[derive(Debug, Args)]
 pub struct SimArgs {
@@ -48,33 +48,27 @@ pub fn run(args: &SimArgs) -> Result<(), CliError> {
 }
 
 fn serve(a: &ServeArgs) -> Result<(), CliError> {
-    if !(a.speedup.is_finite() && a.speedup > 0.0) {
-        return Err(CliError::bad_input(format!("--speedup must be a positive number, got {}", a.speedup)));
-    }
-    let e = &a.elastomer;
-    let pair = ContactPair {
-        elastomer: Body::new(e.e1_mpa, e.nu1, e.r1_mm),
-        indenter: Body::new(e.indenter_e_mpa, e.indenter_nu, e.indenter_r_mm),
-    };
-    pair.validate().map_err(|err| CliError::bad_input(err.to_string()))?;
-    let opts = EmulatedRigOptions {
+    let setup = sim_setup(SimSetupArgs {
+        elastomer: &a.elastomer,
+        script: None,
+        profile: a.profile.as_deref(),
         speedup: a.speedup,
+    })?;
+    let truth = setup.truth();
+    let opts = ServeOptions {
         grbl: a.grbl,
-        pair,
-        seed: e.seed,
         sensor: match a.tac3d_to {
             Some(to) => EmulatedSensor::Tac3d { to },
             None => EmulatedSensor::LinkPty,
         },
-        profile: super::run::load_profile(a.profile.as_deref())?,
-        ..EmulatedRigOptions::default()
+        ..ServeOptions::default()
     };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
         .map_err(|err| CliError::other(format!("cannot start the async runtime: {err}")))?;
     rt.block_on(async move {
-        let rig = EmulatedRig::start(opts)
+        let rig = EmulatedRig::start(setup, opts)
             .await
             .map_err(|err| CliError::other(format!("cannot start the emulated rig: {err}")))?;
         let mut out = std::io::stdout().lock();
@@ -86,9 +80,9 @@ fn serve(a: &ServeArgs) -> Result<(), CliError> {
         eprintln!(
             "emulated rig at {}x real time (E1 {} MPa, nu1 {}; first contact at stage {} mm); Ctrl-C to stop",
             rig.speedup(),
-            e.e1_mpa,
-            e.nu1,
-            crate::rig::emulated::CONTACT_STAGE_MM
+            truth.e1_mpa,
+            truth.nu1,
+            CONTACT_STAGE_MM
         );
         tokio::signal::ctrl_c().await.map_err(|err| CliError::other(format!("cannot wait for Ctrl-C: {err}")))?;
         drop(rig);

@@ -5,10 +5,10 @@
 
 use sim::recording::{Phase, Recording};
 
-use super::{Ci95, DiagnoseError, Diagnosis, FitSummary, Rms, SampleResidual};
+use super::{Ci95, DiagnoseError, Diagnosis, FitSummary, Rms, SampleResidual, prose};
 use crate::fit::full::{predict, residuals};
-use crate::fit::stats::rms;
 use crate::fit::{FitOptions, FullOptions, ModelParams, Warning, calibrate};
+use crate::numerics::stats::rms;
 
 pub fn diagnose_layered(rec: &Recording, noise_um: Option<f64>) -> Result<Diagnosis, DiagnoseError> {
     let opts = FitOptions {
@@ -71,26 +71,7 @@ pub fn diagnose_layered(rec: &Recording, noise_um: Option<f64>) -> Result<Diagno
         "the declared layer is fitted with the FE layer model; the effect library (written on the half-space \
          model) is not searched on it yet, so no effect is named",
     ));
-    let verdict = if unexplained {
-        format!(
-            "UNEXPLAINED: the layer model leaves systematic residuals (normal {:.1} µm RMS against a noise floor of \
-             {:.1} µm); no effect is searched on layered recordings yet. E1 {:.4} MPa, nu1 {:.4} are the layer \
-             model's, with intervals scaled by the residuals.",
-            rms_fit.normal_um, noise.normal_um, f.e1_mpa, f.nu1
-        )
-    } else {
-        format!(
-            "The layer model explains the recording to its noise (chi²/dof {chi2:.2}): E1 {:.4} MPa [{:.4}, {:.4}], \
-             nu1 {:.4} [{:.4}, {:.4}], friction in torsion {}.",
-            f.e1_mpa,
-            f.ci95.e1_mpa[0],
-            f.ci95.e1_mpa[1],
-            f.nu1,
-            f.ci95.nu1[0],
-            f.ci95.nu1[1],
-            f.contact_friction.map_or("not determined".to_string(), |m| format!("{m:.2}"))
-        )
-    };
+    let verdict = prose::layered_verdict(unexplained, &summary, &noise, chi2, f.contact_friction);
     Ok(Diagnosis {
         effects: Vec::new(),
         unexplained,

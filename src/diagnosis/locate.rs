@@ -8,6 +8,8 @@ use serde::Serialize;
 use sim::effects::Reading;
 use sim::recording::{Direction, Phase, Recording};
 
+use crate::numerics::stats::normal_quantile_upper;
+
 /// Significance of every test here: |z| beyond this is systematic (p ~ 1e-4
 /// one-sided), so a clean recording's ~6 segments x 2 tests false-alarm rarely.
 pub const Z_SYSTEMATIC: f64 = 3.7;
@@ -217,13 +219,6 @@ fn runs_z(r: &[f64]) -> f64 {
     let mu = 2.0 * n1 * n2 / nf + 1.0;
     let var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - nf) / (nf * nf * (nf - 1.0));
     if var <= 0.0 { 0.0 } else { (runs as f64 - mu) / var.sqrt() }
-}
-
-/// Upper-tail normal quantile for small p (Abramowitz–Stegun 26.2.23).
-fn normal_quantile_upper(p: f64) -> f64 {
-    let p = p.clamp(1e-300, 0.5);
-    let t = (-2.0 * p.ln()).sqrt();
-    t - (2.515517 + 0.802853 * t + 0.010328 * t * t) / (1.0 + 1.432788 * t + 0.189269 * t * t + 0.001308 * t * t * t)
 }
 
 /// Least-squares polynomial of degree `deg` through (x, y); returns the residual sum of squares and coefficients.

@@ -5,13 +5,13 @@
 
 use nalgebra::DMatrix;
 use sim::effects::{
-    self, Command, EffectInfo, Material, Reading, SimProfile, adhesion, contact_offset, finite_thickness,
+    self, CommandedPose, EffectInfo, Material, Reading, SimProfile, adhesion, contact_offset, finite_thickness,
     frame_compliance, partial_slip, rotation_backlash, sensor_gain, stage_backlash, thermal_drift, viscoelastic,
 };
 use sim::physics::{Body, ContactPair};
 use sim::recording::{Phase, Recording};
 
-use crate::fit::lm::{self, LmOptions};
+use crate::numerics::lm::{self, LmOptions};
 
 /// An effect of the library the diagnosis can fit, with its parametrisation.
 /// `contact_offset` is not here: z0 is part of every fit (the baseline's third parameter).
@@ -228,16 +228,16 @@ impl Candidate {
 pub struct Base {
     pub e1_mpa: f64,
     pub nu1: f64,
-    pub z0_mm: f64,
+    pub contact_offset_mm: f64,
 }
 
 impl Base {
     pub fn internal(&self) -> [f64; 3] {
         let p = (self.nu1 / 0.5).clamp(1e-6, 1.0 - 1e-6);
-        [self.e1_mpa.ln(), (p / (1.0 - p)).ln(), self.z0_mm]
+        [self.e1_mpa.ln(), (p / (1.0 - p)).ln(), self.contact_offset_mm]
     }
     pub fn from_internal(x: &[f64]) -> Base {
-        Base { e1_mpa: x[0].exp(), nu1: 0.5 / (1.0 + (-x[1]).exp()), z0_mm: x[2] }
+        Base { e1_mpa: x[0].exp(), nu1: 0.5 / (1.0 + (-x[1]).exp()), contact_offset_mm: x[2] }
     }
 }
 
@@ -289,7 +289,7 @@ impl Fitted {
 /// The recording's commanded history and the weights of its readings.
 pub struct Model<'a> {
     rec: &'a Recording,
-    cmds: Vec<Command>,
+    cmds: Vec<CommandedPose>,
     /// Noise of gamma1 readings, mm.
     pub sigma_g: f64,
     /// Noise of theta1 readings, degrees.
@@ -305,7 +305,7 @@ impl<'a> Model<'a> {
         let cmds = rec
             .samples
             .iter()
-            .map(|s| Command {
+            .map(|s| CommandedPose {
                 t_s: s.t_s,
                 stage_mm: s.stage_mm,
                 rot_deg: if s.phase == Phase::Torsion { s.rot_deg } else { 0.0 },
@@ -321,12 +321,12 @@ impl<'a> Model<'a> {
     /// The sim profile of a parameter vector (None outside the bounds).
     pub fn profile(&self, cands: &[Candidate], x: &[f64]) -> Option<SimProfile> {
         let b = Base::from_internal(x);
-        if !(b.e1_mpa.is_finite() && b.e1_mpa > 0.0 && (-0.5..=0.5).contains(&b.z0_mm)) {
+        if !(b.e1_mpa.is_finite() && b.e1_mpa > 0.0 && (-0.5..=0.5).contains(&b.contact_offset_mm)) {
             return None;
         }
         let mut p = SimProfile {
             material: Some(Material { e1_mpa: b.e1_mpa, nu1: b.nu1 }),
-            contact_offset: Some(contact_offset::Params { z0_mm: b.z0_mm }),
+            contact_offset: Some(contact_offset::Params { contact_offset_mm: b.contact_offset_mm }),
             ..Default::default()
         };
         let mut off = BASE;

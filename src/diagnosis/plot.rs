@@ -4,15 +4,26 @@
 
 use std::path::{Path, PathBuf};
 
+use plotters::drawing::DrawingAreaErrorKind;
 use plotters::prelude::*;
 
 use super::Diagnosis;
 
+/// Why the residual plot was not written, with the cause.
 #[derive(Debug, thiserror::Error)]
-#[error("plot {path}: {message}")]
-pub struct PlotError {
-    pub path: PathBuf,
-    pub message: String,
+pub enum PlotError {
+    #[error("plot {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("plot {path}: {source}")]
+    Draw {
+        path: PathBuf,
+        #[source]
+        source: DrawingAreaErrorKind<std::io::Error>,
+    },
 }
 
 type Series = Vec<(f64, f64)>;
@@ -53,12 +64,12 @@ fn span(s: &[&Series], band: f64) -> (f64, f64, f64, f64) {
 /// Write `residuals.svg` into `dir` (created if missing); returns its path.
 pub fn write_residual_plot(d: &Diagnosis, dir: &Path) -> Result<PathBuf, PlotError> {
     let path = dir.join("residuals.svg");
-    let err = |m: String| PlotError { path: path.clone(), message: m };
-    std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
+    let err = |source| PlotError::Draw { path: path.clone(), source };
+    std::fs::create_dir_all(dir).map_err(|source| PlotError::Io { path: path.clone(), source })?;
     let s = series(d);
     let target = path.clone();
     let root = SVGBackend::new(&target, (1000, 700)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    root.fill(&WHITE).map_err(err)?;
     let panels = root.split_evenly((2, 2));
     let title = |k: usize| match k {
         0 => "gamma1 residual, baseline (um)",
@@ -77,17 +88,17 @@ pub fn write_residual_plot(d: &Diagnosis, dir: &Path) -> Result<PathBuf, PlotErr
             .x_label_area_size(28)
             .y_label_area_size(48)
             .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(|e| err(e.to_string()))?;
-        chart.configure_mesh().x_desc("t (s)").light_line_style(WHITE).draw().map_err(|e| err(e.to_string()))?;
+            .map_err(err)?;
+        chart.configure_mesh().x_desc("t (s)").light_line_style(WHITE).draw().map_err(err)?;
         for b in [-2.0 * band, 2.0 * band] {
             chart
                 .draw_series(LineSeries::new([(x0, b), (x1, b)], RGBColor(150, 150, 150).stroke_width(1)))
-                .map_err(|e| err(e.to_string()))?;
+                .map_err(err)?;
         }
         let color = if k % 2 == 0 { RED } else { BLUE };
-        chart.draw_series(s[k].iter().map(|&p| Circle::new(p, 2, color.filled()))).map_err(|e| err(e.to_string()))?;
+        chart.draw_series(s[k].iter().map(|&p| Circle::new(p, 2, color.filled()))).map_err(err)?;
     }
-    root.present().map_err(|e| err(e.to_string()))?;
+    root.present().map_err(err)?;
     drop(root);
     Ok(path)
 }

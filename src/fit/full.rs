@@ -11,11 +11,11 @@ use std::collections::hash_map::Entry;
 use nalgebra::DMatrix;
 use serde::Serialize;
 use sim::physics::{Body, ContactPair, Layer, LayerBase, NormalModel, torsion_at};
-use sim::recording::{Phase, Recording};
+use sim::recording::{Phase, Recording, Sample};
 
-use super::lm::{self, LmOptions};
-use super::stats::{interval, noise_from_second_differences, r_squared, rms};
-use super::{FitError, Warning};
+use super::{FitError, Warning, start_points};
+use crate::numerics::lm::{self, LmOptions, LmResult};
+use crate::numerics::stats::{interval, noise_from_second_differences, r_squared, rms};
 
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
 pub struct FullOptions {
@@ -80,7 +80,7 @@ fn predict_with(
     }
     let pair =
         ContactPair { elastomer: Body::new(p.e1_mpa, p.nu1, rec.meta.elastomer_r_mm), indenter: rec.meta.indenter };
-    let model = NormalModel::new(pair).map_err(|e| FitError::Model(e.to_string()))?;
+    let model = NormalModel::new(pair)?;
     let mut out = Vec::with_capacity(rec.samples.len());
     // A sweep visits each stage position on loading and again on unloading,
     // and the torsion sweep holds one: solve each distinct position once.
@@ -89,7 +89,7 @@ fn predict_with(
         let state = match solved.entry(s.stage_mm.to_bits()) {
             Entry::Occupied(e) => *e.get(),
             Entry::Vacant(e) => {
-                let st = model.solve(s.stage_mm - p.contact_offset_mm).map_err(|e| FitError::Model(e.to_string()))?;
+                let st = model.solve(s.stage_mm - p.contact_offset_mm)?;
                 *e.insert(st)
             }
         };
@@ -127,22 +127,20 @@ fn predict_fe(
     normal: NormalContact,
 ) -> Result<Vec<Prediction>, FitError> {
     let ind = rec.meta.indenter;
-    let fw = fem::forward::Forward::cached(layer.thickness_mm, ind.e_mpa, ind.nu, ind.r_mm)
-        .map_err(|e| FitError::Model(e.to_string()))?;
+    let fw = fem::forward::Forward::cached(layer.thickness_mm, ind.e_mpa, ind.nu, ind.r_mm)?;
     if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
         return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
     }
     let model = fw.model(p.e1_mpa, p.nu1);
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
     let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).collect();
-    let model_error = |e: fem::FemError| FitError::Model(e.to_string());
     let states: Vec<fem::ContactState> = match normal {
         // The gel and the indenter grip each other while the stage presses (the
         // same interface friction as in torsion), so the normal state depends on
         // the path: it is followed through the recording's depths in small steps.
         NormalContact::Frictional => {
             let deepest = deltas.iter().copied().fold(0.0, f64::max);
-            model.normal_path(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6)).map_err(model_error)?
+            model.normal_path(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?
         }
         NormalContact::Frictionless => {
             let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
@@ -150,7 +148,7 @@ fn predict_fe(
             for &delta in &deltas {
                 let st = match solved.entry(delta.to_bits()) {
                     Entry::Occupied(e) => e.into_mut(),
-                    Entry::Vacant(e) => e.insert(model.normal(delta).map_err(model_error)?),
+                    Entry::Vacant(e) => e.insert(model.normal(delta)?),
                 };
                 out.push(st.clone());
             }
@@ -261,6 +259,8 @@ pub struct FullFit {
     pub warnings: Vec<Warning>,
 }
 
+/// The full fit's 95 % intervals: E1 and nu1 as in [`super::Ci95`], and the
+/// contact offset it fits with them.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct FullCi95 {
     #[serde(rename = "E1_MPa")]
@@ -344,6 +344,56 @@ fn weighted_residuals(
 const MAX_PASSES: usize = 5;
 
 pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result<FullFit, FitError> {
+    let (n_normal_live, n_torsion) = sample_counts(rec)?;
+    let passes = fit_passes(rec, opts, usable_start(rec, start))?;
+    let params = passes.params;
+    let mut warnings = limit_warnings(&params, passes.out.converged);
+    // Dead-band rows carry no noise: count only noisy readings as observations.
+    let n_obs = n_normal_live + rec.phase(Phase::Torsion).filter(|s| s.gamma1_mm != 0.0).count() + n_torsion;
+    let cov = covariance(rec, &passes, n_obs, &mut warnings)?;
+    let se = standard_errors(&params, &cov.matrix);
+    let pred = predict(rec, &params)?;
+    let r = residuals(rec, &pred);
+    warnings.extend(systematic_warning(&r));
+    let dof = cov.dof;
+    Ok(FullFit {
+        e1_mpa: params.e1_mpa,
+        nu1: params.nu1,
+        contact_offset_mm: params.contact_offset_mm,
+        e1_se: se[0],
+        nu1_se: se[1],
+        contact_offset_se_mm: se[2],
+        ci95: FullCi95 {
+            e1_mpa: clip(interval(params.e1_mpa, se[0], dof), [0.0, f64::INFINITY]),
+            nu1: clip(interval(params.nu1, se[1], dof), [0.0, 0.5]),
+            contact_offset_mm: interval(params.contact_offset_mm, se[2], dof),
+        },
+        corr_e1_nu1: cov.corr_e1_nu1,
+        beta: rec
+            .samples
+            .iter()
+            .zip(&pred)
+            .find(|(s, _)| s.phase == Phase::Torsion)
+            .map(|(_, p)| p.beta)
+            .unwrap_or(f64::NAN),
+        rms: GroupFigures { normal_um: rms(&r.normal_mm) * 1e3, torsion_deg: rms(&r.torsion_deg) },
+        noise_floor: GroupFigures {
+            normal_um: noise_from_second_differences(&r.normal_mm).unwrap_or(f64::NAN) * 1e3,
+            torsion_deg: noise_from_second_differences(&r.torsion_deg).unwrap_or(f64::NAN),
+        },
+        r2: r_squared_of(rec, &pred),
+        iterations: passes.out.iterations,
+        converged: passes.out.converged,
+        samples_used: n_obs,
+        model: if params.contact_friction.is_some() { "layer-fe" } else { "half-space" },
+        contact_friction: params.contact_friction,
+        warnings,
+    })
+}
+
+/// Live normal samples (gamma1 off the dead band) and torsion samples, when
+/// there are enough of both to fit.
+fn sample_counts(rec: &Recording) -> Result<(usize, usize), FitError> {
     let n_torsion = rec.phase(Phase::Torsion).count();
     let n_normal_live = rec.phase(Phase::Normal).filter(|s| s.gamma1_mm != 0.0).count();
     if n_torsion < 3 {
@@ -356,23 +406,42 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
             need: 5,
         });
     }
-    let mut start = start;
+    Ok((n_normal_live, n_torsion))
+}
+
+/// `start` with an unusable E1 or nu1 replaced by a typical elastomer's; with
+/// the FE layer model, torsion carries Coulomb friction as a nuisance parameter.
+fn usable_start(rec: &Recording, mut start: ModelParams) -> ModelParams {
+    let [typical, ..] = start_points::typical_elastomers(rec.meta.indenter.e_mpa);
     if !(start.e1_mpa.is_finite() && start.e1_mpa > 0.0) {
-        start.e1_mpa = rec.meta.indenter.e_mpa / 3.0;
+        start.e1_mpa = typical.e1_mpa;
     }
     if !(start.nu1 > 0.01 && start.nu1 < 0.49) {
-        start.nu1 = 0.4;
+        start.nu1 = typical.nu1;
     }
-    // With the FE layer model, torsion carries Coulomb friction as a nuisance parameter.
     start.contact_friction = fe_layer(rec).map(|_| start.contact_friction.filter(|m| *m > 0.0).unwrap_or(0.5));
+    start
+}
+
+/// What the fit passes ended with.
+struct Passes {
+    params: ModelParams,
+    out: LmResult,
+    /// Noise of gamma1 (mm) and theta1 (degrees) the last pass weighted by.
+    sigma: (f64, f64),
+    /// Whether the passes iterated on the FE model's friction correction.
+    corrected: bool,
+}
+
+/// Pass 1 with nominal noise, pass 2 re-weighted by the noise floor the data
+/// show; with the FE layer model, more passes while the friction correction
+/// still moves the estimate.
+fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result<Passes, FitError> {
     let mut sg = opts.gamma1_sigma_mm.unwrap_or(sim::defaults::GAMMA1_SIGMA_MM);
     let mut st = opts.theta1_sigma_deg.unwrap_or(sim::defaults::THETA1_SIGMA_DEG);
     let mut params = start;
     let mut res = None;
     let mut correction = None;
-    // Pass 1 with nominal noise, pass 2 re-weighted by the noise floor the data
-    // show; with the FE layer model, more passes while the friction correction
-    // still moves the estimate.
     for pass in 0..MAX_PASSES {
         correction = friction_correction(rec, &params)?;
         let x0 = to_internal(&params);
@@ -380,8 +449,7 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
             |x, r| weighted_residuals(rec, &from_internal(x), correction.as_ref(), sg, st, r),
             &x0,
             LmOptions::default(),
-        )
-        .map_err(|e| FitError::Model(e.to_string()))?;
+        )?;
         let before = params;
         params = from_internal(&out.x);
         res = Some(out);
@@ -405,12 +473,16 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         }
     }
     let out = res.ok_or_else(|| FitError::Model("no fit pass ran".into()))?;
-    // nu1 is mapped onto (0, 0.5); an optimum pressed against either end means
-    // the sweeps did not determine it, not that the elastomer is that odd: keep
-    // the estimate, say so, and cut its interval at the physical range.
+    Ok(Passes { params, out, sigma: (sg, st), corrected: correction.is_some() })
+}
+
+/// nu1 is mapped onto (0, 0.5); an optimum pressed against either end means
+/// the sweeps did not determine it, not that the elastomer is that odd: keep
+/// the estimate, say so (its interval is cut at the physical range). And a
+/// fit that stopped before converging.
+fn limit_warnings(params: &ModelParams, converged: bool) -> Vec<Warning> {
     let mut warnings = Vec::new();
-    let at_bound = !(NU1_EDGE..=0.5 - NU1_EDGE).contains(&params.nu1);
-    if at_bound {
+    if !(NU1_EDGE..=0.5 - NU1_EDGE).contains(&params.nu1) {
         warnings.push(Warning::new(
             "nu1_at_bound",
             format!(
@@ -421,51 +493,34 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
             ),
         ));
     }
-    if !out.converged {
+    if !converged {
         warnings.push(Warning::new("not_converged", "the full-model fit stopped before converging"));
     }
+    warnings
+}
 
-    // Covariance in physical parameters: central-difference Jacobian at the optimum.
-    let mut phys = vec![params.e1_mpa, params.nu1, params.contact_offset_mm];
-    phys.extend(params.contact_friction);
-    let np = phys.len();
-    let mut r0 = Vec::new();
-    let correction = match correction {
-        Some(_) => friction_correction(rec, &params)?,
-        None => None,
-    };
-    weighted_residuals(rec, &params, correction.as_ref(), sg, st, &mut r0);
-    let m = r0.len();
-    let mut jac = DMatrix::zeros(m, np);
-    let steps = [1e-5 * params.e1_mpa, 1e-5, 1e-6, 1e-4 * params.contact_friction.unwrap_or(1.0)];
-    for j in 0..np {
-        let mut hi = phys.clone();
-        let mut lo = phys.clone();
-        hi[j] += steps[j];
-        lo[j] -= steps[j];
-        let (mut rp, mut rm) = (Vec::new(), Vec::new());
-        let up = weighted_residuals(rec, &from_physical(&hi), correction.as_ref(), sg, st, &mut rp);
-        let down = weighted_residuals(rec, &from_physical(&lo), correction.as_ref(), sg, st, &mut rm);
-        // Deep sweeps end close to the contact model's turning point, where a
-        // step to one side may leave the model's range: difference one-sided then.
-        for i in 0..m {
-            jac[(i, j)] = match (up, down) {
-                (true, true) => (rp[i] - rm[i]) / (2.0 * steps[j]),
-                (true, false) => (rp[i] - r0[i]) / steps[j],
-                (false, true) => (r0[i] - rm[i]) / steps[j],
-                (false, false) => {
-                    return Err(FitError::Model("the model cannot be evaluated next to the optimum".into()));
-                }
-            };
-        }
-    }
-    // Dead-band rows carry no noise: count only noisy readings as observations.
-    let n_obs = n_normal_live + rec.phase(Phase::Torsion).filter(|s| s.gamma1_mm != 0.0).count() + n_torsion;
-    let dof = n_obs.saturating_sub(np).max(1);
+/// The covariance of the fitted physical parameters (E1, nu1, z0), scaled by
+/// the residuals, with its degrees of freedom and the E1-nu1 correlation.
+struct Covariance {
+    matrix: DMatrix<f64>,
+    dof: usize,
+    corr_e1_nu1: f64,
+}
+
+/// Covariance in physical parameters from a central-difference Jacobian at the
+/// optimum. Friction that never limits the twist (the contact sticks
+/// throughout) has no effect on the data: it is left out, with a warning.
+fn covariance(
+    rec: &Recording,
+    passes: &Passes,
+    n_obs: usize,
+    warnings: &mut Vec<Warning>,
+) -> Result<Covariance, FitError> {
+    let params = &passes.params;
+    let (jac, r0) = physical_jacobian(rec, passes)?;
+    let dof = n_obs.saturating_sub(jac.ncols()).max(1);
     let s2 = r0.iter().map(|v| v * v).sum::<f64>() / dof as f64;
-    // Friction that never limits the twist (the contact sticks throughout) has no
-    // effect on the data: leave it out of the covariance and say so.
-    let mut np = np;
+    let mut np = jac.ncols();
     if np == 4 {
         let norm = |j: usize| jac.column(j).norm();
         if norm(3) * params.contact_friction.unwrap_or(1.0) < 1e-6 * norm(0) * params.e1_mpa {
@@ -491,78 +546,83 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
             "the covariance of E1, nu1 and z0 is not positive definite: these sweeps cannot separate them".into(),
         ));
     }
-    // The layer model's own approximation error, in quadrature with the noise
-    // (docs/physics.md, "Finite-element reference": the spread of its recoveries
-    // on independent finite-element recordings).
+    Ok(Covariance { matrix: cov, dof, corr_e1_nu1: corr })
+}
+
+/// The weighted residuals at the optimum and their central-difference
+/// Jacobian in the physical parameters (E1, nu1, z0[, friction]).
+fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<(DMatrix<f64>, Vec<f64>), FitError> {
+    let (params, (sg, st)) = (&passes.params, passes.sigma);
+    let mut phys = vec![params.e1_mpa, params.nu1, params.contact_offset_mm];
+    phys.extend(params.contact_friction);
+    let np = phys.len();
+    let correction = if passes.corrected { friction_correction(rec, params)? } else { None };
+    let mut r0 = Vec::new();
+    weighted_residuals(rec, params, correction.as_ref(), sg, st, &mut r0);
+    let m = r0.len();
+    let mut jac = DMatrix::zeros(m, np);
+    let steps = [1e-5 * params.e1_mpa, 1e-5, 1e-6, 1e-4 * params.contact_friction.unwrap_or(1.0)];
+    for j in 0..np {
+        let mut hi = phys.clone();
+        let mut lo = phys.clone();
+        hi[j] += steps[j];
+        lo[j] -= steps[j];
+        let (mut rp, mut rm) = (Vec::new(), Vec::new());
+        let up = weighted_residuals(rec, &from_physical(&hi), correction.as_ref(), sg, st, &mut rp);
+        let down = weighted_residuals(rec, &from_physical(&lo), correction.as_ref(), sg, st, &mut rm);
+        // Deep sweeps end close to the contact model's turning point, where a
+        // step to one side may leave the model's range: difference one-sided then.
+        for i in 0..m {
+            jac[(i, j)] = match (up, down) {
+                (true, true) => (rp[i] - rm[i]) / (2.0 * steps[j]),
+                (true, false) => (rp[i] - r0[i]) / steps[j],
+                (false, true) => (r0[i] - rm[i]) / steps[j],
+                (false, false) => {
+                    return Err(FitError::Model("the model cannot be evaluated next to the optimum".into()));
+                }
+            };
+        }
+    }
+    Ok((jac, r0))
+}
+
+/// Standard errors of E1, nu1 and z0: the covariance's, with the layer
+/// model's own approximation error in quadrature (docs/physics.md,
+/// "Finite-element reference": the spread of its recoveries on independent
+/// finite-element recordings).
+fn standard_errors(params: &ModelParams, cov: &DMatrix<f64>) -> [f64; 3] {
     let model_sd = if params.contact_friction.is_some() {
         [LAYER_MODEL_SD_E1 * params.e1_mpa, LAYER_MODEL_SD_NU1 * params.nu1, 0.0]
     } else {
         [0.0; 3]
     };
-    let se = |i: usize| (cov[(i, i)] + model_sd[i] * model_sd[i]).sqrt();
+    std::array::from_fn(|i| (cov[(i, i)] + model_sd[i] * model_sd[i]).sqrt())
+}
 
-    let pred = predict(rec, &params)?;
-    let r = residuals(rec, &pred);
-    if let Some(floor) = noise_from_second_differences(&r.normal_mm) {
-        let rms_n = rms(&r.normal_mm);
-        if rms_n > 3.0 * floor.max(1e-4) {
-            warnings.push(Warning::new(
-                "systematic_residuals",
-                format!(
-                    "the model leaves systematic residuals in the normal sweep ({:.1} µm RMS against a noise floor of \
-                     {:.1} µm): physics outside the model (large strain, an effect of the rig); the intervals are \
-                     scaled by the residuals but the estimate may be biased — run `easycalib diagnose`",
-                    rms_n * 1e3,
-                    floor * 1e3
-                ),
-            ));
-        }
-    }
-    let live: Vec<(f64, f64)> = rec
-        .samples
-        .iter()
-        .zip(&pred)
-        .filter(|(s, _)| s.phase == Phase::Normal && s.gamma1_mm != 0.0)
-        .map(|(s, p)| (s.gamma1_mm, p.gamma1_mm))
-        .collect();
-    let tor: Vec<(f64, f64)> = rec
-        .samples
-        .iter()
-        .zip(&pred)
-        .filter(|(s, _)| s.phase == Phase::Torsion)
-        .map(|(s, p)| (s.theta1_deg, p.theta1_deg))
-        .collect();
-    let split = |v: &[(f64, f64)]| -> (Vec<f64>, Vec<f64>) { v.iter().copied().unzip() };
-    let (lo_n, lp_n) = split(&live);
-    let (lo_t, lp_t) = split(&tor);
-    let beta =
-        rec.samples.iter().zip(&pred).find(|(s, _)| s.phase == Phase::Torsion).map(|(_, p)| p.beta).unwrap_or(f64::NAN);
-
-    Ok(FullFit {
-        e1_mpa: params.e1_mpa,
-        nu1: params.nu1,
-        contact_offset_mm: params.contact_offset_mm,
-        e1_se: se(0),
-        nu1_se: se(1),
-        contact_offset_se_mm: se(2),
-        ci95: FullCi95 {
-            e1_mpa: clip(interval(params.e1_mpa, se(0), dof), [0.0, f64::INFINITY]),
-            nu1: clip(interval(params.nu1, se(1), dof), [0.0, 0.5]),
-            contact_offset_mm: interval(params.contact_offset_mm, se(2), dof),
-        },
-        corr_e1_nu1: corr,
-        beta,
-        rms: GroupFigures { normal_um: rms(&r.normal_mm) * 1e3, torsion_deg: rms(&r.torsion_deg) },
-        noise_floor: GroupFigures {
-            normal_um: noise_from_second_differences(&r.normal_mm).unwrap_or(f64::NAN) * 1e3,
-            torsion_deg: noise_from_second_differences(&r.torsion_deg).unwrap_or(f64::NAN),
-        },
-        r2: R2 { normal: r_squared(&lo_n, &lp_n), torsion: r_squared(&lo_t, &lp_t) },
-        iterations: out.iterations,
-        converged: out.converged,
-        samples_used: n_obs,
-        model: if params.contact_friction.is_some() { "layer-fe" } else { "half-space" },
-        contact_friction: params.contact_friction,
-        warnings,
+/// A warning when the normal sweep's residuals stand well above their noise floor.
+fn systematic_warning(r: &Residuals) -> Option<Warning> {
+    let floor = noise_from_second_differences(&r.normal_mm)?;
+    let rms_n = rms(&r.normal_mm);
+    (rms_n > 3.0 * floor.max(1e-4)).then(|| {
+        Warning::new(
+            "systematic_residuals",
+            format!(
+                "the model leaves systematic residuals in the normal sweep ({:.1} µm RMS against a noise floor of \
+                 {:.1} µm): physics outside the model (large strain, an effect of the rig); the intervals are \
+                 scaled by the residuals but the estimate may be biased — run `easycalib diagnose`",
+                rms_n * 1e3,
+                floor * 1e3
+            ),
+        )
     })
+}
+
+/// R² of gamma1 over the live normal samples and of theta1 over the torsion sweep.
+fn r_squared_of(rec: &Recording, pred: &[Prediction]) -> R2 {
+    let pairs = |keep: fn(&Sample) -> bool, read: fn(&Sample, &Prediction) -> (f64, f64)| -> (Vec<f64>, Vec<f64>) {
+        rec.samples.iter().zip(pred).filter(|(s, _)| keep(s)).map(|(s, p)| read(s, p)).unzip()
+    };
+    let (lo_n, lp_n) = pairs(|s| s.phase == Phase::Normal && s.gamma1_mm != 0.0, |s, p| (s.gamma1_mm, p.gamma1_mm));
+    let (lo_t, lp_t) = pairs(|s| s.phase == Phase::Torsion, |s, p| (s.theta1_deg, p.theta1_deg));
+    R2 { normal: r_squared(&lo_n, &lp_n), torsion: r_squared(&lo_t, &lp_t) }
 }

@@ -1,10 +1,10 @@
 //! Fitting E1 and nu1 from a recording: the paper's method and the full-model fit.
 
 pub mod full;
-pub mod lm;
 pub mod paper;
 pub mod plausible;
-pub mod stats;
+pub mod regression;
+pub mod start_points;
 
 use serde::Serialize;
 use sim::recording::Recording;
@@ -21,10 +21,29 @@ pub enum FitError {
     Degenerate(String),
     #[error("forward model: {0}")]
     Model(String),
+    /// The contact pair the parameters make is not a material.
+    #[error("forward model: {0}")]
+    Params(#[from] sim::physics::ParamError),
+    /// The half-space contact model refused a depth.
+    #[error("forward model: {0}")]
+    Contact(#[from] sim::physics::NormalError),
+    /// The finite-element layer model failed.
+    #[error("forward model: {0}")]
+    Layer(#[from] fem::FemError),
+    #[error("forward model: {0}")]
+    Solver(#[from] crate::numerics::lm::LmError),
     #[error("fit options: {0}")]
     Options(String),
     #[error(transparent)]
     Implausible(#[from] Implausible),
+}
+
+/// 95 % intervals of E1 and nu1, each `[low, high]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Ci95 {
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: [f64; 2],
+    pub nu1: [f64; 2],
 }
 
 /// Something the reader of an estimate should know; `code` is stable for programs.
@@ -101,9 +120,8 @@ fn best_full_fit(rec: &Recording, opts: &FitOptions, paper: &PaperFit) -> Result
             return best.ok_or_else(|| FitError::Model("no start of the full fit converged".into()));
         }
     }
-    let e2 = rec.meta.indenter.e_mpa;
-    for (e1_mpa, nu1) in [(e2 / 3.0, 0.4), (e2 / 3.0, 0.25), (e2, 0.45), (e2 / 10.0, 0.35)] {
-        let start = ModelParams { e1_mpa, nu1, contact_offset_mm: 0.0, contact_friction: None };
+    for m in start_points::typical_elastomers(rec.meta.indenter.e_mpa) {
+        let start = ModelParams { e1_mpa: m.e1_mpa, nu1: m.nu1, contact_offset_mm: 0.0, contact_friction: None };
         consider(fit_full(rec, &opts.full, start), &mut best);
     }
     best.ok_or_else(|| last_err.unwrap_or_else(|| FitError::Model("no start of the full fit converged".into())))

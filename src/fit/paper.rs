@@ -2,13 +2,13 @@
 //! window of gamma1, Eq. 38 through the origin) and invert them to E1, nu1
 //! (exactly, and with the paper's rounded constants, Eqs. 39-40).
 
-use nalgebra::{Matrix2, Vector2};
 use serde::Serialize;
 use sim::physics::{invert_exact, invert_paper_rounded, rod_correction_factor};
 use sim::recording::{Phase, Recording};
 
-use super::FitError;
-use super::stats::{interval, r_squared};
+use super::regression::{PAPER_WINDOW_MM, eq22_point, eq38_point, fit_eq22, fit_eq38, torsion_depth};
+use super::{Ci95, FitError};
+use crate::numerics::stats::interval;
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct PaperOptions {
@@ -18,7 +18,7 @@ pub struct PaperOptions {
 
 impl Default for PaperOptions {
     fn default() -> Self {
-        Self { window_mm: [0.2, 0.8] }
+        Self { window_mm: PAPER_WINDOW_MM }
     }
 }
 
@@ -62,24 +62,14 @@ pub struct PaperFit {
     pub r2_torsion: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Ci95 {
-    #[serde(rename = "E1_MPa")]
-    pub e1_mpa: [f64; 2],
-    pub nu1: [f64; 2],
-}
-
 pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitError> {
     let [lo, hi] = opts.window_mm;
     if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi > lo) {
         return Err(FitError::Options(format!("gamma1 window [{lo}, {hi}] mm is not a valid range")));
     }
     // Eq. 22: gamma2 = H1 gamma1 + H2 gamma1^1.5 over the window.
-    let pts: Vec<(f64, f64)> = rec
-        .phase(Phase::Normal)
-        .filter(|s| s.gamma1_mm >= lo && s.gamma1_mm <= hi)
-        .map(|s| (s.gamma1_mm, s.stage_mm - s.gamma1_mm))
-        .collect();
+    let pts: Vec<(f64, f64)> =
+        rec.phase(Phase::Normal).filter(|s| s.gamma1_mm >= lo && s.gamma1_mm <= hi).map(eq22_point).collect();
     if pts.len() < 4 {
         return Err(FitError::TooFewSamples {
             what: format!("normal samples with gamma1 in [{lo}, {hi}] mm"),
@@ -87,56 +77,20 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
             need: 4,
         });
     }
-    let mut xtx = Matrix2::zeros();
-    let mut xty = Vector2::zeros();
-    for &(g1, g2) in &pts {
-        let row = Vector2::new(g1, g1.powf(1.5));
-        xtx += row * row.transpose();
-        xty += row * g2;
-    }
-    let inv = xtx.try_inverse().ok_or_else(|| FitError::Degenerate("Eq. 22 design matrix is singular".into()))?;
-    let coef = inv * xty;
-    let (h1, h2) = (coef[0], coef[1]);
-    let pred: Vec<f64> = pts.iter().map(|&(g1, _)| h1 * g1 + h2 * g1.powf(1.5)).collect();
-    let obs: Vec<f64> = pts.iter().map(|p| p.1).collect();
-    let ssr: f64 = obs.iter().zip(&pred).map(|(o, p)| (o - p).powi(2)).sum();
-    let dof_n = pts.len() - 2;
-    let s2 = ssr / dof_n as f64;
-    let h1_se = (s2 * inv[(0, 0)]).sqrt();
-    let r2_normal = r_squared(&obs, &pred);
+    let normal = fit_eq22(&pts).ok_or_else(|| FitError::Degenerate("Eq. 22 design matrix is singular".into()))?;
 
     // Eq. 38: theta2 = H3 theta1 through the origin.
-    let tors: Vec<(f64, f64)> = rec
-        .phase(Phase::Torsion)
-        .filter(|s| s.theta1_deg != 0.0 || s.rot_deg != 0.0)
-        .map(|s| (s.theta1_deg, s.rot_deg - s.theta1_deg))
-        .collect();
+    let tors: Vec<(f64, f64)> =
+        rec.phase(Phase::Torsion).filter(|s| s.theta1_deg != 0.0 || s.rot_deg != 0.0).map(eq38_point).collect();
     if tors.len() < 3 {
         return Err(FitError::TooFewSamples { what: "torsion samples with twist".into(), found: tors.len(), need: 3 });
     }
-    let sxx: f64 = tors.iter().map(|(t1, _)| t1 * t1).sum();
-    let sxy: f64 = tors.iter().map(|(t1, t2)| t1 * t2).sum();
-    if sxx <= 0.0 {
-        return Err(FitError::Degenerate("theta1 is zero in every torsion sample".into()));
-    }
-    let h3 = sxy / sxx;
-    let pred3: Vec<f64> = tors.iter().map(|(t1, _)| h3 * t1).collect();
-    let obs3: Vec<f64> = tors.iter().map(|t| t.1).collect();
-    let ssr3: f64 = obs3.iter().zip(&pred3).map(|(o, p)| (o - p).powi(2)).sum();
-    let dof_t = tors.len() - 1;
-    let h3_se = (ssr3 / dof_t as f64 / sxx).sqrt();
-    let r2_torsion = r_squared(&obs3, &pred3);
+    let torsion =
+        fit_eq38(&tors).ok_or_else(|| FitError::Degenerate("theta1 is zero in every torsion sample".into()))?;
 
     // The depth actually reached, from the torsion samples themselves.
-    let r2_mm = rec.meta.indenter.r_mm;
-    let depths: Vec<f64> = rec.phase(Phase::Torsion).map(|s| (s.stage_mm - s.gamma1_mm) / r2_mm).collect();
-    let beta = depths.iter().sum::<f64>() / depths.len() as f64;
-    let beta_se = if depths.len() > 1 {
-        (depths.iter().map(|b| (b - beta).powi(2)).sum::<f64>() / (depths.len() - 1) as f64 / depths.len() as f64)
-            .sqrt()
-    } else {
-        0.0
-    };
+    let (beta, beta_se) = torsion_depth(rec.phase(Phase::Torsion), rec.meta.indenter.r_mm).unwrap_or((f64::NAN, 0.0));
+    let (h1, h1_se, h3, h3_se) = (normal.h1, normal.h1_se, torsion.h3, torsion.h3_se);
 
     let e2 = rec.meta.indenter.e_mpa;
     let nu2 = rec.meta.indenter.nu;
@@ -155,17 +109,17 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
     let nu1_se = (dn_1 * dn_1 + dn_3 * dn_3 + dn_b * dn_b).sqrt();
     let cov = de_1 * dn_1 + de_3 * dn_3 + de_b * dn_b;
     let corr = if e1_se > 0.0 && nu1_se > 0.0 { cov / (e1_se * nu1_se) } else { f64::NAN };
-    let dof = dof_n.min(dof_t);
+    let dof = normal.dof.min(torsion.dof);
     let rounded = invert_paper_rounded(h1, h3, e2, nu2);
 
     Ok(PaperFit {
         h1,
         h1_se,
-        h1_ci95: interval(h1, h1_se, dof_n),
-        h2,
+        h1_ci95: interval(h1, h1_se, normal.dof),
+        h2: normal.h2,
         h3,
         h3_se,
-        h3_ci95: interval(h3, h3_se, dof_t),
+        h3_ci95: interval(h3, h3_se, torsion.dof),
         beta,
         rod_factor: rod_correction_factor(beta),
         e1_mpa: best.e1_mpa,
@@ -179,7 +133,7 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
         window_mm: opts.window_mm,
         n_normal: pts.len(),
         n_torsion: tors.len(),
-        r2_normal,
-        r2_torsion,
+        r2_normal: normal.r2,
+        r2_torsion: torsion.r2,
     })
 }

@@ -6,7 +6,7 @@ use std::path::Path;
 use serde::Serialize;
 use sim::recording::{Phase, Recording};
 
-use crate::fit::{Calibration, FullFit, PaperFit, Warning};
+use crate::fit::{Calibration, Ci95, FullFit, PaperFit, Warning};
 
 #[derive(Debug, Clone, Serialize)]
 pub struct CalibrationOutput {
@@ -16,7 +16,7 @@ pub struct CalibrationOutput {
     #[serde(rename = "E1_MPa")]
     pub e1_mpa: f64,
     pub nu1: f64,
-    pub ci95: Ci95Out,
+    pub ci95: Ci95,
     pub paper: PaperFit,
     pub full: FullFit,
     /// Everything the reader of the estimate should know (empty when nothing).
@@ -43,20 +43,8 @@ pub struct SampleCounts {
     pub torsion: usize,
 }
 
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct Ci95Out {
-    #[serde(rename = "E1_MPa")]
-    pub e1_mpa: [f64; 2],
-    pub nu1: [f64; 2],
-}
-
 /// The true elastomer of a simulated rig.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Truth {
-    #[serde(rename = "E1_MPa")]
-    pub e1_mpa: f64,
-    pub nu1: f64,
-}
+pub type Truth = sim::physics::Material;
 
 pub fn calibration_output(
     rec: &Recording,
@@ -69,7 +57,7 @@ pub fn calibration_output(
         samples: SampleCounts { normal: rec.phase(Phase::Normal).count(), torsion: rec.phase(Phase::Torsion).count() },
         e1_mpa: cal.full.e1_mpa,
         nu1: cal.full.nu1,
-        ci95: Ci95Out { e1_mpa: cal.full.ci95.e1_mpa, nu1: cal.full.ci95.nu1 },
+        ci95: Ci95 { e1_mpa: cal.full.ci95.e1_mpa, nu1: cal.full.ci95.nu1 },
         paper: cal.paper.clone(),
         full: cal.full.clone(),
         warnings: cal.warnings.clone(),

@@ -21,11 +21,20 @@ fn interval(ci: [f64; 2], d: usize) -> String {
 /// The Markdown report. `normal_svg` and `torsion_svg` are the figures' file
 /// names relative to the report.
 pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &str, torsion_svg: &str) -> String {
-    let f = &out.full;
-    let p = &out.paper;
-    let meta = &rec.meta;
     let mut s = String::new();
-    // Writing to a String cannot fail.
+    write_header(&mut s, out, rec);
+    write_result(&mut s, out);
+    write_truth(&mut s, out);
+    write_fit_quality(&mut s, out);
+    write_figures(&mut s, normal_svg, torsion_svg);
+    s
+}
+
+// Writing to a String cannot fail: the sections below ignore `writeln!`'s Ok.
+
+/// Title and the table of what was calibrated, with what, and how long it took.
+fn write_header(s: &mut String, out: &CalibrationOutput, rec: &Recording) {
+    let meta = &rec.meta;
     let _ = writeln!(s, "# Calibration report\n");
     let _ = writeln!(s, "| | |\n| --- | --- |");
     let _ = writeln!(s, "| sensor | {} |", meta.sensor.as_deref().unwrap_or("(not named)"));
@@ -52,7 +61,12 @@ pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &st
         );
     }
     let _ = writeln!(s);
+}
 
+/// The best estimate with its warnings, and the table of every method's values.
+fn write_result(s: &mut String, out: &CalibrationOutput) {
+    let f = &out.full;
+    let p = &out.paper;
     let _ = writeln!(s, "## Result\n");
     let _ = writeln!(
         s,
@@ -85,7 +99,12 @@ pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &st
     let _ = writeln!(s, "| E1 | paper, rounded constants (Eqs. 39-40) | {} | | MPa |", num(p.e1_mpa_rounded, 4));
     let _ = writeln!(s, "| nu1 | paper, rounded constants (Eqs. 39-40) | {} | | – |", num(p.nu1_rounded, 4));
     let _ = writeln!(s);
+}
 
+/// The simulated rig's true elastomer and each method's error against it (simulated runs only).
+fn write_truth(s: &mut String, out: &CalibrationOutput) {
+    let f = &out.full;
+    let p = &out.paper;
     if let Some(t) = out.sim_truth {
         let _ = writeln!(s, "## Simulation truth\n");
         let _ = writeln!(s, "| | E1 (MPa) | nu1 |\n| --- | ---: | ---: |");
@@ -94,7 +113,12 @@ pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &st
         let _ = writeln!(s, "| full model error | {} | {} |", err(f.e1_mpa, t.e1_mpa), err(f.nu1, t.nu1));
         let _ = writeln!(s, "| paper's method error | {} | {} |\n", err(p.e1_mpa, t.e1_mpa), err(p.nu1, t.nu1));
     }
+}
 
+/// Residuals, noise floors and R² per sweep; how each method got there.
+fn write_fit_quality(s: &mut String, out: &CalibrationOutput) {
+    let f = &out.full;
+    let p = &out.paper;
     let _ = writeln!(s, "## Fit quality\n");
     let _ = writeln!(s, "| | normal sweep | torsion sweep |\n| --- | ---: | ---: |");
     let _ = writeln!(
@@ -136,11 +160,13 @@ pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &st
         num(f.beta, 4),
         num(f.corr_e1_nu1, 3)
     );
+}
 
+/// The two sweep figures with their captions.
+fn write_figures(s: &mut String, normal_svg: &str, torsion_svg: &str) {
     let _ = writeln!(s, "## Figures\n");
     let _ = writeln!(s, "Normal sweep with the paper's fit (Eq. 22) and the full model; residuals below.\n");
     let _ = writeln!(s, "![Normal sweep: gamma2 vs gamma1]({normal_svg})\n");
     let _ = writeln!(s, "Torsion sweep with the paper's fit (Eq. 38) and the full model; residuals below.\n");
     let _ = writeln!(s, "![Torsion sweep: theta2 vs theta1]({torsion_svg})");
-    s
 }

@@ -13,5 +13,5 @@ pub mod session;
 pub use config::{ConfigError, RigConfig};
 pub use connect::{ConnectError, RigDevices, RigGauge, RigSpec, SensorDriver, SensorSpec, measure_frame, open_rig};
 pub use drivers::{AxisSpec, Driver, Drivers, OpenAxis, OpenError, RotationSpec, StageSpec};
-pub use emulated::{EmulatedRig, EmulatedRigOptions, EmulatedSensor, StageEmulator};
+pub use emulated::{EmulatedRig, EmulatedSensor, ServeOptions, StageEmulator};
 pub use session::{RECORDING_FILE, RunRequest, RunResult, StartError, fit_and_report, run_calibration};

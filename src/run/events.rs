@@ -12,6 +12,8 @@ use serde::{Deserialize, Serialize};
 use sim::physics::{Body, invert_exact};
 use sim::recording::{Phase, Sample};
 
+use crate::fit::regression::{PAPER_WINDOW_MM, eq22_point, eq38_point, fit_eq22, fit_eq38, torsion_depth};
+
 /// Coarse stage of the run a step belongs to (the step's own name says more).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -105,55 +107,29 @@ pub struct FitUpdate {
     pub nu1: Option<f64>,
 }
 
-/// gamma1 window of the running Eq. 22 fit (the paper's mid range), mm.
-const RUNNING_WINDOW_MM: [f64; 2] = [0.2, 0.8];
-
 impl FitUpdate {
     /// A quick running estimate by the paper's reduced relations over the
     /// samples so far: cheap enough to recompute after every sample (two
     /// small least-squares sums). Falls back to every in-contact normal sample
-    /// while the window has fewer than four; returns `None` when nothing can be
-    /// fitted yet.
+    /// while the paper's gamma1 window has fewer than four; returns `None`
+    /// when nothing can be fitted yet.
     pub fn estimate(samples: &[Sample], indenter: &Body) -> Option<FitUpdate> {
-        let normal: Vec<(f64, f64)> = samples
-            .iter()
-            .filter(|s| s.phase == Phase::Normal && s.gamma1_mm > 0.0)
-            .map(|s| (s.gamma1_mm, s.stage_mm - s.gamma1_mm))
-            .collect();
-        let windowed: Vec<(f64, f64)> = normal
-            .iter()
-            .copied()
-            .filter(|&(g1, _)| (RUNNING_WINDOW_MM[0]..=RUNNING_WINDOW_MM[1]).contains(&g1))
-            .collect();
+        let normal: Vec<(f64, f64)> =
+            samples.iter().filter(|s| s.phase == Phase::Normal && s.gamma1_mm > 0.0).map(eq22_point).collect();
+        let windowed: Vec<(f64, f64)> =
+            normal.iter().copied().filter(|&(g1, _)| (PAPER_WINDOW_MM[0]..=PAPER_WINDOW_MM[1]).contains(&g1)).collect();
         let pts = if windowed.len() >= 4 { windowed } else { normal };
         let mut fit = FitUpdate::default();
-        if pts.len() >= 3 {
-            // Normal equations of the 2x2 problem [g1, g1^1.5] . [H1, H2] = g2.
-            let (mut a, mut b, mut c, mut p, mut q) = (0.0, 0.0, 0.0, 0.0, 0.0);
-            for &(g1, g2) in &pts {
-                let x2 = g1.powf(1.5);
-                a += g1 * g1;
-                b += g1 * x2;
-                c += x2 * x2;
-                p += g1 * g2;
-                q += x2 * g2;
-            }
-            let det = a * c - b * b;
-            if det.abs() > 1e-12 * (a * c).max(f64::MIN_POSITIVE) {
-                fit.h1 = Some((c * p - b * q) / det);
-                fit.h2 = Some((a * q - b * p) / det);
-            }
+        if let Some(eq22) = fit_eq22(&pts).filter(|_| pts.len() >= 3) {
+            fit.h1 = Some(eq22.h1);
+            fit.h2 = Some(eq22.h2);
         }
         let tors: Vec<&Sample> = samples.iter().filter(|s| s.phase == Phase::Torsion).collect();
-        let (sxx, sxy) = tors.iter().fold((0.0, 0.0), |(xx, xy), s| {
-            let t2 = s.rot_deg - s.theta1_deg;
-            (xx + s.theta1_deg * s.theta1_deg, xy + s.theta1_deg * t2)
-        });
-        if tors.len() >= 2 && sxx > 0.0 {
-            fit.h3 = Some(sxy / sxx);
+        let twist: Vec<(f64, f64)> = tors.iter().map(|s| eq38_point(s)).collect();
+        if let Some(eq38) = fit_eq38(&twist).filter(|_| tors.len() >= 2) {
+            fit.h3 = Some(eq38.h3);
         }
-        if let (Some(h1), Some(h3)) = (fit.h1, fit.h3) {
-            let beta = tors.iter().map(|s| (s.stage_mm - s.gamma1_mm) / indenter.r_mm).sum::<f64>() / tors.len() as f64;
+        if let (Some(h1), Some(h3), Some((beta, _))) = (fit.h1, fit.h3, torsion_depth(tors, indenter.r_mm)) {
             let inv = invert_exact(h1, h3, indenter.e_mpa, indenter.nu, beta);
             if inv.e1_mpa.is_finite() && inv.nu1.is_finite() {
                 fit.e1_mpa = Some(inv.e1_mpa);

@@ -197,7 +197,7 @@ mod radius {
 
 impl Default for SensorSection {
     fn default() -> Self {
-        Self { elastomer_r_mm: 33.0, name: None }
+        Self { elastomer_r_mm: sim::defaults::ELASTOMER_R_MM, name: None }
     }
 }
 impl Default for ApproachSection {
@@ -259,7 +259,9 @@ impl Default for Script {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScriptError {
     #[error("script is not valid TOML for easycalib: {0}")]
-    Parse(String),
+    Parse(#[from] toml::de::Error),
+    #[error("script is not valid TOML for easycalib: {0}")]
+    Encode(#[source] toml::ser::Error),
     #[error("script `{field}`: {message}")]
     Invalid { field: &'static str, message: String },
 }
@@ -291,23 +293,34 @@ fn finite(field: &'static str, x: f64) -> Result<(), ScriptError> {
 impl Script {
     /// Parse and validate a script.
     pub fn from_toml(text: &str) -> Result<Script, ScriptError> {
-        let s: Script = toml::from_str(text).map_err(|e| ScriptError::Parse(e.to_string()))?;
+        let s: Script = toml::from_str(text)?;
         s.validate()?;
         Ok(s)
     }
 
     pub fn to_toml(&self) -> Result<String, ScriptError> {
-        toml::to_string_pretty(self).map_err(|e| ScriptError::Parse(e.to_string()))
+        toml::to_string_pretty(self).map_err(ScriptError::Encode)
     }
 
     /// Refuse scripts that are inconsistent in themselves (device travel is
     /// checked when the devices are connected).
+    /// The sections are checked in the order of the file; the first fault is reported.
     pub fn validate(&self) -> Result<(), ScriptError> {
         self.indenter.validate("indenter").map_err(|e| invalid("indenter", e.to_string()))?;
         let r1 = self.sensor.elastomer_r_mm;
         if r1.is_nan() || r1 <= 0.0 {
             return Err(invalid("sensor.elastomer_r_mm", format!("must be > 0 (or \"inf\"), got {r1}")));
         }
+        self.validate_approach()?;
+        self.validate_normal()?;
+        self.validate_torsion()?;
+        self.validate_limits()?;
+        self.validate_timing()
+    }
+
+    /// `[approach]`: steps, contact detection, the refinement window (the
+    /// number of moves is bounded against the `[limits]` stage window).
+    fn validate_approach(&self) -> Result<(), ScriptError> {
         let a = &self.approach;
         finite("approach.start_mm", a.start_mm)?;
         positive("approach.step_mm", a.step_mm)?;
@@ -350,6 +363,11 @@ impl Script {
         if !(a.pre_contact_mm.is_finite() && a.pre_contact_mm >= 0.0) {
             return Err(invalid("approach.pre_contact_mm", format!("must be >= 0, got {}", a.pre_contact_mm)));
         }
+        Ok(())
+    }
+
+    /// `[normal]`: step (bounded through the moves across the stage window), depth, repeats.
+    fn validate_normal(&self) -> Result<(), ScriptError> {
         let n = &self.normal;
         positive("normal.step_mm", n.step_mm)?;
         let normal_steps = (self.limits.stage_max_mm - self.limits.stage_min_mm) / n.step_mm;
@@ -369,13 +387,23 @@ impl Script {
         if n.repeats == 0 || n.repeats > 100 {
             return Err(invalid("normal.repeats", format!("must be 1..=100, got {}", n.repeats)));
         }
+        Ok(())
+    }
+
+    /// `[torsion]`: amplitude and step.
+    fn validate_torsion(&self) -> Result<(), ScriptError> {
         let t = &self.torsion;
         positive("torsion.amplitude_deg", t.amplitude_deg)?;
         positive("torsion.step_deg", t.step_deg)?;
         if t.amplitude_deg / t.step_deg > 10_000.0 {
             return Err(invalid("torsion.step_deg", "more than 10000 steps per half sweep"));
         }
-        let l = &self.limits;
+        Ok(())
+    }
+
+    /// `[limits]`, and the approach start, retract position and twist amplitude against them.
+    fn validate_limits(&self) -> Result<(), ScriptError> {
+        let (l, a, t) = (&self.limits, &self.approach, &self.torsion);
         finite("limits.stage_min_mm", l.stage_min_mm)?;
         finite("limits.stage_max_mm", l.stage_max_mm)?;
         finite("limits.retract_mm", l.retract_mm)?;
@@ -407,6 +435,11 @@ impl Script {
                 format!("{} exceeds limits.max_twist_deg {}", t.amplitude_deg, l.max_twist_deg),
             ));
         }
+        Ok(())
+    }
+
+    /// `[settle]` and `[timeouts]`: counts, tolerances, and every duration under an hour.
+    fn validate_timing(&self) -> Result<(), ScriptError> {
         let s = &self.settle;
         if !(1..=100).contains(&s.readings) {
             return Err(invalid("settle.readings", format!("must be 1..=100, got {}", s.readings)));

@@ -3,10 +3,10 @@
 //! stuck markers about the contact centre. Both reject outlier markers by a
 //! robust (median-based) scale and refit.
 
-use nalgebra::{Matrix2, SMatrix, SVector};
+use nalgebra::{Matrix2, Matrix4, SMatrix, SVector, U4, Vector4};
 
-/// `1.4826 * MAD` estimates a Gaussian sigma.
-const MAD_TO_SIGMA: f64 = 1.482_602_218_505_602;
+use crate::numerics::lm::{self, LmError, LmOptions, NormalEquations, Problem, Strategy};
+use crate::numerics::stats::{MAD_TO_SIGMA, median, rms};
 
 /// w = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2, in coordinates local to the window.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -314,7 +314,7 @@ pub fn fit_rotation(p: &[[f64; 2]], q: &[[f64; 2]], centre: [f64; 2], k: f64, fl
             })
             .collect();
         let mut kept_r: Vec<f64> = (0..n).filter(|&i| kept[i]).map(|i| resid[i]).collect();
-        let rms = (kept_r.iter().map(|e| e * e).sum::<f64>() / m as f64).sqrt();
+        let rms = rms(&kept_r);
         let sigma = MAD_TO_SIGMA * median(&mut kept_r);
         let limit = (k * sigma).max(floor);
         // Re-judge every marker against the current fit (one wrongly dropped
@@ -390,8 +390,7 @@ pub fn fit_hertz(
         let [g, cx, cy, a] = params;
         let resid: Vec<f64> = pts.iter().map(|p| p[2] - g * hertz_shape((p[0] - cx).hypot(p[1] - cy) / a)).collect();
         let mut kr: Vec<f64> = (0..n).filter(|&i| kept[i]).map(|i| resid[i].abs()).collect();
-        let m = kr.len();
-        let rms = (kr.iter().map(|e| e * e).sum::<f64>() / m.max(1) as f64).sqrt();
+        let rms = rms(&kr);
         let limit = (k * MAD_TO_SIGMA * median(&mut kr)).max(floor);
         let next: Vec<bool> = resid.iter().map(|e| e.abs() <= limit).collect();
         if round + 1 == ROUNDS || next == kept || next.iter().filter(|&&b| b).count() < 5 {
@@ -411,24 +410,30 @@ fn hertz_cost(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4]) -> f64 {
         .sum()
 }
 
-/// Levenberg-Marquardt on the Hertz field; with `tie = Some(c)` the radius
-/// follows the depth, a = sqrt(gamma1 / c), and only (gamma1, cx, cy) are free.
-fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], mut p: [f64; 4], tie: Option<f64>) -> Option<[f64; 4]> {
-    use nalgebra::{Matrix4, Vector4};
-    let tied = |mut q: [f64; 4]| {
-        if let Some(c) = tie {
-            q[3] = (q[0] / c).sqrt();
-        }
-        q
-    };
-    p = tied(p);
-    let mut lambda = 1e-3;
-    let mut cost = hertz_cost(pts, kept, p);
-    for _ in 0..500 {
-        let [g, cx, cy, a] = p;
+/// The Hertz field over the kept markers as a least-squares problem in
+/// (gamma1, cx, cy, a); with `tie = Some(c)` the radius follows the depth,
+/// a = sqrt(gamma1 / c), and only (gamma1, cx, cy) are free. Depth and radius
+/// stay positive (other points are refused).
+struct HertzField<'a> {
+    pts: &'a [[f64; 3]],
+    kept: &'a [bool],
+    tie: Option<f64>,
+}
+
+impl Problem<U4> for HertzField<'_> {
+    fn start(&mut self, x: &Vector4<f64>) -> Result<f64, LmError> {
+        Ok(hertz_cost(self.pts, self.kept, (*x).into()))
+    }
+
+    fn cost(&mut self, x: &Vector4<f64>) -> Option<f64> {
+        (x[3] > 0.0 && x[0] > 0.0).then(|| hertz_cost(self.pts, self.kept, (*x).into()))
+    }
+
+    fn normal_equations(&mut self, x: &Vector4<f64>) -> Option<NormalEquations<U4>> {
+        let [g, cx, cy, a]: [f64; 4] = (*x).into();
         let mut jtj = Matrix4::<f64>::zeros();
         let mut jtr = Vector4::<f64>::zeros();
-        for (q, _) in pts.iter().zip(kept).filter(|(_, k)| **k) {
+        for (q, _) in self.pts.iter().zip(self.kept).filter(|(_, k)| **k) {
             let (dx, dy) = (q[0] - cx, q[1] - cy);
             let r = dx.hypot(dy);
             let rho = r / a;
@@ -436,66 +441,37 @@ fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], mut p: [f64; 4], tie: Option<f64>) 
             let fp = hertz_slope(rho);
             let (dcx, dcy) = if r > 0.0 { (-g * fp * dx / (r * a), -g * fp * dy / (r * a)) } else { (0.0, 0.0) };
             // Tied: d(g f(r / a(g)))/dg = f - f' rho / 2, and a is no unknown.
-            let j = match tie {
+            let j = match self.tie {
                 None => Vector4::new(f, dcx, dcy, -g * fp * rho / a),
                 Some(_) => Vector4::new(f - 0.5 * fp * rho, dcx, dcy, 0.0),
             };
             jtj += j * j.transpose();
             jtr += j * (q[2] - g * f);
         }
-        if tie.is_some() {
+        if self.tie.is_some() {
             jtj[(3, 3)] = 1.0;
         }
-        let mut improved = false;
-        for _ in 0..12 {
-            let mut damped = jtj;
-            for d in 0..4 {
-                damped[(d, d)] += lambda * jtj[(d, d)].max(1e-12);
-            }
-            let Some(step) = damped.cholesky().map(|c| c.solve(&jtr)) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let trial = tied([p[0] + step[0], p[1] + step[1], p[2] + step[2], p[3] + step[3]]);
-            if trial[3] > 0.0 && trial[0] > 0.0 {
-                let c = hertz_cost(pts, kept, trial);
-                if c <= cost {
-                    let small = step.iter().zip(&trial).all(|(s, t)| s.abs() <= 1e-12 * (1.0 + t.abs()));
-                    p = trial;
-                    let done = small || cost - c <= 1e-16 * (1.0 + cost) && c < cost;
-                    cost = c;
-                    lambda = (lambda * 0.3).max(1e-12);
-                    improved = true;
-                    if done {
-                        return Some(p);
-                    }
-                    break;
-                }
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
+        // The residuals are marker minus model: their Jacobian is -j.
+        Some((jtj, -jtr))
+    }
+
+    fn project(&self, x: &mut Vector4<f64>) {
+        if let Some(c) = self.tie {
+            x[3] = (x[0] / c).sqrt();
         }
     }
-    p.iter().all(|v| v.is_finite()).then_some(p)
 }
 
-/// Median of a non-empty slice (reorders it); 0 for an empty one.
-pub fn median(v: &mut [f64]) -> f64 {
-    let n = v.len();
-    if n == 0 {
-        return 0.0;
-    }
-    let mid = n / 2;
-    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
-    let upper = *m;
-    if n % 2 == 1 {
-        upper
-    } else {
-        let lower = v[..mid].iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        0.5 * (lower + upper)
-    }
+/// Stopping rule of the Hertz field fit (parameters in mm, costs in mm²: the
+/// tolerances are absolute below 1).
+const HERTZ_LM: LmOptions =
+    LmOptions { max_iterations: 500, cost_tolerance: 1e-16, step_tolerance: 1e-12, fd_step: 0.0 };
+
+/// Levenberg-Marquardt on the Hertz field (see [`HertzField`]) from `p`.
+fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4], tie: Option<f64>) -> Option<[f64; 4]> {
+    let mut field = HertzField { pts, kept, tie };
+    let out = lm::solve(&mut field, Vector4::from(p), &HERTZ_LM, &Strategy::FIELD).ok()?;
+    out.x.iter().all(|v| v.is_finite()).then(|| out.x.into())
 }
 
 #[cfg(test)]
@@ -542,12 +518,5 @@ mod tests {
         let fit = fit_rotation(&p, &q, centre, 4.0, 1e-6).unwrap();
         assert!((fit.theta - theta).abs() < 1e-12, "{}", fit.theta);
         assert!(!fit.kept[3] && fit.kept.iter().filter(|&&k| !k).count() == 1);
-    }
-
-    #[test]
-    fn median_odd_and_even() {
-        assert_eq!(median(&mut [3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
-        assert_eq!(median(&mut []), 0.0);
     }
 }

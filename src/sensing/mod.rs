@@ -24,6 +24,8 @@ use serde::Serialize;
 
 use fit::{fit_hertz, fit_quadratic, fit_rotation};
 
+use crate::numerics::stats::median;
+
 /// Settings of the frame processing.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct SensingConfig {
@@ -203,7 +205,7 @@ fn deepest_marker(frame: &SensorFrame) -> (usize, f64, f64) {
         around.clear();
         around.push(depth(c));
         around.extend(near[..m].iter().map(|&(_, j)| depth(j)));
-        let score = fit::median(&mut around);
+        let score = median(&mut around);
         if score > best.1 {
             best = (c, score, pitch);
         }

@@ -26,7 +26,7 @@ use tokio::time::Instant;
 use tokio_serial::{DataBits, FlowControl, Parity, SerialPortBuilderExt, SerialStream, StopBits};
 
 use super::codec::{
-    AlarmCode, AxisValues, Command, Distance, EncodeError, ErrorCode, LineSplitter, MachineState, ParseError,
+    AlarmCode, AxisValues, Distance, EncodeError, ErrorCode, GrblCommand, LineSplitter, MachineState, ParseError,
     RX_BUFFER_SIZE, Realtime, Response, StatusReport, parse_line_bytes,
 };
 use crate::motion::{Axis, AxisStatus, DeviceFault, DeviceInfo, FaultKind, Identify, Mm};
@@ -312,7 +312,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
     }
 
     /// Send one line under character counting; returns its sequence number.
-    async fn send_line(&mut self, cmd: &Command, during: &'static str) -> Result<u64, GrblError> {
+    async fn send_line(&mut self, cmd: &GrblCommand, during: &'static str) -> Result<u64, GrblError> {
         let line = cmd.encode()?;
         let n = line.len();
         let deadline = Instant::now() + self.cfg.reply_timeout;
@@ -336,7 +336,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
     async fn wait_answer(
         &mut self,
         seq: u64,
-        line: &Command,
+        line: &GrblCommand,
         timeout: Duration,
         during: &'static str,
     ) -> Result<(), GrblError> {
@@ -367,7 +367,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
         }
     }
 
-    async fn command(&mut self, cmd: Command, timeout: Duration, during: &'static str) -> Result<(), GrblError> {
+    async fn command(&mut self, cmd: GrblCommand, timeout: Duration, during: &'static str) -> Result<(), GrblError> {
         let seq = self.send_line(&cmd, during).await?;
         self.wait_answer(seq, &cmd, timeout, during).await
     }
@@ -472,7 +472,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
         if self.alarm.is_some_and(AlarmCode::is_critical) {
             self.soft_reset().await?;
         }
-        self.command(Command::Unlock, self.cfg.reply_timeout, "unlocking").await?;
+        self.command(GrblCommand::Unlock, self.cfg.reply_timeout, "unlocking").await?;
         self.alarm = None;
         Ok(())
     }
@@ -492,7 +492,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> GrblStage<T> {
         }
     }
 
-    async fn start_move(&mut self, target_mm: f64, cmd: Command) -> Result<(), GrblError> {
+    async fn start_move(&mut self, target_mm: f64, cmd: GrblCommand) -> Result<(), GrblError> {
         self.command(cmd, self.cfg.reply_timeout, "queueing a move").await?;
         self.target = Some(target_mm);
         Ok(())
@@ -545,7 +545,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Axis for GrblStage<T> {
             self.soft_reset().await?;
         }
         // `$H`'s `ok` comes only when the cycle ends; GRBL answers no `?` meanwhile.
-        self.command(Command::Home, timeout, "homing").await?;
+        self.command(GrblCommand::Home, timeout, "homing").await?;
         self.alarm = None;
         self.homed = true;
         self.target = None;
@@ -556,7 +556,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Axis for GrblStage<T> {
     async fn start_move_to(&mut self, Mm(target_mm): Mm) -> Result<(), GrblError> {
         self.check_travel(target_mm)?;
         self.check_unlocked()?;
-        let cmd = Command::Feed {
+        let cmd = GrblCommand::Feed {
             distance: Distance::Absolute,
             axis: self.cfg.axis,
             mm: target_mm,
@@ -570,7 +570,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Axis for GrblStage<T> {
         let from = self.reference_mm().await?;
         let target_mm = from + delta_mm;
         self.check_travel(target_mm)?;
-        let cmd = Command::Feed {
+        let cmd = GrblCommand::Feed {
             distance: Distance::Incremental,
             axis: self.cfg.axis,
             mm: delta_mm,
@@ -662,7 +662,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Identify for GrblStage<T> {
     /// user-settable build-info string (`$I=...`) stands in for one.
     async fn identify(&mut self) -> Result<DeviceInfo, GrblError> {
         const DURING: &str = "reading build info";
-        let seq = self.send_line(&Command::BuildInfo, DURING).await?;
+        let seq = self.send_line(&GrblCommand::BuildInfo, DURING).await?;
         let deadline = Instant::now() + self.cfg.reply_timeout;
         let mut ver: Option<(String, String)> = None;
         loop {

@@ -180,7 +180,7 @@ async fn character_counting_never_exceeds_rx_buffer() {
     });
     let mut stage = GrblStage::connect(host, cfg()).await.unwrap();
     let mut seqs = Vec::new();
-    let cmd = Command::Feed { distance: Distance::Absolute, axis: 'Z', mm: 12.3456, feed_mm_min: 1234.5 };
+    let cmd = GrblCommand::Feed { distance: Distance::Absolute, axis: 'Z', mm: 12.3456, feed_mm_min: 1234.5 };
     for _ in 0..20 {
         seqs.push(stage.send_line(&cmd, "test").await.unwrap());
         assert!(stage.unacknowledged_bytes() <= RX_BUFFER_SIZE);

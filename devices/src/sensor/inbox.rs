@@ -5,7 +5,8 @@
 //! wants recent deformation, not a backlog.
 
 use std::collections::VecDeque;
-use std::sync::{Mutex, MutexGuard};
+use std::io;
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use tokio::sync::Notify;
@@ -20,7 +21,16 @@ struct State {
     queue: VecDeque<SensorFrame>,
     capacity: usize,
     streaming: bool,
-    closed: Option<String>,
+    closed: Option<Ended>,
+}
+
+/// Why the receive task ended.
+#[derive(Debug, Clone)]
+enum Ended {
+    /// Orderly: end of stream.
+    Closed(String),
+    /// The transport failed with this error.
+    Failed(&'static str, Arc<io::Error>),
 }
 
 #[derive(Debug)]
@@ -67,8 +77,18 @@ impl Inbox {
         self.lock().tracker.bad(reason);
     }
 
+    /// The transport ended in order (end of stream).
     pub fn close(&self, reason: String) {
-        self.lock().closed.get_or_insert(reason);
+        self.end(Ended::Closed(reason));
+    }
+
+    /// The transport failed: `what` the task was doing, and the error.
+    pub fn fail(&self, what: &'static str, e: io::Error) {
+        self.end(Ended::Failed(what, Arc::new(e)));
+    }
+
+    fn end(&self, why: Ended) {
+        self.lock().closed.get_or_insert(why);
         self.notify.notify_one();
     }
 
@@ -94,8 +114,10 @@ impl Inbox {
                 if let Some(f) = s.queue.pop_front() {
                     return Ok(f);
                 }
-                if let Some(reason) = &s.closed {
-                    return Err(SensorError::Closed { reason: reason.clone() });
+                match &s.closed {
+                    Some(Ended::Closed(reason)) => return Err(SensorError::Closed { reason: reason.clone() }),
+                    Some(Ended::Failed(what, e)) => return Err(SensorError::Lost { what, source: e.clone() }),
+                    None => {}
                 }
             }
             // notify_one stores a permit, so a frame queued between the check

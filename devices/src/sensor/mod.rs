@@ -16,7 +16,6 @@ mod inbox;
 pub mod link;
 pub mod stats;
 pub mod tac3d;
-mod yaml;
 
 pub use error::SensorError;
 pub use frame::SensorFrame;

@@ -27,12 +27,13 @@ several percent. The full-model fit includes the offset and reports it when it i
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Params {
-    /// Stage reading at true first contact, mm.
-    pub z0_mm: f64,
+    /// Stage reading at true first contact (z0), mm; the profile's TOML key is `z0_mm`.
+    #[serde(rename = "z0_mm")]
+    pub contact_offset_mm: f64,
 }
 
 impl Params {
     pub fn validate(&self) -> Result<(), EffectError> {
-        check(&INFO, 0, self.z0_mm)
+        check(&INFO, 0, self.contact_offset_mm)
     }
 }

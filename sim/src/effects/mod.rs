@@ -24,18 +24,17 @@
 //!   the rig. Errors: [`EffectError`] (`OutOfBounds` names `effect.param`, `Toml`
 //!   names unknown sections/keys, `Unsupported` for viscoelastic combined with
 //!   adhesion or finite_thickness, `NoSolution`, `GrossSlip`, `Io`).
-//! * True rig: [`TrueRig::new`]`(pair, &profile)`, [`TrueRig::read`]`(Command) ->
+//! * True rig: [`TrueRig::new`]`(pair, &profile)`, [`TrueRig::read`]`(CommandedPose) ->
 //!   Result<Reading, EffectError>` — a stateful stepper: feed commands in time
 //!   order (stage backlash, adhesion, creep and slip keep history);
 //!   `Clone` it to probe without disturbing the history. [`simulate`]`(pair,
-//!   &profile, &[Command])` runs a whole history on a fresh rig.
-//!   [`Command`] `{ t_s, stage_mm, rot_deg }` (commanded values; `rot_deg` is the
+//!   &profile, &[CommandedPose])` runs a whole history on a fresh rig.
+//!   [`CommandedPose`] `{ t_s, stage_mm, rot_deg }` (commanded values; `rot_deg` is the
 //!   mount angle since the twist began), [`Reading`] `{ gamma1_mm, theta1_deg }`
 //!   as the sensor reports them (noise-free; 0 without contact) plus the true
 //!   `gamma1_true_mm, gamma2_mm, force_n, contact_radius_mm, in_contact`.
 //! * Generator: `crate::generator::GeneratorConfig::profile` switches effects on
 //!   in synthetic recordings (an empty profile is the clean model bit for bit).
-//! * Corpus: [`corpus::cases`], [`corpus::CorpusManifest`] (tests/data/corpus.toml).
 //!
 //! The stage and mount inputs are the *commanded* positions: do not also give
 //! the emulator's `Axis` a backlash when `stage_backlash`/`rotation_backlash` is on.
@@ -55,11 +54,15 @@ pub mod viscoelastic;
 #[cfg(test)]
 mod signatures;
 
-pub mod corpus;
-
 use serde::{Deserialize, Serialize};
 
-pub use rig::{Command, Reading, TrueRig, simulate};
+/// A profile's `material`: the elastomer's E1, nu1 when a profile also fixes
+/// them (a diagnosis writes its fitted values there so the simulated rig
+/// reproduces the recording).
+pub use crate::physics::Material;
+use crate::physics::{Body, ContactPair};
+
+pub use rig::{CommandedPose, Reading, TrueRig, simulate};
 
 /// One parameter of an effect, with the range the model accepts.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -149,16 +152,6 @@ pub(crate) fn check(effect: &'static EffectInfo, idx: usize, value: f64) -> Resu
     }
 }
 
-/// The elastomer's material, when a profile also fixes it (a diagnosis writes
-/// its fitted E1, nu1 here so the simulated rig reproduces the recording).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Material {
-    #[serde(rename = "E1_MPa")]
-    pub e1_mpa: f64,
-    pub nu1: f64,
-}
-
 /// Which effects a simulated rig has, with their parameters. Absent sections
 /// are switched off; an empty profile is the paper's clean model.
 ///
@@ -226,6 +219,16 @@ impl SimProfile {
         self.validate()?;
         let text = self.to_toml_string()?;
         std::fs::write(path, text).map_err(|e| EffectError::Io { path: path.display().to_string(), why: e.to_string() })
+    }
+
+    /// The contact pair a rig with this profile has: the profile's `material`,
+    /// when set, replaces the given elastomer's E1 and nu1 (its radius R1 stays).
+    /// The one place a profile's material is applied.
+    pub fn true_pair(&self, given: ContactPair) -> ContactPair {
+        match self.material {
+            Some(m) => ContactPair { elastomer: Body::new(m.e1_mpa, m.nu1, given.elastomer.r_mm), ..given },
+            None => given,
+        }
     }
 
     /// True when no effect is enabled and no material is set: the paper's clean model.

@@ -12,15 +12,16 @@
 use std::f64::consts::PI;
 
 use crate::physics::torsion::eq35_contact_radius_mm;
-use crate::physics::{Body, ContactPair, NormalModel, YOFFE};
+use crate::physics::{ContactPair, NormalModel, YOFFE};
 
 use super::partial_slip::SlipState;
 use super::stage_backlash::Play;
 use super::{EffectError, SimProfile, bracketed_root, finite_thickness};
 
-/// One commanded state of the rig.
+/// Where the rig was told to be at one instant: the commanded stage and mount
+/// (before any play or offset), the input of [`TrueRig::read`].
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Command {
+pub struct CommandedPose {
     /// Rig time, s.
     pub t_s: f64,
     /// Commanded stage approach, mm.
@@ -78,8 +79,9 @@ pub struct TrueRig {
     r_star: f64,
     b1: f64,
     b2: f64,
-    g1: f64,
-    g2: f64,
+    /// Shear moduli G1, G2 of elastomer and indenter, MPa (Eq. 33).
+    shear1_mpa: f64,
+    shear2_mpa: f64,
     stage_play: Option<Play>,
     rot_play: Option<Play>,
     /// Contact radius held by the adhesive edge (0: no contact).
@@ -101,10 +103,7 @@ pub struct TrueRig {
 impl TrueRig {
     pub fn new(pair: ContactPair, profile: &SimProfile) -> Result<Self, EffectError> {
         profile.validate()?;
-        let mut pair = pair;
-        if let Some(m) = profile.material {
-            pair.elastomer = Body::new(m.e1_mpa, m.nu1, pair.elastomer.r_mm);
-        }
+        let pair = profile.true_pair(pair);
         let clean = NormalModel::new(pair)?;
         Ok(Self {
             pair,
@@ -115,8 +114,8 @@ impl TrueRig {
             r_star: pair.composite_radius_mm(),
             b1: pair.elastomer.tatara_mm_per_n(),
             b2: pair.indenter.tatara_mm_per_n(),
-            g1: pair.elastomer.shear_mpa(),
-            g2: pair.indenter.shear_mpa(),
+            shear1_mpa: pair.elastomer.shear_mpa(),
+            shear2_mpa: pair.indenter.shear_mpa(),
             stage_play: profile.stage_backlash.map(|p| Play::new(p.b_mm, p.engaged)),
             rot_play: profile.rotation_backlash.map(|p| Play::new(p.b_deg, p.engaged)),
             edge_a: 0.0,
@@ -376,9 +375,9 @@ impl TrueRig {
             .contact_radius_mm;
         let a_t = if a_clean > 0.0 && c.a > 0.0 { a35 * c.a / a_clean } else { a35 };
         let layer = self.profile.finite_thickness.map_or(1.0, |p| finite_thickness::torsion_factor(c.a / p.h_mm));
-        let c1 = 3.0 / (16.0 * self.g1 * a_t.powi(3) * layer);
-        let c2 = 3.0 / (16.0 * self.g2 * a_t.powi(3));
-        let crod = 2.0 * r2 * (1.0 - beta) / (PI * self.g2 * r2.powi(4));
+        let c1 = 3.0 / (16.0 * self.shear1_mpa * a_t.powi(3) * layer);
+        let c2 = 3.0 / (16.0 * self.shear2_mpa * a_t.powi(3));
+        let crod = 2.0 * r2 * (1.0 - beta) / (PI * self.shear2_mpa * r2.powi(4));
         self.torsion_cache = Some((c.gamma2, c1, c2, crod, a_t));
         Ok((c1, c2, crod, a_t))
     }
@@ -410,12 +409,12 @@ impl TrueRig {
     }
 
     /// The reading at rig time `t_s` for the commanded stage and mount angle.
-    pub fn read(&mut self, cmd: Command) -> Result<Reading, EffectError> {
+    pub fn read(&mut self, cmd: CommandedPose) -> Result<Reading, EffectError> {
         let stage = match self.stage_play.as_mut() {
             Some(p) => p.step(cmd.stage_mm),
             None => cmd.stage_mm,
         };
-        let s = stage - self.profile.contact_offset.map_or(0.0, |p| p.z0_mm);
+        let s = stage - self.profile.contact_offset.map_or(0.0, |p| p.contact_offset_mm);
         let history = self.profile.adhesion.is_some() || self.profile.viscoelastic.is_some();
         let stage_changed = self.last_s != Some(s);
         let contact = if self.profile.viscoelastic.is_some() {
@@ -476,7 +475,7 @@ impl TrueRig {
 }
 
 /// Readings for a whole commanded history (time order), from a fresh rig.
-pub fn simulate(pair: ContactPair, profile: &SimProfile, cmds: &[Command]) -> Result<Vec<Reading>, EffectError> {
+pub fn simulate(pair: ContactPair, profile: &SimProfile, cmds: &[CommandedPose]) -> Result<Vec<Reading>, EffectError> {
     let mut rig = TrueRig::new(pair, profile)?;
     cmds.iter().map(|&c| rig.read(c)).collect()
 }
@@ -491,10 +490,14 @@ mod tests {
         crate::defaults::pair()
     }
 
-    fn sweep() -> Vec<Command> {
-        let mut v: Vec<Command> =
-            (0..=60).map(|i| Command { t_s: i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }).collect();
-        v.extend((0..60).rev().map(|i| Command { t_s: 120.0 - i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }));
+    fn sweep() -> Vec<CommandedPose> {
+        let mut v: Vec<CommandedPose> =
+            (0..=60).map(|i| CommandedPose { t_s: i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }).collect();
+        v.extend((0..60).rev().map(|i| CommandedPose {
+            t_s: 120.0 - i as f64,
+            stage_mm: i as f64 * 0.05,
+            rot_deg: 0.0,
+        }));
         v
     }
 
@@ -509,7 +512,7 @@ mod tests {
         }
         let mut rig = TrueRig::new(p, &SimProfile::default()).unwrap();
         let st = m.solve_for_gamma2(1.0).unwrap();
-        let rd = rig.read(Command { t_s: 0.0, stage_mm: st.delta_mm, rot_deg: 5.0 }).unwrap();
+        let rd = rig.read(CommandedPose { t_s: 0.0, stage_mm: st.delta_mm, rot_deg: 5.0 }).unwrap();
         let expect = torsion_at(&p, 0.2, 5f64.to_radians()).theta1_rad.to_degrees();
         assert!((rd.theta1_deg - expect).abs() < 1e-9, "{} vs {expect}", rd.theta1_deg);
     }
@@ -527,8 +530,8 @@ mod tests {
             SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.5, tau_s: 5.0 }), ..Default::default() };
         let mut rig = TrueRig::new(p, &prof).unwrap();
         let s = 1.5;
-        let first = rig.read(Command { t_s: 0.0, stage_mm: s, rot_deg: 0.0 }).unwrap();
-        let late = rig.read(Command { t_s: 1e12, stage_mm: s, rot_deg: 0.0 }).unwrap();
+        let first = rig.read(CommandedPose { t_s: 0.0, stage_mm: s, rot_deg: 0.0 }).unwrap();
+        let late = rig.read(CommandedPose { t_s: 1e12, stage_mm: s, rot_deg: 0.0 }).unwrap();
         let relaxed = NormalModel::new(p).unwrap().solve(s).unwrap().gamma1_mm;
         assert!(first.gamma1_mm < relaxed - 1e-3, "{} vs {relaxed}", first.gamma1_mm);
         assert!((late.gamma1_mm / relaxed - 1.0).abs() < 1e-6, "{} vs {relaxed}", late.gamma1_mm);
@@ -607,10 +610,10 @@ mod tests {
             rotation_backlash: Some(rotation_backlash::Params { b_deg: 0.3, engaged: true }),
             ..Default::default()
         };
-        let cmds: Vec<Command> = [0.0, 4.0, 8.0, 7.8, 4.0, 0.0]
+        let cmds: Vec<CommandedPose> = [0.0, 4.0, 8.0, 7.8, 4.0, 0.0]
             .iter()
             .enumerate()
-            .map(|(i, &r)| Command { t_s: i as f64, stage_mm: st.delta_mm, rot_deg: r })
+            .map(|(i, &r)| CommandedPose { t_s: i as f64, stage_mm: st.delta_mm, rot_deg: r })
             .collect();
         let r = simulate(p, &prof, &cmds).unwrap();
         let clean = simulate(p, &SimProfile::default(), &cmds).unwrap();

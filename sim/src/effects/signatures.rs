@@ -10,26 +10,26 @@ fn pair() -> ContactPair {
 }
 
 /// Load 0 -> 3 mm in 0.05 mm steps, 1 s per step, and back.
-fn sweep() -> Vec<Command> {
-    let mut v: Vec<Command> =
-        (0..=60).map(|i| Command { t_s: i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }).collect();
-    v.extend((0..60).rev().map(|i| Command { t_s: 120.0 - i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }));
+fn sweep() -> Vec<CommandedPose> {
+    let mut v: Vec<CommandedPose> =
+        (0..=60).map(|i| CommandedPose { t_s: i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }).collect();
+    v.extend((0..60).rev().map(|i| CommandedPose { t_s: 120.0 - i as f64, stage_mm: i as f64 * 0.05, rot_deg: 0.0 }));
     v
 }
 
 /// Hold at the clean beta = 0.2 stage and twist 0 -> `amp` -> 0 in `n` steps each way.
-fn twist(amp: f64, n: usize) -> Vec<Command> {
+fn twist(amp: f64, n: usize) -> Vec<CommandedPose> {
     let stage = NormalModel::new(pair()).unwrap().solve_for_gamma2(1.0).unwrap().delta_mm;
     let mut v: Vec<f64> = (0..=n).map(|i| amp * i as f64 / n as f64).collect();
     v.extend((0..n).rev().map(|i| amp * i as f64 / n as f64));
-    v.iter().enumerate().map(|(i, &r)| Command { t_s: i as f64, stage_mm: stage, rot_deg: r }).collect()
+    v.iter().enumerate().map(|(i, &r)| CommandedPose { t_s: i as f64, stage_mm: stage, rot_deg: r }).collect()
 }
 
-fn run(profile: SimProfile, cmds: &[Command]) -> Vec<Reading> {
+fn run(profile: SimProfile, cmds: &[CommandedPose]) -> Vec<Reading> {
     simulate(pair(), &profile, cmds).unwrap()
 }
 
-fn clean(cmds: &[Command]) -> Vec<Reading> {
+fn clean(cmds: &[CommandedPose]) -> Vec<Reading> {
     run(SimProfile::default(), cmds)
 }
 
@@ -39,10 +39,10 @@ fn max_diff(a: &[Reading], b: &[Reading]) -> (f64, f64) {
     })
 }
 
-fn all_cmds() -> Vec<Command> {
+fn all_cmds() -> Vec<CommandedPose> {
     let mut v = sweep();
     let n = v.len() as f64;
-    v.extend(twist(8.0, 40).into_iter().map(|c| Command { t_s: c.t_s + n, ..c }));
+    v.extend(twist(8.0, 40).into_iter().map(|c| CommandedPose { t_s: c.t_s + n, ..c }));
     v
 }
 
@@ -52,7 +52,7 @@ fn neutral_parameters_give_the_clean_model() {
     let c = clean(&cmds);
     // Effects outside the contact: bit for bit.
     let exact = [
-        SimProfile { contact_offset: Some(contact_offset::Params { z0_mm: 0.0 }), ..Default::default() },
+        SimProfile { contact_offset: Some(contact_offset::Params { contact_offset_mm: 0.0 }), ..Default::default() },
         SimProfile { stage_backlash: Some(stage_backlash::Params { b_mm: 0.0, engaged: true }), ..Default::default() },
         SimProfile {
             rotation_backlash: Some(rotation_backlash::Params { b_deg: 0.0, engaged: true }),
@@ -121,14 +121,14 @@ fn finite_thickness_stiffens_at_depth_and_lowers_h3() {
         let (mut lo, mut hi) = (0.0, 10.0);
         for _ in 0..100 {
             let mid = 0.5 * (lo + hi);
-            let r = simulate(pair(), p, &[Command { t_s: 0.0, stage_mm: mid, rot_deg: 0.0 }]).unwrap();
+            let r = simulate(pair(), p, &[CommandedPose { t_s: 0.0, stage_mm: mid, rot_deg: 0.0 }]).unwrap();
             if r[0].gamma2_mm < 1.0 { lo = mid } else { hi = mid }
         }
         0.5 * (lo + hi)
     };
     let at = |p: &SimProfile| {
         let st = stage_for_gamma2(p);
-        simulate(pair(), p, &[Command { t_s: 0.0, stage_mm: st, rot_deg: 4.0 }]).unwrap()[0]
+        simulate(pair(), p, &[CommandedPose { t_s: 0.0, stage_mm: st, rot_deg: 4.0 }]).unwrap()[0]
     };
     let (lr, cr) = (at(&layer), at(&SimProfile::default()));
     assert!(lr.contact_radius_mm < cr.contact_radius_mm, "{} vs {}", lr.contact_radius_mm, cr.contact_radius_mm);
@@ -167,8 +167,8 @@ fn adhesion_hysteresis_near_contact_and_negative_reading_on_unload() {
 #[test]
 fn viscoelastic_creeps_during_a_hold_and_saturates_at_the_relaxed_model() {
     let stage = 2.0;
-    let cmds: Vec<Command> =
-        (0..=400).map(|i| Command { t_s: i as f64 * 0.25, stage_mm: stage, rot_deg: 0.0 }).collect();
+    let cmds: Vec<CommandedPose> =
+        (0..=400).map(|i| CommandedPose { t_s: i as f64 * 0.25, stage_mm: stage, rot_deg: 0.0 }).collect();
     let v = run(
         SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() },
         &cmds,
@@ -187,9 +187,9 @@ fn viscoelastic_creeps_during_a_hold_and_saturates_at_the_relaxed_model() {
     // Torsion hold: a twist step is met by the glassy elastomer (theta1 low), then
     // theta1 creeps up to the relaxed split with the same kernel.
     let st = NormalModel::new(pair()).unwrap().solve_for_gamma2(1.0).unwrap().delta_mm;
-    let mut tw: Vec<Command> =
-        (0..=200).map(|i| Command { t_s: i as f64 * 0.25, stage_mm: st, rot_deg: 0.0 }).collect();
-    tw.extend((1..=200).map(|i| Command { t_s: 50.0 + i as f64 * 0.25, stage_mm: st, rot_deg: 5.0 }));
+    let mut tw: Vec<CommandedPose> =
+        (0..=200).map(|i| CommandedPose { t_s: i as f64 * 0.25, stage_mm: st, rot_deg: 0.0 }).collect();
+    tw.extend((1..=200).map(|i| CommandedPose { t_s: 50.0 + i as f64 * 0.25, stage_mm: st, rot_deg: 5.0 }));
     let prof = SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() };
     let vt = run(prof, &tw);
     let relaxed_split = run(SimProfile::default(), &tw[400..])[0].theta1_deg;
@@ -208,20 +208,26 @@ fn viscoelastic_creeps_during_a_hold_and_saturates_at_the_relaxed_model() {
 fn contact_offset_shifts_the_approach() {
     let cmds = sweep();
     let z0 = 0.012;
-    let o = run(SimProfile { contact_offset: Some(contact_offset::Params { z0_mm: z0 }), ..Default::default() }, &cmds);
+    let o = run(
+        SimProfile { contact_offset: Some(contact_offset::Params { contact_offset_mm: z0 }), ..Default::default() },
+        &cmds,
+    );
     let m = NormalModel::new(pair()).unwrap();
     for (c, r) in cmds.iter().zip(&o) {
         assert_eq!(r.gamma1_mm, m.solve(c.stage_mm - z0).unwrap().gamma1_mm);
     }
     // Dead band below z0; negative z0: already in contact at stage 0.
     let neg = run(
-        SimProfile { contact_offset: Some(contact_offset::Params { z0_mm: -0.01 }), ..Default::default() },
+        SimProfile { contact_offset: Some(contact_offset::Params { contact_offset_mm: -0.01 }), ..Default::default() },
         &cmds[..1],
     );
     assert!(neg[0].gamma1_mm > 0.0);
     assert!(
         run(
-            SimProfile { contact_offset: Some(contact_offset::Params { z0_mm: 0.06 }), ..Default::default() },
+            SimProfile {
+                contact_offset: Some(contact_offset::Params { contact_offset_mm: 0.06 }),
+                ..Default::default()
+            },
             &cmds[..2]
         )[1]
         .gamma1_mm
@@ -234,7 +240,7 @@ fn stage_backlash_steps_at_reversal_and_shifts_the_unload_branch() {
     let b = 0.01;
     let mut cmds = sweep();
     // A half step back just after the turn: inside the play, nothing moves.
-    cmds.insert(61, Command { t_s: 60.5, stage_mm: 3.0 - 0.004, rot_deg: 0.0 });
+    cmds.insert(61, CommandedPose { t_s: 60.5, stage_mm: 3.0 - 0.004, rot_deg: 0.0 });
     let r = run(
         SimProfile { stage_backlash: Some(stage_backlash::Params { b_mm: b, engaged: true }), ..Default::default() },
         &cmds,
@@ -310,7 +316,8 @@ fn partial_slip_is_sublinear_at_large_twist_with_a_masing_return() {
 
 #[test]
 fn thermal_drift_grows_with_time_at_any_load() {
-    let cmds: Vec<Command> = (0..=100).map(|i| Command { t_s: i as f64, stage_mm: 1.0, rot_deg: 0.0 }).collect();
+    let cmds: Vec<CommandedPose> =
+        (0..=100).map(|i| CommandedPose { t_s: i as f64, stage_mm: 1.0, rot_deg: 0.0 }).collect();
     let c = clean(&cmds);
     let d = run(
         SimProfile {
@@ -332,10 +339,11 @@ fn sensor_gain_maps_h1_without_changing_the_shape() {
     // gamma2_read = stage - g gamma1 = gamma2 + (1 - g) gamma1: to first order
     // H1 -> (H1 + 1 - g) / g (physics.md 2.10), at small depth exactly.
     let g = 1.01;
-    let cmds: Vec<Command> = [1e-6, 2e-6].iter().map(|&s| Command { t_s: 0.0, stage_mm: s, rot_deg: 0.0 }).collect();
+    let cmds: Vec<CommandedPose> =
+        [1e-6, 2e-6].iter().map(|&s| CommandedPose { t_s: 0.0, stage_mm: s, rot_deg: 0.0 }).collect();
     let r = run(SimProfile { sensor_gain: Some(sensor_gain::Params { g }), ..Default::default() }, &cmds);
     let c = clean(&cmds);
-    let slope = |r: &[Reading], c: &[Command]| {
+    let slope = |r: &[Reading], c: &[CommandedPose]| {
         let g2 = |i: usize| c[i].stage_mm - r[i].gamma1_mm;
         (g2(1) - g2(0)) / (r[1].gamma1_mm - r[0].gamma1_mm)
     };
@@ -409,7 +417,7 @@ fn catalogue_parameter_names_are_the_toml_keys() {
         finite_thickness: Some(finite_thickness::Params { h_mm: 5.0 }),
         adhesion: Some(adhesion::Params { w_mj_m2: 50.0, eta: 2.0 }),
         viscoelastic: Some(viscoelastic::Params { rho: 1.02, tau_s: 5.0 }),
-        contact_offset: Some(contact_offset::Params { z0_mm: 0.003 }),
+        contact_offset: Some(contact_offset::Params { contact_offset_mm: 0.003 }),
         stage_backlash: Some(stage_backlash::Params { b_mm: 0.005, engaged: true }),
         frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }),
         partial_slip: Some(partial_slip::Params { mu: 1.0 }),

@@ -73,6 +73,37 @@ impl PtyMaster {
     }
 }
 
+/// Bytes written to a pty that its reader has not taken yet: FIONREAD on a
+/// descriptor of the slave side, opened only for this and never read from.
+///
+/// Why: time acceleration multiplies the link's wall-clock latency into rig
+/// time. A producer that outpaces the reader fills the pty buffer (several
+/// 10 kB frames), and every frame the host then reads is that many frames
+/// old: at 50x a few milliseconds of backlog are a whole stage step, and a
+/// run of stale frames agrees with itself well enough to pass as settled. A
+/// real sensor on a slow link drops frames rather than queueing them; so
+/// does the emulated one (see `super::sensor_sink`), and the host sees the
+/// gaps as dropped frames.
+#[derive(Debug)]
+pub struct SlaveBacklog(std::fs::File);
+
+impl SlaveBacklog {
+    /// Open `path` (a pty slave) without making it the controlling terminal.
+    pub fn open(path: &Path) -> io::Result<Self> {
+        use std::os::unix::fs::OpenOptionsExt;
+        let f = std::fs::OpenOptions::new().read(true).write(true).custom_flags(libc::O_NOCTTY).open(path)?;
+        Ok(Self(f))
+    }
+
+    /// Unread bytes now (0 if the query fails).
+    pub fn bytes(&self) -> usize {
+        let mut n: libc::c_int = 0;
+        // SAFETY: FIONREAD writes one c_int through the pointer; the fd is ours and open.
+        let rc = unsafe { libc::ioctl(self.0.as_raw_fd(), libc::FIONREAD, &mut n) };
+        if rc < 0 { 0 } else { n.max(0) as usize }
+    }
+}
+
 impl AsyncRead for PtyMaster {
     fn poll_read(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
         loop {
@@ -143,5 +174,27 @@ mod tests {
         let mut back = vec![0u8; payload.len()];
         slave.read_exact(&mut back).await.unwrap();
         assert_eq!(back, payload);
+    }
+
+    #[tokio::test]
+    async fn the_backlog_counts_what_the_reader_has_not_taken() {
+        let mut master = PtyMaster::open().unwrap();
+        let backlog = SlaveBacklog::open(master.slave_path()).unwrap();
+        let std_slave = std::fs::OpenOptions::new().read(true).write(true).open(master.slave_path()).unwrap();
+        let mut slave = tokio::fs::File::from_std(std_slave);
+        assert_eq!(backlog.bytes(), 0);
+        master.write_all(&[0x5a; 100]).await.unwrap();
+        let mut got = [0u8; 40];
+        slave.read_exact(&mut got).await.unwrap();
+        // The line discipline hands bytes over in its own time: wait for the rest.
+        let mut waiting = 0;
+        while backlog.bytes() < 60 && waiting < 100_000 {
+            tokio::task::yield_now().await;
+            waiting += 1;
+        }
+        assert_eq!(backlog.bytes(), 60);
+        let mut rest = [0u8; 60];
+        slave.read_exact(&mut rest).await.unwrap();
+        assert_eq!(backlog.bytes(), 0);
     }
 }

@@ -1,9 +1,7 @@
 //! The paper's reduced relations and their inversion to E1, nu1.
 
-use serde::Serialize;
-
 use super::YOFFE;
-use super::params::{Body, ContactPair};
+use super::params::{Body, ContactPair, Material};
 use super::torsion::rod_correction_factor;
 
 /// H1 of the reduced normal relation gamma2 = H1 gamma1 + H2 gamma1^1.5 (Eq. 22).
@@ -16,27 +14,20 @@ pub fn h3_from_materials(elastomer: &Body, indenter: &Body, beta: f64) -> f64 {
     rod_correction_factor(beta) * (1.0 + indenter.nu) / (1.0 + elastomer.nu) * elastomer.e_mpa / indenter.e_mpa
 }
 
-/// Elastomer parameters recovered from (H1, H3).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct ExactInversion {
-    pub e1_mpa: f64,
-    pub nu1: f64,
-}
-
 /// Exact closed-form solution of H1(E1, nu1) and H3(E1, nu1) at depth beta (physics.md 1.5).
-pub fn invert_exact(h1: f64, h3: f64, indenter_e_mpa: f64, indenter_nu: f64, beta: f64) -> ExactInversion {
+pub fn invert_exact(h1: f64, h3: f64, indenter_e_mpa: f64, indenter_nu: f64, beta: f64) -> Material {
     let c = rod_correction_factor(beta);
     let nu1 = 1.0 - YOFFE / c * (h3 / h1) * (1.0 - indenter_nu);
     let e1 = h3 * indenter_e_mpa * (1.0 + nu1) / (c * (1.0 + indenter_nu));
-    ExactInversion { e1_mpa: e1, nu1 }
+    Material { e1_mpa: e1, nu1 }
 }
 
 /// The paper's Eqs. 39-40 with their rounded constants (valid only at beta = 0.2).
-pub fn invert_paper_rounded(h1: f64, h3: f64, indenter_e_mpa: f64, indenter_nu: f64) -> ExactInversion {
+pub fn invert_paper_rounded(h1: f64, h3: f64, indenter_e_mpa: f64, indenter_nu: f64) -> Material {
     let ratio = h3 / h1 * (1.0 - indenter_nu);
     let e1 = (0.993 - 0.279 * ratio) * h3 * indenter_e_mpa / (1.0 + indenter_nu);
     let nu1 = 1.0 - 0.562 * ratio;
-    ExactInversion { e1_mpa: e1, nu1 }
+    Material { e1_mpa: e1, nu1 }
 }
 
 /// Convenience: both reduced coefficients of a pair at depth beta.

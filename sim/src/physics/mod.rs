@@ -9,12 +9,10 @@ pub mod params;
 pub mod quadrature;
 pub mod torsion;
 
-pub use inversion::{
-    ExactInversion, h1_from_materials, h3_from_materials, invert_exact, invert_paper_rounded, reduced_coefficients,
-};
+pub use inversion::{h1_from_materials, h3_from_materials, invert_exact, invert_paper_rounded, reduced_coefficients};
 pub use layer::{LayeredContact, LayeredNormal, LayeredTorsion, Profile};
 pub use normal::{NormalError, NormalModel, NormalState};
-pub use params::{Body, ContactPair, Layer, LayerBase, ParamError};
+pub use params::{Body, ContactPair, Layer, LayerBase, Material, ParamError};
 pub use torsion::{TorsionState, rod_correction_factor, torsion_at};
 
 /// Yoffe's factor on the indenter's Hertz term, 32/(9π) (Eq. 20).

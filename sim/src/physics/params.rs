@@ -11,6 +11,16 @@ pub struct Body {
     pub r_mm: f64,
 }
 
+/// The elastomer's E1 and nu1, the pair a calibration recovers: a fit's or an
+/// inversion's answer, a simulated rig's truth, a profile's material.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Material {
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+}
+
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ParamError {
     #[error("{what}: Young's modulus must be finite and > 0 MPa, got {value}")]

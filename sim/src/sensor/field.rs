@@ -162,7 +162,7 @@ impl MarkerGrid {
     /// The Tac3D layout measured from the PyTac3D example recordings
     /// (hardware.md C.1): 20 x 20 markers, 1 mm pitch, dome radius 33 mm.
     pub fn tac3d() -> Self {
-        Self::dome(20, 20, 1.0, 33.0)
+        Self::dome(20, 20, 1.0, crate::defaults::ELASTOMER_R_MM)
     }
 
     pub fn len(&self) -> usize {
@@ -223,7 +223,7 @@ impl Default for NoiseConfig {
     /// 4 um on every component (the measured dz scatter; in-plane taken as
     /// large, which is conservative for the rotation estimate).
     fn default() -> Self {
-        Self::gaussian(0.004)
+        Self::gaussian(crate::defaults::MARKER_SIGMA_MM)
     }
 }
 

@@ -6,21 +6,22 @@
 
 use devices::sensor::SensorFrame;
 
-use super::field::{ContactState, MarkerGrid, NoiseConfig, SimulatedSensor};
-use crate::effects::{Command as EffectCommand, EffectError, SimProfile, TrueRig};
+use super::field::{ContactState, MarkerGrid, SimulatedSensor};
+use crate::effects::{CommandedPose, EffectError, TrueRig};
 use crate::emulator::rig::{Rig, RigPose};
-use crate::generator::GeneratorConfig;
-use crate::physics::{ContactPair, NormalModel, NormalState, ParamError, torsion_at};
+use crate::physics::{NormalModel, NormalState, torsion_at};
+use crate::setup::SimSetup;
 
-/// Everything that defines the simulated sensor. Defaults are those of a real
-/// Tac3D (hardware.md C.1): 20 x 20 markers at 1 mm pitch on a 33 mm dome,
-/// 4 um marker noise, exact zeros without contact, 30 frames/s.
+/// Everything that defines the simulated sensor: the simulated set-up
+/// (elastomer, indenter, effects, noise, seed) and the sensor's own layout.
+/// Defaults are those of a real Tac3D (docs/hardware.md C.1): 20 x 20 markers
+/// at 1 mm pitch on a 33 mm dome, 4 um marker noise, exact zeros without
+/// contact, 30 frames/s.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SensorSimConfig {
-    /// Elastomer (1) and indenter (2) of the simulated rig.
-    pub pair: ContactPair,
+    /// The simulated rig, resolved once (its speed-up is the rig clock's).
+    pub setup: SimSetup,
     pub grid: MarkerGrid,
-    pub noise: NoiseConfig,
     /// Frames per second of rig time.
     pub frame_rate_hz: f64,
     /// Where the indenter's axis meets the marker grid, mm.
@@ -28,8 +29,6 @@ pub struct SensorSimConfig {
     /// Stage load position at which the indenter first touches the elastomer:
     /// the approach is `stage_mm - contact_stage_mm` (positive into the sensor).
     pub contact_stage_mm: f64,
-    /// Seed of the marker noise, outliers and lost frames.
-    pub seed: u64,
     /// The first frame's counter (a Tac3D counts from its own start, not 0).
     pub first_index: u64,
 }
@@ -37,13 +36,11 @@ pub struct SensorSimConfig {
 impl Default for SensorSimConfig {
     fn default() -> Self {
         Self {
-            pair: GeneratorConfig::default().pair,
+            setup: SimSetup::default(),
             grid: MarkerGrid::tac3d(),
-            noise: NoiseConfig::default(),
             frame_rate_hz: 30.0,
             contact_center_mm: [0.0, 0.0],
             contact_stage_mm: 0.0,
-            seed: 1,
             first_index: 1000,
         }
     }
@@ -71,8 +68,7 @@ pub struct RigSensor {
     /// Mount angle when the current contact was made: twist before touching
     /// does not load the elastomer.
     twist_origin_deg: Option<f64>,
-    /// The left-out physics this rig has (a sim profile); `None` for the
-    /// paper's clean contact.
+    /// The set-up's left-out physics; `None` for the paper's clean contact.
     effects: Option<TrueRig>,
     /// Readings the effect model could not give (e.g. gross slip), answered
     /// with the clean contact instead.
@@ -90,31 +86,18 @@ impl std::fmt::Debug for RigSensor {
 }
 
 impl RigSensor {
-    pub fn new(rig: Rig, cfg: SensorSimConfig) -> Result<Self, ParamError> {
-        let model = NormalModel::new(cfg.pair)?;
-        let sensor = SimulatedSensor::new(cfg.grid.clone(), cfg.noise, cfg.seed, Box::new(|_| None))
+    /// The sensor for `cfg.setup`'s contact, with its effects when it has any
+    /// (so the rig reproduces what a diagnosed recording showed).
+    pub fn new(rig: Rig, cfg: SensorSimConfig) -> Result<Self, EffectError> {
+        let setup = &cfg.setup;
+        let model = NormalModel::new(*setup.pair())?;
+        let effects = match setup.effects().is_clean() {
+            true => None,
+            false => Some(TrueRig::new(*setup.pair(), setup.effects())?),
+        };
+        let sensor = SimulatedSensor::new(cfg.grid.clone(), *setup.noise(), setup.seed(), Box::new(|_| None))
             .with_first_index(cfg.first_index);
-        Ok(Self { rig, model, cfg, sensor, twist_origin_deg: None, effects: None, effect_failures: 0 })
-    }
-
-    /// Give the simulated contact the effects of a sim profile (and its
-    /// `material`, if set), so the rig reproduces what a diagnosed recording
-    /// showed. A clean profile leaves the paper's contact.
-    pub fn with_profile(mut self, profile: &SimProfile) -> Result<Self, EffectError> {
-        if profile.is_clean() {
-            self.effects = None;
-            return Ok(self);
-        }
-        let effects = TrueRig::new(self.cfg.pair, profile)?;
-        self.cfg.pair = *effects.pair();
-        self.model = NormalModel::new(self.cfg.pair)?;
-        self.effects = Some(effects);
-        Ok(self)
-    }
-
-    /// The contact pair the sensor simulates (a profile's `material` applied).
-    pub fn pair(&self) -> &ContactPair {
-        &self.cfg.pair
+        Ok(Self { rig, model, cfg, sensor, twist_origin_deg: None, effects, effect_failures: 0 })
     }
 
     /// Readings the effect model could not give and the clean contact answered.
@@ -128,7 +111,7 @@ impl RigSensor {
         let effects = self.effects.as_mut()?;
         let twist_deg = self.twist_origin_deg.map_or(0.0, |o| pose.rot_deg - o);
         let cmd =
-            EffectCommand { t_s: pose.t_s, stage_mm: pose.stage_mm - self.cfg.contact_stage_mm, rot_deg: twist_deg };
+            CommandedPose { t_s: pose.t_s, stage_mm: pose.stage_mm - self.cfg.contact_stage_mm, rot_deg: twist_deg };
         match effects.read(cmd) {
             Ok(r) if r.in_contact && r.gamma1_mm > 0.0 && r.contact_radius_mm > 0.0 => Some(
                 ContactState::new(
@@ -137,7 +120,7 @@ impl RigSensor {
                     r.contact_radius_mm,
                     r.theta1_deg.to_radians(),
                 )
-                .with_nu1(self.cfg.pair.elastomer.nu),
+                .with_nu1(self.cfg.setup.pair().elastomer.nu),
             ),
             Ok(_) => None,
             Err(_) => {
@@ -174,9 +157,9 @@ impl RigSensor {
         if !(normal.gamma1_mm > 0.0 && normal.contact_radius_mm > 0.0) {
             return None;
         }
-        let beta = normal.gamma2_mm / self.cfg.pair.indenter.r_mm;
+        let beta = normal.gamma2_mm / self.cfg.setup.pair().indenter.r_mm;
         let twist_deg = pose.rot_deg - twist_origin_deg.unwrap_or(pose.rot_deg);
-        let theta1_rad = torsion_at(&self.cfg.pair, beta, twist_deg.to_radians()).theta1_rad;
+        let theta1_rad = torsion_at(self.cfg.setup.pair(), beta, twist_deg.to_radians()).theta1_rad;
         Some(ContactTruth { normal, beta, twist_deg, theta1_rad })
     }
 
@@ -196,7 +179,7 @@ impl RigSensor {
         }
         let clean = truth.map(|t| {
             ContactState::new(self.cfg.contact_center_mm, t.normal.gamma1_mm, t.normal.contact_radius_mm, t.theta1_rad)
-                .with_nu1(self.cfg.pair.elastomer.nu)
+                .with_nu1(self.cfg.setup.pair().elastomer.nu)
         });
         // With effects the history-dependent model answers; it is stepped on
         // every frame (in time order) so backlash, creep and drift see the
@@ -223,7 +206,16 @@ impl RigSensor {
 mod tests {
     use super::*;
     use crate::clock::VirtualClock;
+    use crate::effects::SimProfile;
     use crate::emulator::axis::AxisConfig;
+    use crate::sensor::field::NoiseConfig;
+    use crate::setup::SimSetupInput;
+
+    /// A noiseless sensor with `profile`'s effects, first contact at `contact_stage_mm`.
+    fn quiet(profile: SimProfile, contact_stage_mm: f64) -> SensorSimConfig {
+        let setup = SimSetupInput { noise: NoiseConfig::NONE, profile, ..SimSetupInput::default() }.resolve().unwrap();
+        SensorSimConfig { setup, contact_stage_mm, ..SensorSimConfig::default() }
+    }
 
     fn axis(lo: f64, hi: f64) -> AxisConfig {
         AxisConfig {
@@ -241,8 +233,8 @@ mod tests {
     #[test]
     fn stage_sets_depth_and_twist_counts_from_contact() {
         let rig = Rig::new(VirtualClock::new(1.0), axis(-10.0, 10.0), axis(-360.0, 360.0));
-        let cfg = SensorSimConfig { noise: NoiseConfig::NONE, contact_stage_mm: 1.0, ..SensorSimConfig::default() };
-        let model = NormalModel::new(cfg.pair).unwrap();
+        let cfg = quiet(SimProfile::default(), 1.0);
+        let model = NormalModel::new(*cfg.setup.pair()).unwrap();
         let mut s = RigSensor::new(rig, cfg).unwrap();
         let pose = |stage_mm, rot_deg| RigPose { t_s: 0.0, stage_mm, rot_deg };
         // Twisting before touching loads nothing.
@@ -258,7 +250,7 @@ mod tests {
         let t = s.truth(&pose(3.0, 5.0)).unwrap();
         assert!((t.twist_deg - 2.0).abs() < 1e-12);
         let beta = state.gamma2_mm / 5.0;
-        let th = torsion_at(&s.config().pair, beta, 2f64.to_radians()).theta1_rad;
+        let th = torsion_at(s.config().setup.pair(), beta, 2f64.to_radians()).theta1_rad;
         assert!((t.theta1_rad - th).abs() < 1e-15 && th > 0.0);
         // Losing contact resets the twist reference.
         s.frame_at_pose(&pose(0.5, 5.0));
@@ -273,9 +265,7 @@ mod tests {
     fn moving_the_emulated_stage_changes_the_frames() {
         let clock = VirtualClock::new(1000.0);
         let rig = Rig::new(clock, axis(-10.0, 10.0), axis(-360.0, 360.0));
-        let mut s =
-            RigSensor::new(rig.clone(), SensorSimConfig { noise: NoiseConfig::NONE, ..SensorSimConfig::default() })
-                .unwrap();
+        let mut s = RigSensor::new(rig.clone(), quiet(SimProfile::default(), 0.0)).unwrap();
         let before = s.frame();
         assert!(before.displacements.iter().all(|d| *d == [0.0; 3]));
         rig.with_stage(|ax, t| ax.command_move_to(t, 0.5));
@@ -293,20 +283,19 @@ mod tests {
     #[test]
     fn a_profile_gives_the_frames_its_effects() {
         let rig = Rig::new(VirtualClock::new(1.0), axis(-10.0, 10.0), axis(-360.0, 360.0));
-        let cfg = SensorSimConfig { noise: NoiseConfig::NONE, contact_stage_mm: 1.0, ..SensorSimConfig::default() };
         let pose = |stage_mm| RigPose { t_s: 0.0, stage_mm, rot_deg: 0.0 };
-        let mut clean = RigSensor::new(rig.clone(), cfg.clone()).unwrap();
+        let mut clean = RigSensor::new(rig.clone(), quiet(SimProfile::default(), 1.0)).unwrap();
 
         // A clean profile changes nothing.
-        let mut same = RigSensor::new(rig.clone(), cfg.clone()).unwrap().with_profile(&SimProfile::default()).unwrap();
+        let mut same = RigSensor::new(rig.clone(), quiet(SimProfile::default(), 1.0)).unwrap();
         assert_eq!(same.frame_at_pose(&pose(3.0)).displacements, clean.frame_at_pose(&pose(3.0)).displacements);
 
         // A contact offset of 0.1 mm: the stage must go 0.1 mm further for the same contact.
         let offset = SimProfile {
-            contact_offset: Some(crate::effects::contact_offset::Params { z0_mm: 0.1 }),
+            contact_offset: Some(crate::effects::contact_offset::Params { contact_offset_mm: 0.1 }),
             ..SimProfile::default()
         };
-        let mut shifted = RigSensor::new(rig.clone(), cfg.clone()).unwrap().with_profile(&offset).unwrap();
+        let mut shifted = RigSensor::new(rig.clone(), quiet(offset, 1.0)).unwrap();
         let want = peak_depth(&clean.frame_at_pose(&pose(2.9)));
         let got = peak_depth(&shifted.frame_at_pose(&pose(3.0)));
         assert!((got - want).abs() < 1e-6 && want > 0.5, "{got} vs {want}");
@@ -314,7 +303,7 @@ mod tests {
         // A depth gain of 0.9 scales what the sensor reports.
         let gain =
             SimProfile { sensor_gain: Some(crate::effects::sensor_gain::Params { g: 0.9 }), ..SimProfile::default() };
-        let mut scaled = RigSensor::new(rig, cfg).unwrap().with_profile(&gain).unwrap();
+        let mut scaled = RigSensor::new(rig, quiet(gain, 1.0)).unwrap();
         let want = 0.9 * peak_depth(&clean.frame_at_pose(&pose(3.0)));
         let got = peak_depth(&scaled.frame_at_pose(&pose(3.0)));
         assert!((got - want).abs() < 1e-6, "{got} vs {want}");

@@ -12,8 +12,8 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use super::rig::{RigSensor, SensorSimConfig};
+use crate::effects::EffectError;
 use crate::emulator::rig::Rig;
-use crate::physics::ParamError;
 
 /// Why a sink refused a frame; the stream ends with it.
 #[derive(Debug, thiserror::Error)]
@@ -23,6 +23,9 @@ pub enum SinkError {
     Closed,
     #[error("frame sink I/O: {0}")]
     Io(#[from] std::io::Error),
+    /// The sensor protocol's sender failed (a link or Tac3D write).
+    #[error("frame sink: {0}")]
+    Device(#[from] devices::sensor::SensorError),
     /// Anything else, e.g. a frame the wire format cannot carry.
     #[error("frame sink: {0}")]
     Other(String),
@@ -118,7 +121,7 @@ impl Drop for SensorStream {
 /// Stream frames of a simulated sensor looking at `rig` into `sink`, at
 /// `cfg.frame_rate_hz` of rig time (so `rig.clock()`'s speed-up applies).
 /// Must be called inside a tokio runtime.
-pub fn spawn_sensor_stream<S: FrameSink>(rig: Rig, cfg: SensorSimConfig, sink: S) -> Result<SensorStream, ParamError> {
+pub fn spawn_sensor_stream<S: FrameSink>(rig: Rig, cfg: SensorSimConfig, sink: S) -> Result<SensorStream, EffectError> {
     let sensor = RigSensor::new(rig, cfg)?;
     Ok(spawn_rig_sensor(sensor, sink))
 }
@@ -178,6 +181,7 @@ mod tests {
     use crate::clock::VirtualClock;
     use crate::emulator::axis::AxisConfig;
     use crate::sensor::field::NoiseConfig;
+    use crate::setup::SimSetupInput;
 
     fn axis() -> AxisConfig {
         AxisConfig {
@@ -196,7 +200,8 @@ mod tests {
     async fn stream_follows_the_stage_silences_and_stops() {
         let rig = Rig::new(VirtualClock::new(100.0), axis(), axis());
         let (sink, mut rx) = channel_sink(64);
-        let cfg = SensorSimConfig { noise: NoiseConfig::NONE, ..SensorSimConfig::default() };
+        let setup = SimSetupInput { noise: NoiseConfig::NONE, ..SimSetupInput::default() }.resolve().unwrap();
+        let cfg = SensorSimConfig { setup, ..SensorSimConfig::default() };
         let stream = spawn_sensor_stream(rig.clone(), cfg, sink).unwrap();
         let f0 = rx.recv().await.unwrap();
         assert_eq!(f0.index, 1000);

@@ -1,5 +1,5 @@
 //! End to end on loopback (127.0.0.1 only) and a pseudo-terminal: a sender
-//! task streams frames, the receiver is used only through `SensorLink`
+//! task (the emulated device side, `sim::emulator`) streams frames, the receiver is used only through `SensorLink`
 //! (start, next_frame, tare, stop, stats); dropouts give `Timeout`, bad input
 //! is counted by reason, and the link keeps going.
 
@@ -7,13 +7,14 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use devices::sensor::link::{
-    Command, LinkConfig, LinkDevice, LinkMessage, LinkReceiver, encode, encode_raw, encode_raw_version, kind,
+    LinkCommand, LinkConfig, LinkMessage, LinkReceiver, encode, encode_raw, encode_raw_version, kind,
 };
 use devices::sensor::tac3d::{
-    Tac3dCommand, Tac3dFrame, Tac3dItem, Tac3dReceiver, Tac3dReceiverConfig, Tac3dSender, Tac3dSenderConfig,
-    Tac3dValue, encode_frame,
+    Tac3dCommand, Tac3dFrame, Tac3dItem, Tac3dReceiver, Tac3dReceiverConfig, Tac3dValue, encode_frame,
 };
 use devices::sensor::{BadReason, SensorError, SensorFrame, SensorLink};
+use sim::emulator::sensor_link::LinkDevice;
+use sim::emulator::tac3d::{Tac3dSender, Tac3dSenderConfig};
 use tokio::net::UdpSocket;
 use tokio::sync::watch;
 
@@ -269,9 +270,9 @@ async fn link_device(mut dev: LinkDevice, mut mode: watch::Receiver<Mode>) -> u6
                     Err(_) => return sent,
                 };
                 match c {
-                    Command::Start => streaming = true,
-                    Command::Stop => streaming = false,
-                    Command::Tare => s.tare(),
+                    LinkCommand::Start => streaming = true,
+                    LinkCommand::Stop => streaming = false,
+                    LinkCommand::Tare => s.tare(),
                 }
                 dev.ack(c).await.expect("ack");
             }
@@ -419,7 +420,7 @@ async fn the_device_going_away_closes_the_link() {
         c
     });
     r.unwrap();
-    assert_eq!(c, Command::Start);
+    assert_eq!(c, LinkCommand::Start);
     drop(dev);
     let e = rx.next_frame(WAIT).await.unwrap_err();
     assert!(matches!(e, SensorError::Closed { .. }), "{e}");
@@ -439,8 +440,8 @@ async fn link_receiver_opens_a_serial_device_by_path() {
     let mut dev = LinkDevice::new(device);
     let sent = Emulated::new(9).frame();
     let (r, ()) = tokio::join!(rx.start(), async {
-        assert_eq!(dev.next_command().await.unwrap(), Command::Start);
-        dev.ack(Command::Start).await.unwrap();
+        assert_eq!(dev.next_command().await.unwrap(), LinkCommand::Start);
+        dev.ack(LinkCommand::Start).await.unwrap();
         dev.send_frame(&sent).await.unwrap();
     });
     r.unwrap();

@@ -14,7 +14,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{
+use crate::effects::{
     EffectError, SimProfile, adhesion, contact_offset, finite_thickness, frame_compliance, partial_slip,
     rotation_backlash, sensor_gain, stage_backlash, thermal_drift, viscoelastic,
 };
@@ -129,7 +129,7 @@ pub fn cases() -> Vec<CorpusCase> {
             "contact_offset",
             23,
             BiasIn::Paper,
-            SimProfile { contact_offset: Some(contact_offset::Params { z0_mm: 0.005 }), ..d() },
+            SimProfile { contact_offset: Some(contact_offset::Params { contact_offset_mm: 0.005 }), ..d() },
         ),
         case(
             "stage_backlash",
@@ -187,7 +187,7 @@ mod tests {
     #[test]
     fn one_case_per_effect_plus_two_controls_and_manifest_round_trips() {
         let cs = cases();
-        for info in super::super::ALL {
+        for info in crate::effects::ALL {
             assert_eq!(cs.iter().filter(|c| c.effect == info.name).count(), 1, "{}", info.name);
             let c = cs.iter().find(|c| c.effect == info.name).unwrap();
             assert_eq!(c.profile.enabled(), vec![info.name]);

@@ -1,0 +1,235 @@
+//! Step 4 of the diagnosis, the result: the fits of the baseline and of the
+//! chosen model turned into the schema (summaries with intervals, where the
+//! mismatch is and what remains, the effects named and their parameters, the
+//! residuals before and after, the sim profile) and the verdict.
+
+use sim::effects::Reading;
+use sim::recording::{Phase, Recording};
+
+use super::baseline::Baseline;
+use super::locate::{self, Floor, Quantity, Segment, SegmentReport};
+use super::model::{Candidate, Fitted};
+use super::search::{Search, chi2_crit};
+use super::{
+    Ci95, DiagnoseError, Diagnosis, Explained, FitSummary, Mismatch, ParamEstimate, Rms, SampleResidual, prose,
+};
+use crate::numerics::stats::t_quantile_975;
+
+/// The diagnosis from the baseline and the search's outcome.
+pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Result<Diagnosis, DiagnoseError> {
+    let Baseline { model, fit: baseline, segs, floor_g, floor_t, before, warnings } = base;
+    let Search { scores, ambiguous, degenerate, last } = search;
+    let after = locate::locate(rec, &last.readings, &segs, floor_g, floor_t);
+    let mismatch = located_mismatch(rec, &baseline, &last, &segs, [floor_g, floor_t], &before, &after);
+    let remaining = mismatches(&after);
+    let unexplained = !remaining.is_empty();
+    // Never a forced attribution: when structure remains, or the data cannot
+    // rank the explanations, nothing is named.
+    let final_fit = if unexplained { &baseline } else { &last };
+    let (mut effects, mut explanation) = if unexplained || !ambiguous.is_empty() {
+        (Vec::new(), Vec::new())
+    } else {
+        (last.cands.iter().map(|c| c.name()).collect(), explained(final_fit))
+    };
+    // contact_offset is every fit's z0: named when it is significant at the same guard.
+    if !unexplained && let Some(e) = contact_offset(final_fit) {
+        effects.insert(0, e.effect);
+        explanation.insert(0, e);
+    }
+    let profile = model.profile(&final_fit.cands, &final_fit.x).ok_or(DiagnoseError::Model)?;
+    let residuals = sample_residuals(rec, &baseline, &last);
+    let noise = Rms { normal_um: model.sigma_g * 1e3, hold_um: model.sigma_g * 1e3, torsion_deg: model.sigma_t };
+    let fin = summary(rec, final_fit);
+    let mut d = Diagnosis {
+        effects,
+        unexplained,
+        e1_mpa: fin.e1_mpa,
+        nu1: fin.nu1,
+        noise,
+        baseline: summary(rec, &baseline),
+        corrected: summary(rec, &last),
+        mismatch,
+        remaining,
+        explanation,
+        degenerate,
+        ambiguous,
+        candidates: scores,
+        segments_before: before,
+        segments_after: after,
+        verdict: String::new(),
+        warnings,
+        residuals,
+        profile,
+    };
+    d.verdict = prose::verdict(&d, &last.cands);
+    Ok(d)
+}
+
+/// Where the baseline's residuals are systematic. A concealed effect can stay
+/// below the branch tests (a theta1 floor from ~80 samples is uncertain by
+/// ~11 %), yet the correction removes structure from one branch: that branch
+/// is where the mismatch is.
+fn located_mismatch(
+    rec: &Recording,
+    baseline: &Fitted,
+    last: &Fitted,
+    segs: &[Segment],
+    [floor_g, floor_t]: [Floor; 2],
+    before: &[SegmentReport],
+    after: &[SegmentReport],
+) -> Vec<Mismatch> {
+    let mut mismatch = mismatches(before);
+    if after.iter().any(|r| r.systematic) || last.cands.is_empty() {
+        return mismatch;
+    }
+    for seg in segs {
+        let fl = if seg.quantity == Quantity::Gamma1 { floor_g } else { floor_t };
+        if mismatch.iter().any(|m| m.phase == seg.phase && m.quantity == seg.quantity) {
+            continue;
+        }
+        if locate::chi2_gain(rec, &baseline.readings, &last.readings, seg, fl) > chi2_crit(1)
+            && let Some(r) = locate::describe(rec, &baseline.readings, seg, fl)
+        {
+            let mut m = mismatches(std::slice::from_ref(&SegmentReport { systematic: true, ..r }));
+            mismatch.append(&mut m);
+        }
+    }
+    mismatch
+}
+
+/// The fitted stage zero z0 as an explanation when it is significant at the guard.
+fn contact_offset(fit: &Fitted) -> Option<Explained> {
+    let (z0, z0_se) = (fit.base().contact_offset_mm, fit.se(2));
+    if !(z0_se.is_finite() && z0_se > 0.0 && (z0 / z0_se).powi(2) > chi2_crit(1)) {
+        return None;
+    }
+    let t = t_quantile_975(fit.dof);
+    let info = &sim::effects::contact_offset::INFO;
+    Some(Explained {
+        effect: info.name,
+        sentence: info.sentence,
+        params: vec![ParamEstimate {
+            name: "z0_mm",
+            unit: "mm",
+            value: z0,
+            ci95: [Some(z0 - t * z0_se), Some(z0 + t * z0_se)],
+            well_determined: 2.0 * t * z0_se < z0.abs(),
+        }],
+    })
+}
+
+fn sample_residuals(rec: &Recording, baseline: &Fitted, last: &Fitted) -> Vec<SampleResidual> {
+    rec.samples
+        .iter()
+        .enumerate()
+        .map(|(i, s)| SampleResidual {
+            t_s: s.t_s,
+            torsion: s.phase == Phase::Torsion,
+            gamma1_before_mm: locate::residual(rec, &baseline.readings, i, Quantity::Gamma1),
+            gamma1_after_mm: locate::residual(rec, &last.readings, i, Quantity::Gamma1),
+            theta1_before_deg: locate::residual(rec, &baseline.readings, i, Quantity::Theta1),
+            theta1_after_deg: locate::residual(rec, &last.readings, i, Quantity::Theta1),
+        })
+        .collect()
+}
+
+fn rms_of(rec: &Recording, pred: &[Reading]) -> Rms {
+    let mut n = (0.0, 0usize);
+    let mut h = (0.0, 0usize);
+    let mut t = (0.0, 0usize);
+    for (i, s) in rec.samples.iter().enumerate() {
+        if let Some(r) = locate::residual(rec, pred, i, Quantity::Gamma1) {
+            let acc = if s.phase == Phase::Normal { &mut n } else { &mut h };
+            acc.0 += r * r;
+            acc.1 += 1;
+        }
+        if let Some(r) = locate::residual(rec, pred, i, Quantity::Theta1) {
+            t.0 += r * r;
+            t.1 += 1;
+        }
+    }
+    let f = |a: (f64, usize)| if a.1 == 0 { 0.0 } else { (a.0 / a.1 as f64).sqrt() };
+    Rms { normal_um: f(n) * 1e3, hold_um: f(h) * 1e3, torsion_deg: f(t) }
+}
+
+/// One model's fit of the recording: E1, nu1, z0 with intervals, RMS residuals, chi²/dof.
+pub(super) fn summary(rec: &Recording, fit: &Fitted) -> FitSummary {
+    let b = fit.base();
+    let t = t_quantile_975(fit.dof);
+    let (s0, s1) = (fit.se(0), fit.se(1));
+    let nu = |x: f64| 0.5 / (1.0 + (-x).exp());
+    FitSummary {
+        e1_mpa: b.e1_mpa,
+        nu1: b.nu1,
+        contact_offset_mm: b.contact_offset_mm,
+        ci95: Ci95 {
+            e1_mpa: [(fit.x[0] - t * s0).exp(), (fit.x[0] + t * s0).exp()],
+            nu1: [nu(fit.x[1] - t * s1), nu(fit.x[1] + t * s1)],
+        },
+        rms: rms_of(rec, &fit.readings),
+        chi2_per_dof: fit.chi2 / fit.dof as f64,
+    }
+}
+
+fn mismatches(reports: &[SegmentReport]) -> Vec<Mismatch> {
+    reports
+        .iter()
+        .filter(|r| r.systematic)
+        .map(|r| Mismatch {
+            phase: r.phase,
+            quantity: r.quantity,
+            axis: r.axis,
+            from: r.from,
+            to: r.to,
+            shape: r.shape.clone(),
+            rms: r.rms,
+        })
+        .collect()
+}
+
+/// The named effects of `fit` with their parameters' values and 95 % intervals.
+fn explained(fit: &Fitted) -> Vec<Explained> {
+    let t = t_quantile_975(fit.dof);
+    fit.cands
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let off = fit.offset_of(k);
+            let params = c
+                .param_names()
+                .iter()
+                .enumerate()
+                .map(|(j, &(name, unit))| estimate(*c, j, name, unit, fit.x[off + j], t * fit.se(off + j)))
+                .collect();
+            Explained { effect: c.name(), sentence: c.info().sentence, params }
+        })
+        .collect()
+}
+
+/// Parameter `j` of candidate `c` at internal value `x`, its 95 % interval
+/// `x ± half` mapped to physical units.
+fn estimate(c: Candidate, j: usize, name: &'static str, unit: &'static str, x: f64, half: f64) -> ParamEstimate {
+    let value = c.physical(j, x);
+    let ends = [c.physical(j, x - half), c.physical(j, x + half)];
+    // Reciprocal parametrisations (h, mu) flip and open up when 1/x reaches 0.
+    let recip = matches!(c, Candidate::FiniteThickness | Candidate::PartialSlip);
+    let (mut lo, mut hi) = (ends[0].min(ends[1]), ends[0].max(ends[1]));
+    let mut open_hi = !hi.is_finite();
+    if recip && x - half <= 0.0 {
+        lo = ends[1];
+        hi = f64::INFINITY;
+        open_hi = true;
+    }
+    // Never report an interval end outside what the model accepts.
+    if let Some(b) = c.info().params.iter().find(|b| b.name == name) {
+        lo = lo.max(b.min);
+        if hi > b.max {
+            hi = b.max;
+        }
+    }
+    let lo_v = lo.is_finite().then_some(lo);
+    let hi_v = (!open_hi && hi.is_finite()).then_some(hi);
+    let width = hi - lo;
+    let well = lo_v.is_some() && hi_v.is_some() && width < value.abs().max(1e-300);
+    ParamEstimate { name, unit, value, ci95: [lo_v, hi_v], well_determined: well }
+}

@@ -1,0 +1,115 @@
+//! Steps 1 and 2 of the diagnosis, *compare* and *locate*: the paper's
+//! physics fitted to the recording's own commanded history (started from the
+//! full-model fit, else the paper's answer, else generic guesses), the noise
+//! floors from its residuals, and the per-branch tests of the baseline.
+
+use sim::recording::{Phase, Recording};
+
+use super::locate::{self, Floor, Quantity, Segment, SegmentReport};
+use super::model::{Base, Fitted, Model};
+use super::{DiagnoseError, DiagnoseOptions};
+use crate::fit::{FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper};
+
+/// The baseline of a diagnosis: the model weighted by the noise floors, its
+/// fit without any effect, and where that fit's residuals are systematic.
+pub(super) struct Baseline<'a> {
+    pub model: Model<'a>,
+    pub fit: Fitted,
+    pub segs: Vec<Segment>,
+    pub floor_g: Floor,
+    pub floor_t: Floor,
+    /// Per-branch statistics of the baseline.
+    pub before: Vec<SegmentReport>,
+    /// The full-model fit's warnings (empty when it failed).
+    pub warnings: Vec<Warning>,
+}
+
+/// Where the baseline fit starts, and the noise the first fit is weighted with.
+struct Starts {
+    bases: Vec<Base>,
+    sigma_g_mm: f64,
+    sigma_t_deg: f64,
+    warnings: Vec<Warning>,
+}
+
+/// Compare and locate: the baseline fit, the noise floors, the branch tests.
+pub(super) fn compare<'a>(rec: &'a Recording, opts: &DiagnoseOptions) -> Result<Baseline<'a>, DiagnoseError> {
+    let sg_given = opts.noise_um.map(|u| u * 1e-3);
+    let starts = start_points(rec, sg_given)?;
+    let (sg0, st0) = (starts.sigma_g_mm, starts.sigma_t_deg);
+    let mut model = Model::new(rec, sg0, st0);
+    model.max_iterations = opts.max_iterations.max(1);
+    let base0 = starts.bases.iter().find_map(|b| model.fit(&[], &b.internal())).ok_or(DiagnoseError::Model)?;
+
+    // locate: noise floor from the baseline residuals, then the per-branch tests.
+    let segs: Vec<Segment> = locate::segments(rec);
+    let floor_g = sg_given
+        .map(Floor::known)
+        .or_else(|| locate::noise_floor_dof(&locate::series(rec, &base0.readings, &segs, Quantity::Gamma1)))
+        .map_or(Floor::known(sg0), |f| Floor { sigma: f.sigma.max(1e-6), ..f });
+    let floor_t = locate::noise_floor_dof(&locate::series(rec, &base0.readings, &segs, Quantity::Theta1))
+        .map_or(Floor::known(st0), |f| Floor { sigma: f.sigma.max(1e-6), ..f });
+    model.sigma_g = floor_g.sigma;
+    model.sigma_t = floor_t.sigma;
+    let mut fit = model.fit(&[], &base0.x).ok_or(DiagnoseError::Model)?;
+    model.finish(&mut fit);
+    let before = locate::locate(rec, &fit.readings, &segs, floor_g, floor_t);
+    Ok(Baseline { model, fit, segs, floor_g, floor_t, before, warnings: starts.warnings })
+}
+
+/// Whether the recording has the samples a full-model fit needs at all.
+fn full_fit_possible(rec: &Recording) -> bool {
+    rec.phase(Phase::Torsion).count() >= 3 && rec.phase(Phase::Normal).filter(|s| s.gamma1_mm != 0.0).count() >= 5
+}
+
+/// Starts: the full-model fit, else the paper's answer, else generic guesses
+/// (a recording far from the paper's physics can defeat both fits).
+fn start_points(rec: &Recording, sg_given: Option<f64>) -> Result<Starts, DiagnoseError> {
+    // compare: the full-model fit gives the start; refit on the true-rig model with our weights.
+    let full_opts = FullOptions { gamma1_sigma_mm: sg_given, theta1_sigma_deg: None };
+    let fit_opts = FitOptions { full: full_opts, ..Default::default() };
+    let mut starts = Vec::new();
+    let (mut sg0, mut st0) = (sg_given.unwrap_or(sim::defaults::GAMMA1_SIGMA_MM), sim::defaults::THETA1_SIGMA_DEG);
+    let pos = |v: f64, d: f64| if v.is_finite() && v > 0.0 { v } else { d };
+    let mut warnings = Vec::new();
+    let mut fallback = true;
+    let mut pinned_start: Option<Base> = None;
+    match calibrate(rec, &fit_opts) {
+        Ok(c) => {
+            warnings = c.warnings.clone();
+            sg0 = sg_given.unwrap_or(pos(c.full.noise_floor.normal_um * 1e-3, sg0));
+            st0 = pos(c.full.noise_floor.torsion_deg, st0);
+            // A fit pinned at a bound of nu1 is a poor start: keep it, but try the others too.
+            fallback = c.warnings.iter().any(|w| w.code == "nu1_at_bound");
+            let start = Base {
+                e1_mpa: c.full.e1_mpa,
+                nu1: c.full.nu1.clamp(0.05, 0.49),
+                contact_offset_mm: c.full.contact_offset_mm,
+            };
+            if fallback {
+                pinned_start = Some(start);
+            } else {
+                starts.push(start);
+            }
+        }
+        Err(FitError::Implausible(e)) => return Err(FitError::Implausible(e).into()),
+        Err(first) => {
+            if !full_fit_possible(rec) {
+                return Err(first.into());
+            }
+        }
+    }
+    if fallback {
+        if let Ok(p) = fit_paper(rec, &fit_opts.paper)
+            && p.e1_mpa.is_finite()
+            && p.e1_mpa > 0.0
+        {
+            starts.push(Base { e1_mpa: p.e1_mpa, nu1: p.nu1.clamp(0.05, 0.49), contact_offset_mm: 0.0 });
+        }
+        for m in crate::fit::start_points::stiffness_ladder(rec.meta.indenter.e_mpa) {
+            starts.push(Base { e1_mpa: m.e1_mpa, nu1: m.nu1, contact_offset_mm: 0.0 });
+        }
+        starts.extend(pinned_start);
+    }
+    Ok(Starts { bases: starts, sigma_g_mm: sg0, sigma_t_deg: st0, warnings })
+}

@@ -1,0 +1,218 @@
+//! The diagnosis in words, written once: the verdict (the `verdict` field of
+//! the JSON document), the human report `easycalib diagnose` prints, and the
+//! reasons an effect is reported degenerate. Every number a sentence shows is
+//! formatted by one phrase below, so the report and the verdict agree.
+
+use std::fmt::Write as _;
+
+use super::model::Candidate;
+use super::{Diagnosis, FitSummary, Mismatch, ParamEstimate, Rms};
+
+/// A fitted parameter of an effect: value, unit and 95 % interval (an open
+/// end is `open`), flagged when the sweeps determine it only weakly.
+pub fn param(p: &ParamEstimate) -> String {
+    let end = |v: Option<f64>| v.map_or("open".to_string(), |v| format!("{v:.5}"));
+    format!(
+        "{} = {:.5} {} (95% [{}, {}]){}",
+        p.name,
+        p.value,
+        p.unit,
+        end(p.ci95[0]),
+        end(p.ci95[1]),
+        if p.well_determined { "" } else { "  weakly determined" }
+    )
+}
+
+/// E1 and nu1 of one fit with their 95 % intervals.
+fn estimate(f: &FitSummary) -> String {
+    format!(
+        "E1 {:.4} MPa [{:.4}, {:.4}], nu1 {:.4} [{:.4}, {:.4}]",
+        f.e1_mpa, f.ci95.e1_mpa[0], f.ci95.e1_mpa[1], f.nu1, f.ci95.nu1[0], f.ci95.nu1[1]
+    )
+}
+
+/// E1 and nu1 from the baseline to the corrected fit.
+fn estimate_change(b: &FitSummary, c: &FitSummary) -> String {
+    format!("E1 {:.4} -> {:.4} MPa, nu1 {:.4} -> {:.4}", b.e1_mpa, c.e1_mpa, b.nu1, c.nu1)
+}
+
+/// The residual RMS per reading group, from the baseline to the corrected fit.
+fn rms_change(b: &Rms, c: &Rms) -> String {
+    format!(
+        "normal {:.2} -> {:.2} µm, hold {:.2} -> {:.2} µm, torsion {:.4} -> {:.4} deg",
+        b.normal_um, c.normal_um, b.hold_um, c.hold_um, b.torsion_deg, c.torsion_deg
+    )
+}
+
+/// Why an effect that improves the fit is not picked.
+pub(super) fn degenerate_reason(effect: &str, vif: f64) -> String {
+    format!(
+        "{effect} improves the fit, but with these sweeps E1/nu1 can stand in for it (variance inflation {vif:.0}), so it is not picked"
+    )
+}
+
+/// Why a depth-scale error of the sensor is reported degenerate.
+pub(super) fn sensor_gain_reason(vif: f64) -> String {
+    format!(
+        "a depth-scale error of the sensor cannot be told apart from a change of E1/nu1 with these sweeps (variance inflation {vif:.0}); E1 and nu1 are only as good as the sensor's depth calibration"
+    )
+}
+
+fn where_(m: &[Mismatch]) -> String {
+    m.iter()
+        .map(|m| format!("{} {} {:.3}..{:.3} ({})", m.phase, m.axis, m.from, m.to, m.shape))
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+/// The answer in a few sentences; `tried` is the chosen model's effects.
+pub(super) fn verdict(d: &Diagnosis, tried: &[Candidate]) -> String {
+    let mut s = if d.unexplained {
+        unexplained_verdict(d, tried)
+    } else if !d.ambiguous.is_empty() {
+        ambiguous_verdict(d)
+    } else if d.effects.is_empty() {
+        if d.mismatch.is_empty() {
+            "No mismatch beyond the noise floor; no effect named.".to_string()
+        } else {
+            "No effect named.".to_string()
+        }
+    } else {
+        named_verdict(d)
+    };
+    let _ = write!(
+        s,
+        " residual RMS {} (noise {:.2} µm, {:.4} deg).",
+        rms_change(&d.baseline.rms, &d.corrected.rms),
+        d.noise.normal_um,
+        d.noise.torsion_deg
+    );
+    for g in &d.degenerate {
+        s += &format!(" Degenerate: {}", g.reason);
+        if let Some(m) = g.separate_by {
+            s += &format!("; to separate it: {m}");
+        }
+        s += ".";
+    }
+    s
+}
+
+fn unexplained_verdict(d: &Diagnosis, tried: &[Candidate]) -> String {
+    let tried: Vec<&str> = tried.iter().map(|c| c.name()).collect();
+    format!(
+        "UNEXPLAINED: a systematic mismatch remains that no effect of the library explains: {}.{} No effect is named; E1 and nu1 are the baseline's.",
+        where_(&d.remaining),
+        if tried.is_empty() {
+            String::new()
+        } else {
+            format!(" (the closest candidate, {}, leaves it.)", tried.join(" + "))
+        }
+    )
+}
+
+fn ambiguous_verdict(d: &Diagnosis) -> String {
+    let alts: Vec<String> = d
+        .ambiguous
+        .iter()
+        .map(|a| {
+            format!("{} (dBIC {:.1}: E1 {:.4} MPa, nu1 {:.4})", a.effects.join(" + "), a.delta_bic, a.e1_mpa, a.nu1)
+        })
+        .collect();
+    format!(
+        "{}AMBIGUOUS: these sweeps cannot tell apart {}; none is named. {} with the best of them.",
+        if d.mismatch.is_empty() { String::new() } else { format!("Mismatch: {}. ", where_(&d.mismatch)) },
+        alts.join(" / "),
+        estimate_change(&d.baseline, &d.corrected)
+    )
+}
+
+fn named_verdict(d: &Diagnosis) -> String {
+    let mut s = String::new();
+    if !d.mismatch.is_empty() {
+        s += &format!("Mismatch: {}. ", where_(&d.mismatch));
+    } else {
+        s += "The baseline residuals pass the whiteness tests, but a refit finds a significant effect. ";
+    }
+    for e in &d.explanation {
+        s += e.sentence;
+        s += " Fitted ";
+        s += &e.params.iter().map(param).collect::<Vec<_>>().join(", ");
+        s += ". ";
+    }
+    s += &estimate_change(&d.baseline, &d.corrected);
+    s += ".";
+    s
+}
+
+/// The verdict on a recording fitted with the FE layer model, on which no
+/// effect is searched: `fit` its fit, `noise` the floor, `friction` the
+/// torsion's contact friction when determined.
+pub(super) fn layered_verdict(
+    unexplained: bool,
+    fit: &FitSummary,
+    noise: &Rms,
+    chi2_per_dof: f64,
+    friction: Option<f64>,
+) -> String {
+    if unexplained {
+        format!(
+            "UNEXPLAINED: the layer model leaves systematic residuals (normal {:.1} µm RMS against a noise floor of \
+             {:.1} µm); no effect is searched on layered recordings yet. E1 {:.4} MPa, nu1 {:.4} are the layer \
+             model's, with intervals scaled by the residuals.",
+            fit.rms.normal_um, noise.normal_um, fit.e1_mpa, fit.nu1
+        )
+    } else {
+        format!(
+            "The layer model explains the recording to its noise (chi²/dof {chi2_per_dof:.2}): {}, friction in \
+             torsion {}.",
+            estimate(fit),
+            friction.map_or("not determined".to_string(), |m| format!("{m:.2}"))
+        )
+    }
+}
+
+/// The human report `easycalib diagnose` prints: noise floor, baseline,
+/// mismatch, the effects with their parameters, the corrected estimate,
+/// residuals, degeneracies, warnings, then the verdict.
+pub fn report(d: &Diagnosis) -> String {
+    let mut s = String::new();
+    let b = &d.baseline;
+    let c = &d.corrected;
+    // Writing to a String cannot fail.
+    let _ = writeln!(s, "Noise floor: gamma1 {:.2} µm, theta1 {:.4} deg", d.noise.normal_um, d.noise.torsion_deg);
+    let _ =
+        writeln!(s, "Baseline (paper's physics, full-model fit): {}, z0 {:+.4} mm", estimate(b), b.contact_offset_mm);
+    if d.mismatch.is_empty() {
+        let _ = writeln!(s, "Mismatch: none beyond the noise floor");
+    } else {
+        let _ = writeln!(s, "Mismatch:");
+        for m in &d.mismatch {
+            let _ = writeln!(s, "  {:<14} {} {:.3} .. {:.3}: {}", m.phase, m.axis, m.from, m.to, m.shape);
+        }
+    }
+    if d.unexplained {
+        let _ = writeln!(s, "Explanation: UNEXPLAINED by the effect library; nothing is attributed");
+    } else if d.effects.is_empty() {
+        let _ = writeln!(s, "Explanation: no effect named");
+    } else {
+        for e in &d.explanation {
+            let _ = writeln!(s, "Effect {}: {}", e.effect, e.sentence);
+            for p in &e.params {
+                let _ = writeln!(s, "  {}", param(p));
+            }
+        }
+        let _ = writeln!(s, "Corrected: {}", estimate(c));
+    }
+    let _ = writeln!(s, "Residual RMS: {}", rms_change(&b.rms, &c.rms));
+    for g in &d.degenerate {
+        let _ = writeln!(s, "Degenerate: {}", g.reason);
+        if let Some(m) = g.separate_by {
+            let _ = writeln!(s, "  to separate it: {m}");
+        }
+    }
+    for w in &d.warnings {
+        let _ = writeln!(s, "Warning ({}): {}", w.code, w.message);
+    }
+    let _ = writeln!(s, "\n{}", d.verdict);
+    s
+}

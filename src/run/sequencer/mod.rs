@@ -1,0 +1,354 @@
+//! The scripted calibration sequencer: connect, home, approach and find
+//! contact, normal sweep(s) to the target depth and back, return to the depth
+//! and twist out and back, retract. Every move goes through the
+//! [`SafetyGuard`]; every settled sample is appended (and flushed) to the
+//! recording before the next move, so a run that dies leaves a readable file.
+//!
+//! Controls are taken at safe points (before every move, between sensor
+//! reads) and while a move is under way: an abort during a move stops it.
+//! Any failure ends in [`Sequencer::abort`]: stop both axes, back the stage
+//! off to the retract position, say which device did what.
+
+mod motion;
+mod outcome;
+mod progress;
+mod record;
+mod settle;
+mod steps;
+#[cfg(test)]
+mod tests;
+
+pub use outcome::{AbortInfo, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus};
+
+use futures_util::{FutureExt, TryFutureExt};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::time::{Instant, SystemTime};
+
+use devices::motion::{Axis, AxisStatus, Deg, DeviceFault, FaultKind, Identify, LinearStage, Mm, RotationMount};
+use sim::recording::{Direction, Metadata, Phase, RecordingWriter, Sample};
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
+
+use crate::run::events::{DeviceStatus, FitUpdate, LogLevel, Progress, RunControl, RunEvent, RunPhase};
+use crate::run::gauge::{Gauge, GaugeError, GaugeReading};
+use crate::run::safety::{LimitViolation, SafetyGuard};
+use crate::run::script::{Script, ScriptError};
+use outcome::phase_times;
+use record::sanitize;
+use settle::{mean, std_dev};
+
+/// Internal: why the procedure stopped.
+#[derive(Debug)]
+struct Halt {
+    culprit: Culprit,
+    message: String,
+}
+
+type Step<T> = Result<T, Halt>;
+
+/// Upper bound on readings per settle, whatever the sensor's timestamps say.
+const MAX_SETTLE_READINGS: usize = 2000;
+
+fn kind_str(k: FaultKind) -> &'static str {
+    match k {
+        FaultKind::Timeout => "timeout",
+        FaultKind::Protocol => "protocol error",
+        FaultKind::DeviceReported => "device reported an error",
+        FaultKind::Limit => "limit",
+        FaultKind::Disconnected => "disconnected",
+    }
+}
+
+/// Where the ETA estimate stands.
+#[derive(Debug, Clone, Copy)]
+enum Cursor {
+    Setup,
+    Load { rep: u32, k: usize, beta: f64 },
+    Unload { rep: u32, left: usize },
+    Depth,
+    Twist { left: usize },
+    Done,
+}
+
+/// Runs one calibration script on a stage, a mount and a gauge.
+pub struct Sequencer<S, R, G> {
+    script: Script,
+    stage: S,
+    mount: R,
+    gauge: G,
+    recording_path: PathBuf,
+    events: Option<UnboundedSender<RunEvent>>,
+    controls: Option<UnboundedReceiver<RunControl>>,
+    extra_meta: Vec<(String, String)>,
+    /// Test facility: panic after this many samples (proves the panic path).
+    panic_after_samples: Option<usize>,
+    guard: SafetyGuard,
+    // Run state.
+    stage_name: String,
+    mount_name: String,
+    stage_homed: bool,
+    mount_homed: bool,
+    /// Last known (or commanded) stage position, NaN while unknown.
+    stage_mm: f64,
+    mount_deg: f64,
+    /// Latest gamma1 reading, mm (NaN while unknown).
+    gamma1_mm: f64,
+    /// Upper bound on the true gamma1 at the current stage position (NaN:
+    /// unknown): grows by every inward move, tightened by readings. The
+    /// guard's gamma1 limit is checked against it.
+    gamma1_bound_mm: f64,
+    /// Inward travel of the last stage move: a reading right after a move may
+    /// still lag behind the elastomer by up to this much.
+    last_inward_mm: f64,
+    noise: ReadingNoise,
+    clock: RigClock,
+    writer: Option<RecordingWriter<BufWriter<File>>>,
+    samples: Vec<Sample>,
+    contact_mm: Option<f64>,
+    torsion_beta: Option<f64>,
+    twist_zero: f64,
+    pause_requested: bool,
+    consecutive_timeouts: u32,
+    last_fit: Option<FitUpdate>,
+    track: Tracking,
+}
+
+/// The sensor's reading noise: measured at rest before the approach, and
+/// learnt from settled windows in contact.
+#[derive(Debug, Default)]
+struct ReadingNoise {
+    /// Standard deviation of one gamma1 reading at rest, mm.
+    gamma1_mm: f64,
+    /// Standard deviation of one theta1 reading at rest, degrees.
+    theta1_deg: f64,
+    /// (gamma1 mm, theta1 deg) learnt while settled in contact (a sensor may be
+    /// noisier pressed than at rest, or report exact zeros out of contact).
+    live: Option<(f64, f64)>,
+}
+
+/// Rig time, read off the sensor's clock.
+#[derive(Debug, Default)]
+struct RigClock {
+    /// Sensor time of the first reading, s.
+    t0: Option<f64>,
+    /// Sensor time of the latest reading since `t0`, s.
+    t_last: f64,
+    /// Where each phase began.
+    phase_marks: Vec<(&'static str, f64)>,
+}
+
+/// Where the procedure stands, for progress and the estimate of time left.
+#[derive(Debug)]
+struct Tracking {
+    step_index: usize,
+    cursor: Cursor,
+    /// Load samples of the first normal sweep, once it ended.
+    loads_rep0: Option<usize>,
+    /// Rig time and sample count when the normal sweep began.
+    sweep_start: Option<(f64, usize)>,
+}
+
+impl<S, R, G> Sequencer<S, R, G>
+where
+    S: LinearStage + Identify,
+    R: RotationMount + Identify,
+    G: Gauge,
+{
+    /// A sequencer for `script` that will write its recording to `recording_path`.
+    /// The soft limits are the script's, narrowed to the devices' travel.
+    pub fn new(
+        script: Script,
+        stage: S,
+        mount: R,
+        gauge: G,
+        recording_path: impl Into<PathBuf>,
+    ) -> Result<Self, ScriptError> {
+        script.validate()?;
+        let guard = SafetyGuard::new(&script, stage.travel(), mount.travel());
+        Ok(Self {
+            script,
+            stage,
+            mount,
+            gauge,
+            recording_path: recording_path.into(),
+            events: None,
+            controls: None,
+            extra_meta: Vec::new(),
+            panic_after_samples: None,
+            guard,
+            stage_name: "stage".into(),
+            mount_name: "rotation mount".into(),
+            stage_homed: false,
+            mount_homed: false,
+            stage_mm: f64::NAN,
+            mount_deg: f64::NAN,
+            gamma1_mm: f64::NAN,
+            gamma1_bound_mm: f64::NAN,
+            last_inward_mm: 0.0,
+            noise: ReadingNoise::default(),
+            clock: RigClock::default(),
+            writer: None,
+            samples: Vec::new(),
+            contact_mm: None,
+            torsion_beta: None,
+            twist_zero: 0.0,
+            pause_requested: false,
+            consecutive_timeouts: 0,
+            last_fit: None,
+            track: Tracking { step_index: 0, cursor: Cursor::Setup, loads_rep0: None, sweep_start: None },
+        })
+    }
+
+    /// Send events here (sending never blocks the rig; a dropped receiver is ignored).
+    pub fn with_events(mut self, tx: UnboundedSender<RunEvent>) -> Self {
+        self.events = Some(tx);
+        self
+    }
+
+    /// Take pause / resume / abort / quit from here.
+    pub fn with_controls(mut self, rx: UnboundedReceiver<RunControl>) -> Self {
+        self.controls = Some(rx);
+        self
+    }
+
+    /// Extra `# key: value` metadata for the recording (e.g. a simulation's truth).
+    pub fn with_metadata(mut self, extra: Vec<(String, String)>) -> Self {
+        self.extra_meta = extra;
+        self
+    }
+
+    /// Test facility (docs/hardening.md): panic inside the run after `n`
+    /// samples, to prove that a panic ends in the same safe path as any fault.
+    #[doc(hidden)]
+    pub fn with_panic_after_samples(mut self, n: Option<usize>) -> Self {
+        self.panic_after_samples = n;
+        self
+    }
+
+    pub fn script(&self) -> &Script {
+        &self.script
+    }
+
+    /// The settled samples recorded so far.
+    pub fn samples(&self) -> &[Sample] {
+        &self.samples
+    }
+
+    pub fn into_parts(self) -> (S, R, G) {
+        (self.stage, self.mount, self.gauge)
+    }
+
+    fn total_steps(&self) -> usize {
+        6 + self.script.normal.repeats as usize
+    }
+
+    fn emit(&self, ev: RunEvent) {
+        if let Some(tx) = &self.events {
+            let _ = tx.send(ev);
+        }
+    }
+
+    fn log(&self, level: LogLevel, message: impl Into<String>) {
+        self.emit(RunEvent::Log { level, message: message.into() });
+    }
+
+    fn step(&mut self, index: usize, name: impl Into<String>, phase: RunPhase) {
+        self.track.step_index = index;
+        self.emit(RunEvent::StepStarted { index, total: self.total_steps(), name: name.into(), phase });
+        self.progress();
+    }
+
+    fn stage_fault<E: DeviceFault>(&self, what: &str, e: E) -> Halt {
+        Halt { culprit: Culprit::Stage, message: format!("{} {what}: {}: {e}", self.stage_name, kind_str(e.kind())) }
+    }
+
+    fn mount_fault<E: DeviceFault>(&self, what: &str, e: E) -> Halt {
+        Halt { culprit: Culprit::Mount, message: format!("{} {what}: {}: {e}", self.mount_name, kind_str(e.kind())) }
+    }
+
+    fn sensor_fault(&self, what: &str, e: GaugeError) -> Halt {
+        Halt {
+            culprit: Culprit::Sensor,
+            message: format!("sensor {} {what}: {}: {e}", self.gauge.describe(), kind_str(e.kind())),
+        }
+    }
+
+    fn safety(&self, context: &str, v: LimitViolation) -> Halt {
+        Halt { culprit: Culprit::Safety, message: format!("soft limit, {context}: {v}") }
+    }
+
+    /// Run the script to its end or to an abort. Never panics on device
+    /// trouble: every failure is an [`AbortInfo`] in the outcome.
+    pub async fn run(&mut self) -> RunOutcome {
+        let wall = Instant::now();
+        // A panic anywhere in the procedure is caught here and ends like any
+        // fault: stop, back off, keep the recording (docs/hardening.md).
+        let result = std::panic::AssertUnwindSafe(self.procedure()).catch_unwind().await;
+        let status = match result {
+            Ok(Ok(())) => RunStatus::Completed,
+            Ok(Err(halt)) => RunStatus::Aborted(self.abort(halt).await),
+            Err(panic) => {
+                let what = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "unknown panic".into());
+                let halt = Halt { culprit: Culprit::Internal, message: format!("internal error (panic): {what}") };
+                RunStatus::Aborted(self.abort(halt).await)
+            }
+        };
+        RunOutcome {
+            recording: self.recording_path.clone(),
+            samples: self.samples.len(),
+            rig_time_s: self.clock.t_last,
+            wall_time_s: wall.elapsed().as_secs_f64(),
+            contact_mm: self.contact_mm,
+            noise_gamma1_mm: (self.noise.gamma1_mm > 0.0).then_some(self.noise.gamma1_mm),
+            torsion_beta: self.torsion_beta,
+            phase_rig_time_s: phase_times(&self.clock.phase_marks, self.clock.t_last),
+            status,
+        }
+    }
+
+    async fn procedure(&mut self) -> Step<()> {
+        self.step(0, "connect and identify", RunPhase::Setup);
+        self.connect().await?;
+        self.step(1, "home", RunPhase::Setup);
+        self.mark_phase("homing").await?;
+        self.home().await?;
+        self.step(2, "approach and find contact", RunPhase::Approach);
+        self.mark_phase("approach").await?;
+        self.approach().await?;
+        let reps = self.script.normal.repeats;
+        let mut crossing = None;
+        for rep in 0..reps {
+            self.step(3 + rep as usize, format!("normal sweep {}/{}", rep + 1, reps), RunPhase::Normal);
+            if rep == 0 {
+                self.mark_phase("normal").await?;
+            }
+            self.device_status().await?;
+            crossing = Some(self.normal_sweep(rep).await?);
+        }
+        let base = 3 + reps as usize;
+        self.step(base, "return to torsion depth", RunPhase::Torsion);
+        self.mark_phase("torsion").await?;
+        let crossing =
+            crossing.ok_or_else(|| Halt { culprit: Culprit::Procedure, message: "no normal sweep ran".into() })?;
+        self.torsion_depth(crossing).await?;
+        self.step(base + 1, "torsion sweep", RunPhase::Torsion);
+        self.device_status().await?;
+        self.torsion_sweep().await?;
+        self.step(base + 2, "retract", RunPhase::Retract);
+        self.mark_phase("retract").await?;
+        self.retract().await?;
+        self.mark_end().await;
+        self.track.cursor = Cursor::Done;
+        self.progress();
+        self.log(
+            LogLevel::Info,
+            format!("run complete: {} samples in {}", self.samples.len(), self.recording_path.display()),
+        );
+        Ok(())
+    }
+}

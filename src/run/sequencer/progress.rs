@@ -1,0 +1,70 @@
+//! Progress and the estimate of rig time left.
+
+use super::*;
+
+impl<S, R, G> Sequencer<S, R, G>
+where
+    S: LinearStage + Identify,
+    R: RotationMount + Identify,
+    G: Gauge,
+{
+    pub(super) fn progress_fraction(&self, step_fraction: f64) {
+        self.emit(RunEvent::Progress(Progress {
+            step_fraction: step_fraction.clamp(0.0, 1.0),
+            elapsed_s: self.clock.t_last,
+            eta_s: self.eta(),
+        }));
+    }
+
+    pub(super) fn progress(&self) {
+        let twist_total = self.script.twist_angles().len();
+        let n_load = self.loads_estimate();
+        let frac = match self.track.cursor {
+            Cursor::Setup => 0.0,
+            Cursor::Load { beta, .. } => 0.5 * beta / self.script.normal.target_beta,
+            Cursor::Unload { left, .. } => n_load.map(|n| 1.0 - 0.5 * left as f64 / n.max(1.0)).unwrap_or(0.5),
+            Cursor::Depth => 0.5,
+            Cursor::Twist { left } => 1.0 - left as f64 / twist_total.max(1) as f64,
+            Cursor::Done => 1.0,
+        };
+        self.progress_fraction(frac);
+    }
+
+    /// Load samples per normal sweep: known after the first, extrapolated from beta before.
+    pub(super) fn loads_estimate(&self) -> Option<f64> {
+        if let Some(n) = self.track.loads_rep0 {
+            return Some(n as f64);
+        }
+        match self.track.cursor {
+            Cursor::Load { k, beta, .. } if beta > 0.02 => Some((k + 1) as f64 * self.script.normal.target_beta / beta),
+            _ => None,
+        }
+    }
+
+    /// Rig time left: samples left times the mean time per sample so far.
+    pub(super) fn eta(&self) -> Option<f64> {
+        let (t_start, n_start) = self.track.sweep_start?;
+        let done = self.samples.len().checked_sub(n_start)?;
+        if done < 3 {
+            return None;
+        }
+        let per = (self.clock.t_last - t_start) / done as f64;
+        let reps = self.script.normal.repeats as f64;
+        let twist = self.script.twist_angles().len() as f64;
+        let left = match self.track.cursor {
+            Cursor::Setup => return None,
+            Cursor::Load { rep, k, .. } => {
+                let n = self.loads_estimate()?;
+                (n - k as f64 - 1.0).max(0.0) + (n - 1.0) + (reps - rep as f64 - 1.0) * (2.0 * n - 1.0) + twist + 2.0
+            }
+            Cursor::Unload { rep, left } => {
+                let n = self.loads_estimate()?;
+                left as f64 - 1.0 + (reps - rep as f64 - 1.0) * (2.0 * n - 1.0) + twist + 2.0
+            }
+            Cursor::Depth => twist + 2.0,
+            Cursor::Twist { left } => left as f64,
+            Cursor::Done => 0.0,
+        };
+        Some(left.max(0.0) * per)
+    }
+}

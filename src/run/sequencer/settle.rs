@@ -1,0 +1,190 @@
+//! Reading the sensor: timestamps, dropouts, settling on a statistical criterion,
+//! and the noise learnt while settled.
+
+use super::*;
+
+impl<S, R, G> Sequencer<S, R, G>
+where
+    S: LinearStage + Identify,
+    R: RotationMount + Identify,
+    G: Gauge,
+{
+    /// Timestamp the end of the procedure, best effort: the run is complete
+    /// whatever the sensor says now.
+    pub(super) async fn mark_end(&mut self) {
+        if let (Ok(r), Some(t0)) = (self.gauge.read(self.script.read_timeout()).await, self.clock.t0) {
+            self.clock.t_last = (r.t_s - t0).max(self.clock.t_last);
+        }
+    }
+
+    /// Timestamp the start of a phase with one reading (the sensor's clock is
+    /// the rig's; without a reading the stretch would have no time).
+    pub(super) async fn mark_phase(&mut self, phase: &'static str) -> Step<()> {
+        self.read().await?;
+        self.clock.phase_marks.push((phase, self.clock.t_last));
+        Ok(())
+    }
+
+    /// One reading; read timeouts adding up to the dropout timeout abort.
+    pub(super) async fn read(&mut self) -> Step<GaugeReading> {
+        let timeout = self.script.read_timeout();
+        let mut unmeasured = 0u32;
+        loop {
+            match self.gauge.read(timeout).await {
+                Ok(r) => {
+                    self.consecutive_timeouts = 0;
+                    let t0 = *self.clock.t0.get_or_insert(r.t_s);
+                    self.clock.t_last = (r.t_s - t0).max(self.clock.t_last);
+                    self.gamma1_mm = r.gamma1_mm;
+                    self.gamma1_bound_mm =
+                        self.gamma1_bound_mm.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
+                    return Ok(r);
+                }
+                Err(GaugeError::Timeout { .. }) => {
+                    self.consecutive_timeouts += 1;
+                    if self.consecutive_timeouts >= self.script.dropout_reads() {
+                        return Err(Halt {
+                            culprit: Culprit::Sensor,
+                            message: format!(
+                                "sensor {}: no reading for {:.1} s ({} consecutive read timeouts of {:.2} s): the stream stopped",
+                                self.gauge.describe(),
+                                self.consecutive_timeouts as f64 * self.script.timeouts.read_s,
+                                self.consecutive_timeouts,
+                                self.script.timeouts.read_s
+                            ),
+                        });
+                    }
+                    if self.consecutive_timeouts == 1 {
+                        self.log(LogLevel::Warn, "sensor reading timed out; waiting for the stream");
+                    }
+                    self.checkpoint().await?;
+                }
+                Err(e @ GaugeError::Measure { .. }) => {
+                    unmeasured += 1;
+                    if unmeasured >= 50 {
+                        return Err(self.sensor_fault("50 frames in a row could not be measured; last", e));
+                    }
+                }
+                Err(e) => return Err(self.sensor_fault("read", e)),
+            }
+        }
+    }
+
+    /// Read until the reading is stable, never a fixed wait. The readings
+    /// are taken in windows of n; with three consecutive window means
+    /// m1, m2, m3 the reading is settled when the last drift |m3 - m2| is
+    /// within tolerance and, if the drifts shrink geometrically in one
+    /// direction (an elastomer relaxing), the relaxation still to come,
+    /// |d2| r / (1 - r) with r = d2 / d1, is within tolerance too.
+    pub(super) async fn settle(&mut self) -> Step<GaugeReading> {
+        let s = self.script.settle;
+        let n = s.readings;
+        // Two means of n noisy readings differ by ~sigma sqrt(2/n): never demand less than 3 of that.
+        let se = (2.0 / n as f64).sqrt();
+        let (live_g, live_t) = self.noise.live.unwrap_or((0.0, 0.0));
+        let tol_g = s.tol_gamma1_mm.max(3.0 * self.noise.gamma1_mm.max(live_g) * se);
+        let tol_t = s.tol_theta1_deg.max(3.0 * self.noise.theta1_deg.max(live_t) * se);
+        let mut buf: Vec<GaugeReading> = Vec::new();
+        let mut t_start = None;
+        loop {
+            self.checkpoint().await?;
+            let r = self.read().await?;
+            let t_first = *t_start.get_or_insert(r.t_s);
+            buf.push(r);
+            if buf.len() >= 3 * n {
+                let k = buf.len();
+                let m3 = mean(&buf[k - n..]);
+                let m2 = mean(&buf[k - 2 * n..k - n]);
+                let m1 = mean(&buf[k - 3 * n..k - 2 * n]);
+                let g = remaining_relaxation(m1.gamma1_mm, m2.gamma1_mm, m3.gamma1_mm);
+                let t = remaining_relaxation(m1.theta1_deg, m2.theta1_deg, m3.theta1_deg);
+                if g <= tol_g && t <= tol_t {
+                    // Settled: the mean is within the tolerance of where the elastomer is.
+                    let upper = m3.gamma1_mm + tol_g + self.reading_margin() / (n as f64).sqrt();
+                    self.gamma1_bound_mm = self.gamma1_bound_mm.min(upper);
+                    self.guard.note_gamma1(self.stage_mm, upper);
+                    self.last_inward_mm = 0.0;
+                    self.learn_noise(&buf[k - 2 * n..]);
+                    return Ok(m3);
+                }
+                // Sensor time bounds the wait; the read count guards against a sensor whose clock stands still.
+                if r.t_s - t_first >= s.timeout_s || buf.len() >= MAX_SETTLE_READINGS {
+                    self.log(
+                        LogLevel::Warn,
+                        format!(
+                            "not settled after {:.1} s (gamma1 still moving {:.2} um, theta1 {:.4} deg): recording the latest mean",
+                            r.t_s - t_first,
+                            g * 1e3,
+                            t
+                        ),
+                    );
+                    return Ok(m3);
+                }
+            }
+        }
+    }
+
+    /// Update the live noise from a settled stretch of readings: successive
+    /// differences (insensitive to what little drift is left), averaged
+    /// exponentially over the run.
+    pub(super) fn learn_noise(&mut self, rs: &[GaugeReading]) {
+        if rs.len() < 3 {
+            return;
+        }
+        let sd = |f: fn(&GaugeReading) -> f64| {
+            let v = rs.windows(2).map(|w| (f(&w[1]) - f(&w[0])).powi(2)).sum::<f64>() / (rs.len() - 1) as f64;
+            (v / 2.0).sqrt()
+        };
+        let (g, t) = (sd(|r| r.gamma1_mm), sd(|r| r.theta1_deg));
+        self.noise.live = Some(match self.noise.live {
+            None => (g, t),
+            Some((g0, t0)) => ((0.9 * g0 * g0 + 0.1 * g * g).sqrt(), (0.9 * t0 * t0 + 0.1 * t * t).sqrt()),
+        });
+    }
+
+    /// How far one reading may lie below the truth by noise alone.
+    pub(super) fn reading_margin(&self) -> f64 {
+        (4.0 * self.noise.gamma1_mm).max(self.script.approach.contact_min_mm)
+    }
+}
+
+pub(super) fn mean(xs: &[GaugeReading]) -> GaugeReading {
+    let n = xs.len().max(1) as f64;
+    let mut m = GaugeReading {
+        t_s: xs.last().map(|r| r.t_s).unwrap_or(0.0),
+        gamma1_mm: 0.0,
+        theta1_deg: 0.0,
+        contact_radius_mm: 0.0,
+    };
+    for r in xs {
+        m.gamma1_mm += r.gamma1_mm / n;
+        m.theta1_deg += r.theta1_deg / n;
+        m.contact_radius_mm += r.contact_radius_mm / n;
+    }
+    m
+}
+
+pub(super) fn std_dev(xs: impl Iterator<Item = f64> + Clone) -> f64 {
+    let n = xs.clone().count();
+    if n < 2 {
+        return 0.0;
+    }
+    let m = xs.clone().sum::<f64>() / n as f64;
+    (xs.map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1) as f64).sqrt()
+}
+
+/// How far a reading may still move, from three consecutive window means:
+/// the last drift, or for a geometric (exponential) approach the whole tail
+/// d2 r / (1 - r), r = d2 / d1.
+pub(super) fn remaining_relaxation(m1: f64, m2: f64, m3: f64) -> f64 {
+    let (d1, d2) = (m2 - m1, m3 - m2);
+    if d1 * d2 > 0.0 && d2.abs() < d1.abs() {
+        let r = d2 / d1;
+        d2.abs() * r / (1.0 - r)
+    } else if d1 * d2 > 0.0 {
+        // Not slowing down: still moving at least this fast.
+        d2.abs().max(d1.abs()) * 2.0
+    } else {
+        d2.abs()
+    }
+}

@@ -1,0 +1,310 @@
+//! The procedure's steps: connect, open the recording, home, approach and find contact,
+//! the normal sweep, the return to the torsion depth, the torsion sweep, retract.
+
+use super::*;
+
+impl<S, R, G> Sequencer<S, R, G>
+where
+    S: LinearStage + Identify,
+    R: RotationMount + Identify,
+    G: Gauge,
+{
+    pub(super) async fn connect(&mut self) -> Step<()> {
+        self.checkpoint().await?;
+        for (name, x) in
+            [("limits.retract_mm", self.script.limits.retract_mm), ("approach.start_mm", self.script.approach.start_mm)]
+        {
+            if !self.guard.stage_in_travel(x) {
+                let l = self.guard.limits();
+                return Err(Halt {
+                    culprit: Culprit::Safety,
+                    message: format!(
+                        "soft limit: script {name} = {x} mm lies outside the stage's travel [{}, {}] mm",
+                        l.stage_min_mm, l.stage_max_mm
+                    ),
+                });
+            }
+        }
+        let info = Identify::identify(&mut self.stage).await.map_err(|e| self.stage_fault("identify", e))?;
+        self.stage_name = format!("stage {} SN {}", info.model, info.serial).trim().to_string();
+        self.log(LogLevel::Info, format!("{} firmware {}", self.stage_name, info.firmware));
+        let info = Identify::identify(&mut self.mount).await.map_err(|e| self.mount_fault("identify", e))?;
+        self.mount_name = format!("rotation mount {} SN {}", info.model, info.serial).trim().to_string();
+        self.log(LogLevel::Info, format!("{} firmware {}", self.mount_name, info.firmware));
+        self.gauge.start().await.map_err(|e| self.sensor_fault("start", e))?;
+        self.log(LogLevel::Info, format!("sensor {} streaming", self.gauge.describe()));
+        self.open_recording()
+    }
+
+    pub(super) fn open_recording(&mut self) -> Step<()> {
+        let fail = |e: std::io::Error, path: &Path| Halt {
+            culprit: Culprit::Recording,
+            message: format!("cannot write the recording {}: {e}", path.display()),
+        };
+        if let Some(dir) = self.recording_path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|e| fail(e, &self.recording_path))?;
+        }
+        let file =
+            crate::run::outdir::create_nofollow(&self.recording_path).map_err(|e| fail(e, &self.recording_path))?;
+        let mut extra =
+            vec![("stage".to_string(), sanitize(&self.stage_name)), ("mount".to_string(), sanitize(&self.mount_name))];
+        extra.extend(self.extra_meta.iter().map(|(k, v)| (sanitize(k), sanitize(v))));
+        let meta = Metadata {
+            sensor: Some(sanitize(self.script.sensor.name.as_deref().unwrap_or(&self.gauge.describe()))),
+            indenter: self.script.indenter,
+            elastomer_r_mm: self.script.sensor.elastomer_r_mm,
+            layer: None,
+            created: Some(crate::report::rfc3339_utc(SystemTime::now())),
+            extra,
+        };
+        let w = RecordingWriter::new(BufWriter::new(file), &meta).map_err(|e| fail(e, &self.recording_path))?;
+        self.writer = Some(w);
+        Ok(())
+    }
+
+    pub(super) async fn home(&mut self) -> Step<()> {
+        self.checkpoint().await?;
+        // Devices that report homed have kept their position since they were
+        // homed (the controller's own flag, cleared at power loss): trusted,
+        // and homing again would only cost time (the K10CR1 homes at 5 deg/s).
+        let stage = Axis::status(&mut self.stage).await.map_err(|e| self.stage_fault("status", e))?;
+        let mount = Axis::status(&mut self.mount).await.map_err(|e| self.mount_fault("status", e))?;
+        let trusted = stage.homed && mount.homed;
+        let t = self.script.home_timeout();
+        if !trusted {
+            Axis::home(&mut self.stage, t).await.map_err(|e| self.stage_fault("homing", e))?;
+        }
+        self.stage_homed = true;
+        self.stage_mm = self.stage.position().map_ok(f64::from).await.map_err(|e| self.stage_fault("position", e))?;
+        // Inside the declared clear zone nothing touches the sensor.
+        self.gamma1_bound_mm = if self.stage_mm <= self.guard.limits().clear_until_mm { 0.0 } else { f64::NAN };
+        if !trusted {
+            Axis::home(&mut self.mount, t).await.map_err(|e| self.mount_fault("homing", e))?;
+        }
+        self.mount_homed = true;
+        self.mount_deg = self.mount.position().map_ok(f64::from).await.map_err(|e| self.mount_fault("position", e))?;
+        let what = if trusted { "already homed, homing skipped" } else { "homed" };
+        self.log(LogLevel::Info, format!("{what}: stage {:.3} mm, mount {:.3} deg", self.stage_mm, self.mount_deg));
+        self.device_status().await
+    }
+
+    pub(super) async fn approach(&mut self) -> Step<()> {
+        let a = self.script.approach;
+        self.move_stage(a.start_mm, "approach start").await?;
+        // The elastomer is untouched here: zero the gauge and measure its noise.
+        self.gauge.tare().await.map_err(|e| self.sensor_fault("tare", e))?;
+        let mut rest = Vec::with_capacity(a.noise_readings);
+        for _ in 0..a.noise_readings {
+            rest.push(self.read().await?);
+        }
+        self.noise.gamma1_mm = std_dev(rest.iter().map(|r| r.gamma1_mm));
+        self.noise.theta1_deg = std_dev(rest.iter().map(|r| r.theta1_deg));
+        let offset = mean(&rest).gamma1_mm;
+        let threshold = (a.contact_sigmas * self.noise.gamma1_mm).max(a.contact_min_mm) + offset.abs();
+        self.log(
+            LogLevel::Info,
+            format!(
+                "gamma1 noise {:.2} um, theta1 noise {:.4} deg; contact threshold {:.2} um",
+                self.noise.gamma1_mm * 1e3,
+                self.noise.theta1_deg,
+                threshold * 1e3
+            ),
+        );
+        // Step in until two consecutive readings rise above the threshold.
+        let mut pos = a.start_mm;
+        let mut last_clear = pos;
+        loop {
+            let next = pos + a.step_mm;
+            if !self.guard.stage_in_travel(next) {
+                return Err(Halt {
+                    culprit: Culprit::Procedure,
+                    message: format!(
+                        "approach: no contact found up to the stage limit {:.3} mm (gamma1 {:.4} mm, threshold {:.4} mm)",
+                        pos, self.gamma1_mm, threshold
+                    ),
+                });
+            }
+            self.move_stage(next, "approach").await?;
+            pos = next;
+            let r1 = self.read().await?;
+            let r2 = self.read().await?;
+            if r1.gamma1_mm > threshold && r2.gamma1_mm > threshold {
+                break;
+            }
+            last_clear = pos;
+            self.progress_fraction((pos - a.start_mm) / (self.guard.limits().stage_max_mm - a.start_mm));
+        }
+        // Refine: settled readings deeper in, where the grid resolves the
+        // contact, and a line through them back to gamma1 = 0.
+        let mut pts = Vec::new();
+        let first = self.settle().await?;
+        pts.push((pos, first.gamma1_mm));
+        for _ in 0..a.refine_steps {
+            if pts.last().is_some_and(|p| p.1 >= a.refine_to_gamma1_mm) {
+                break;
+            }
+            let next = pos + a.step_mm;
+            if self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, next).is_err() {
+                break;
+            }
+            self.move_stage(next, "contact refinement").await?;
+            pos = next;
+            pts.push((pos, self.settle().await?.gamma1_mm));
+        }
+        let window: Vec<(f64, f64)> =
+            pts.iter().copied().filter(|p| (a.refine_from_gamma1_mm..=a.refine_to_gamma1_mm).contains(&p.1)).collect();
+        let line = if window.len() >= 2 { contact_from_line(&window, threshold) } else { None };
+        let contact = line
+            .or_else(|| contact_from_line(&pts, threshold))
+            .unwrap_or(0.5 * (last_clear + pts[0].0))
+            .clamp(last_clear - a.step_mm, pts[0].0);
+        self.contact_mm = Some(contact);
+        self.log(LogLevel::Info, format!("first contact at stage {contact:.4} mm"));
+        // Back off to the normal sweep's start (the same direction of travel as loading follows).
+        let start = (contact - a.pre_contact_mm).max(self.guard.limits().stage_min_mm);
+        self.move_stage(start, "back to the normal sweep start").await?;
+        Ok(())
+    }
+
+    /// One load/unload cycle. Returns the two load points around the target
+    /// depth: ((stage_mm, beta) before, (stage_mm, beta) at/after).
+    pub(super) async fn normal_sweep(&mut self, rep: u32) -> Step<((f64, f64), (f64, f64))> {
+        let contact = self.contact_mm.unwrap_or(self.stage_mm);
+        let n = self.script.normal;
+        let r2 = self.script.indenter.r_mm;
+        let start = (contact - self.script.approach.pre_contact_mm).max(self.guard.limits().stage_min_mm);
+        let mut path: Vec<(f64, f64)> = Vec::new();
+        let mut k = 0usize;
+        if self.track.sweep_start.is_none() {
+            self.track.sweep_start = Some((self.clock.t_last, self.samples.len()));
+        }
+        loop {
+            let pos = start + k as f64 * n.step_mm;
+            let beta_now = path.last().map(|p| p.1).unwrap_or(0.0);
+            if let Err(v) = self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos) {
+                return Err(self.safety(
+                    &format!(
+                        "normal sweep {} stopped at beta {beta_now:.4} before the target {}",
+                        rep + 1,
+                        n.target_beta
+                    ),
+                    v,
+                ));
+            }
+            self.move_stage(pos, "normal sweep").await?;
+            let r = self.settle().await?;
+            let beta = ((pos - contact) - r.gamma1_mm) / r2;
+            self.track.cursor = Cursor::Load { rep, k, beta };
+            self.record(Phase::Normal, pos, r, Some(rep), Some(Direction::Load))?;
+            path.push((pos, beta));
+            if beta >= n.target_beta {
+                break;
+            }
+            k += 1;
+        }
+        if rep == 0 {
+            self.track.loads_rep0 = Some(path.len());
+        }
+        self.log(
+            LogLevel::Info,
+            format!(
+                "normal sweep {}: beta {:.4} reached at stage {:.4} mm",
+                rep + 1,
+                path.last().map(|p| p.1).unwrap_or(0.0),
+                path.last().map(|p| p.0).unwrap_or(0.0)
+            ),
+        );
+        let crossing = match path.as_slice() {
+            [.., a, b] => (*a, *b),
+            [b] => ((start, 0.0), *b),
+            [] => unreachable_path()?,
+        };
+        let back: Vec<f64> = path.iter().rev().skip(1).map(|p| p.0).collect();
+        for (i, pos) in back.iter().enumerate() {
+            self.track.cursor = Cursor::Unload { rep, left: back.len() - i };
+            self.move_stage(*pos, "normal unload").await?;
+            let r = self.settle().await?;
+            self.record(Phase::Normal, *pos, r, Some(rep), Some(Direction::Unload))?;
+        }
+        Ok(crossing)
+    }
+
+    pub(super) async fn torsion_depth(&mut self, crossing: ((f64, f64), (f64, f64))) -> Step<()> {
+        self.track.cursor = Cursor::Depth;
+        let contact = self.contact_mm.unwrap_or(self.stage_mm);
+        let target = self.script.normal.target_beta;
+        let r2 = self.script.indenter.r_mm;
+        let ((p0, b0), (p1, b1)) = crossing;
+        let slope = if (p1 - p0).abs() > 0.0 && b1 > b0 { (b1 - b0) / (p1 - p0) } else { 1.0 / r2 };
+        let mut pos = if b1 > b0 { p0 + (target - b0) / slope } else { p1 };
+        let step = self.script.normal.step_mm;
+        let mut beta = f64::NAN;
+        for _ in 0..4 {
+            self.move_stage(pos, "return to torsion depth").await?;
+            let r = self.settle().await?;
+            beta = ((pos - contact) - r.gamma1_mm) / r2;
+            // Good to a quarter of a percent of the target, or as good as the step allows.
+            if (beta - target).abs() <= 0.0025 * target {
+                break;
+            }
+            pos += ((target - beta) / slope).clamp(-step, step);
+        }
+        self.torsion_beta = Some(beta);
+        self.log(LogLevel::Info, format!("holding beta {beta:.4} at stage {pos:.4} mm for the torsion sweep"));
+        Ok(())
+    }
+
+    pub(super) async fn torsion_sweep(&mut self) -> Step<()> {
+        self.twist_zero = self.mount_deg;
+        self.guard.set_twist_zero(self.mount_deg);
+        let angles = self.script.twist_angles();
+        let half = angles.len() / 2;
+        let hold = self.stage_mm;
+        for (i, angle) in angles.iter().enumerate() {
+            self.track.cursor = Cursor::Twist { left: angles.len() - i };
+            let target = self.twist_zero + angle;
+            self.move_mount(target, "torsion sweep").await?;
+            let r = self.settle().await?;
+            let dir = if i <= half { Direction::Load } else { Direction::Unload };
+            self.record(Phase::Torsion, hold, r, None, Some(dir))?;
+        }
+        Ok(())
+    }
+
+    pub(super) async fn retract(&mut self) -> Step<()> {
+        let retract = self.script.limits.retract_mm;
+        self.move_stage(retract, "retract").await?;
+        if (self.mount_deg - self.twist_zero).abs() > 1e-9 {
+            self.move_mount(self.twist_zero, "retract").await?;
+        }
+        self.device_status().await
+    }
+}
+
+pub(super) fn unreachable_path<T>() -> Step<T> {
+    Err(Halt { culprit: Culprit::Procedure, message: "normal sweep recorded no load point".into() })
+}
+
+/// Stage position where a line through the in-contact points (gamma1 above
+/// `threshold`) reaches gamma1 = 0. Near contact gamma1 is proportional to the
+/// approach (Hertz: both are a^2 terms), so the line is the right shape.
+pub(super) fn contact_from_line(pts: &[(f64, f64)], threshold: f64) -> Option<f64> {
+    let p: Vec<(f64, f64)> = pts.iter().copied().filter(|&(_, g)| g > threshold).collect();
+    if p.len() < 2 {
+        return None;
+    }
+    let n = p.len() as f64;
+    let mx = p.iter().map(|q| q.0).sum::<f64>() / n;
+    let my = p.iter().map(|q| q.1).sum::<f64>() / n;
+    let sxx: f64 = p.iter().map(|q| (q.0 - mx) * (q.0 - mx)).sum();
+    let sxy: f64 = p.iter().map(|q| (q.0 - mx) * (q.1 - my)).sum();
+    if sxx <= 0.0 {
+        return None;
+    }
+    let slope = sxy / sxx;
+    if slope.is_nan() || slope <= 0.0 {
+        return None;
+    }
+    let x0 = mx - my / slope;
+    x0.is_finite().then_some(x0)
+}
