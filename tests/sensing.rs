@@ -96,7 +96,7 @@ fn rms(v: &[f64]) -> f64 {
 #[test]
 fn four_um_noise_gives_gamma1_within_5um_and_theta1_within_0_02deg() {
     // Torsion-phase contact sizes (the default rig reaches a ~ 4.9 mm at
-    // beta 0.2), 4 um noise on dz (hardware.md C.1) and, conservatively, on
+    // beta 0.2), 4 um noise on dz (docs/hardware.md C.1) and, conservatively, on
     // dx and dy too, over 6 seeds x 20 frames.
     let mut all = Errors { gamma_um: Vec::new(), theta_deg: Vec::new() };
     for seed in 10..16 {

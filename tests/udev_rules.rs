@@ -157,7 +157,7 @@ fn shipped_rules_name_the_rig_devices() {
             .or_default()
             .push((format!("{}:{}", get("ATTRS{idVendor}"), get("ATTRS{idProduct}")), get("ATTRS{serial}")));
     }
-    // Thorlabs units: FTDI vendor + Thorlabs product id, told apart by serial prefix (hardware.md A.7).
+    // Thorlabs units: FTDI vendor + Thorlabs product id, told apart by serial prefix (docs/hardware.md A.7).
     assert_eq!(links["easycalib-stage"], vec![("0403:faf0".to_string(), "27XXXXXX".to_string())]);
     assert_eq!(links["easycalib-rotation"], vec![("0403:faf0".to_string(), "55XXXXXX".to_string())]);
     let grbl: Vec<_> = links["easycalib-grbl"].iter().map(|(id, _)| id.as_str()).collect();

@@ -80,7 +80,7 @@ impl fmt::Display for ProbeKind {
 }
 
 const THORLABS_APT: (u16, u16) = (0x0403, 0xfaf0);
-/// Boards GRBL commonly runs on (hardware.md B.1): Arduino Uno ids, CH340 clones, FTDI FT232.
+/// Boards GRBL commonly runs on (docs/hardware.md B.1): Arduino Uno ids, CH340 clones, FTDI FT232.
 const GRBL_BOARDS: &[(u16, u16)] = &[
     (0x2341, 0x0043),
     (0x2341, 0x0001),
@@ -92,7 +92,7 @@ const GRBL_BOARDS: &[(u16, u16)] = &[
     (0x0403, 0x6001),
 ];
 
-/// What the USB ids (and for Thorlabs the serial prefix, hardware.md A.7) suggest.
+/// What the USB ids (and for Thorlabs the serial prefix, docs/hardware.md A.7) suggest.
 pub fn hint_for(usb: &UsbInfo) -> Option<String> {
     let ids = (usb.vid, usb.pid);
     if ids == THORLABS_APT {

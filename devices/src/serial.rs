@@ -1,4 +1,4 @@
-//! Opening a serial port with the Thorlabs APT line settings (hardware.md
+//! Opening a serial port with the Thorlabs APT line settings (docs/hardware.md
 //! A.1): 115200 baud, 8N1, hardware RTS/CTS flow control, then the
 //! recommended purge / RTS sequence. Works on a real FTDI tty and on an
 //! emulator's pseudo-terminal, where the modem-line ioctls fail with ENOTTY.

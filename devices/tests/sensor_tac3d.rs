@@ -1,4 +1,4 @@
-//! Tac3D UDP codec (hardware.md C.1): byte-exact encoding as the vendor's main
+//! Tac3D UDP codec (docs/hardware.md C.1): byte-exact encoding as the vendor's main
 //! program sends, decoding as the vendor's PyTac3D client reads, round trips,
 //! and every kind of malformed input rejected with its reason.
 
@@ -10,7 +10,7 @@ use devices::sensor::tac3d::{
 };
 use devices::sensor::{BadReason, SensorFrame};
 
-/// One datagram as hardware.md C.1 lays it out: `=IHH` (serial u32, last
+/// One datagram as docs/hardware.md C.1 lays it out: `=IHH` (serial u32, last
 /// packet index u16, this packet index u16), little-endian, then the payload.
 fn datagram(serial: u32, last: u16, this: u16, payload: &[u8]) -> Vec<u8> {
     let mut d = Vec::new();

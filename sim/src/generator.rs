@@ -404,7 +404,7 @@ mod tests {
         assert!(err.contains("stage_backlash.b_mm"), "{err}");
     }
 
-    /// physics.md 2 and 2.6: the rig stops at the beta it measures, and frame
+    /// docs/physics.md 2 and 2.6: the rig stops at the beta it measures, and frame
     /// compliance adds C F to the measured gamma2, so the true beta is low; an
     /// error of 50 um in gamma2 (delta beta = 0.01) lowers H3 by about 4 %.
     #[test]

@@ -207,7 +207,7 @@ async fn probe_still_identifies_grbl_after_an_apt_probe_went_first() {
     use tokio::io::AsyncWriteExt;
     let rig = rig(SPEEDUP);
     let port = serve_grbl_stage(rig.clone(), GrblEmulatorConfig::default()).await.unwrap();
-    // What an APT prober sends on an unknown port (hardware.md A.8):
+    // What an APT prober sends on an unknown port (docs/hardware.md A.8):
     // HW_NO_FLASH_PROGRAMMING (its 0x18 is GRBL's soft reset) and HW_REQ_INFO
     // (its 'P' bytes stay in GRBL's line buffer).
     {

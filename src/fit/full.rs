@@ -1,6 +1,6 @@
 //! The full-model fit: E1, nu1 and the contact-point offset z0 fitted directly
 //! against the forward model (Hertz–Tatara–Yoffe normal contact, Jäger torsion
-//! with the rod correction) over every sample of both sweeps (physics.md 1.6).
+//! with the rod correction) over every sample of both sweeps (docs/physics.md 1.6).
 //! Unlike the paper's reduced relations it has no truncated series, no
 //! nuisance H2 and no fixed beta: the torsion depth comes from the model's own
 //! gamma2 at the torsion stage position.

@@ -30,7 +30,7 @@ pub struct PaperFit {
     pub h1_se: f64,
     #[serde(rename = "H1_ci95")]
     pub h1_ci95: [f64; 2],
-    /// Nuisance coefficient of gamma1^1.5; its sign is left free (physics.md 1.3).
+    /// Nuisance coefficient of gamma1^1.5; its sign is left free (docs/physics.md 1.3).
     #[serde(rename = "H2")]
     pub h2: f64,
     #[serde(rename = "H3")]

@@ -55,7 +55,7 @@ fn check_time(rec: &Recording) -> Result<(), Implausible> {
 }
 
 /// The normal sweep: the stage advances on loading, gamma1 grows with it and never
-/// exceeds the stage's travel (gamma1 + gamma2 = travel past contact, physics.md 1.1),
+/// exceeds the stage's travel (gamma1 + gamma2 = travel past contact, docs/physics.md 1.1),
 /// and the travel stays within a few indenter radii.
 fn check_stage(rec: &Recording) -> Result<(), Implausible> {
     let normal: Vec<(usize, &Sample)> =
@@ -167,7 +167,7 @@ fn check_monotone(normal: &[(usize, &Sample)]) -> Result<(), Implausible> {
 
 /// The torsion sweep: mount angles a rotation mount makes, and an elastomer twist
 /// that never exceeds the mount's largest (theta1 + theta2 = mount angle,
-/// physics.md 1.4; compared with the sweep's amplitude, not sample by sample, since
+/// docs/physics.md 1.4; compared with the sweep's amplitude, not sample by sample, since
 /// hysteresis may leave a twist at zero angle on the way back).
 fn check_twist(rec: &Recording) -> Result<(), Implausible> {
     let mut amplitude = 0.0f64;

@@ -276,7 +276,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
         Ok(info)
     }
 
-    /// Open the session (hardware.md A.5): no-flash, stop pushed updates,
+    /// Open the session (docs/hardware.md A.5): no-flash, stop pushed updates,
     /// identify and check the model, enable the channel, set velocity.
     pub(super) async fn start_session(&mut self) -> Result<(), AptError> {
         self.send(&AptMessage::HwNoFlashProgramming).await?;

@@ -1,5 +1,5 @@
 //! Unit conversion between the rig's units (mm, degrees) and APT device
-//! units (hardware.md A.6). Positions travel as i32 counts; velocity and
+//! units (docs/hardware.md A.6). Positions travel as i32 counts; velocity and
 //! acceleration parameters use controller-specific factors:
 //!
 //! * DC servo (KDC101): V = C·T·65536·v, A = C·T²·65536·a with the servo
@@ -80,7 +80,7 @@ impl Scale {
     }
 
     /// K10CR1 with the integer factors the protocol document quotes
-    /// (7 329 109 and 1 502, hardware.md A.6); the formula gives
+    /// (7 329 109 and 1 502, docs/hardware.md A.6); the formula gives
     /// 7 329 109.3 and 1 502.03, and the worked numbers use the integers.
     pub fn k10cr1() -> Self {
         Self {

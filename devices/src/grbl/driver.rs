@@ -1,7 +1,7 @@
 //! `GrblStage`: one GRBL axis as a linear stage (an [`Axis`] in [`Mm`]),
 //! over any async byte stream.
 //!
-//! Protocol rules followed (hardware.md B.2-B.6):
+//! Protocol rules followed (docs/hardware.md B.2-B.6):
 //! * every line is answered by exactly one `ok`/`error:N`, in order; the
 //!   driver keeps the byte count of unanswered lines and never lets it exceed
 //!   GRBL's 128-byte RX buffer (character counting). Real-time bytes (`?`,
@@ -146,7 +146,7 @@ pub struct GrblStage<T> {
     target: Option<f64>,
 }
 
-/// GRBL's line settings (hardware.md B.1): 115200 baud, 8N1, no flow control.
+/// GRBL's line settings (docs/hardware.md B.1): 115200 baud, 8N1, no flow control.
 pub const GRBL_BAUD: u32 = 115_200;
 
 /// Open `path` with GRBL's line settings. Opening an Arduino's port toggles

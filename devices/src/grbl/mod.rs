@@ -1,5 +1,5 @@
 //! GRBL 1.1 motion controllers (Arduino + stepper on a micrometer head), the
-//! low-cost alternative to the Thorlabs stage (hardware.md section B).
+//! low-cost alternative to the Thorlabs stage (docs/hardware.md section B).
 //!
 //! [`codec`] is the pure line protocol; [`driver`] runs it over any async byte
 //! stream and implements [`crate::Axis`] in [`crate::Mm`] for one axis; [`probe`] asks a

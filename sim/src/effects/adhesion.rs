@@ -1,4 +1,4 @@
-//! `adhesion`: JKR adhesion with contact-edge hysteresis (physics.md 2.2).
+//! `adhesion`: JKR adhesion with contact-edge hysteresis (docs/physics.md 2.2).
 //!
 //! Model: a flat-punch displacement delta_p <= 0 at the contact radius a adds
 //! 2 E* a delta_p to the force and delta_p (split by compliance, no Yoffe factor)

@@ -1,4 +1,4 @@
-//! `contact_offset`: the stage zero is not the first contact (physics.md 2.4).
+//! `contact_offset`: the stage zero is not the first contact (docs/physics.md 2.4).
 //!
 //! Model: true approach = stage - z0. Stage < z0 reads exactly 0 (dead band);
 //! z0 < 0 means contact was already made at stage 0.

@@ -1,5 +1,5 @@
 //! `finite_thickness`: the elastomer is a layer of thickness h bonded to a rigid
-//! window (physics.md 2.1).
+//! window (docs/physics.md 2.1).
 //!
 //! Model (normal): the elastomer's plane-strain modulus becomes E1* Phi(a/h)
 //! at the current contact radius a (Dimitriadis et al. 2002, bonded layer), which

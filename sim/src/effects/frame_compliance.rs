@@ -1,5 +1,5 @@
 //! `frame_compliance`: the rig's frame deflects under the contact force
-//! (physics.md 2.6).
+//! (docs/physics.md 2.6).
 //!
 //! Model: true approach = stage - C F, i.e. gamma1 + gamma2 + C F = stage.
 //!

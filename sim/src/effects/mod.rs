@@ -1,4 +1,4 @@
-//! The physics and rig behaviour the paper leaves out (physics.md section 2),
+//! The physics and rig behaviour the paper leaves out (docs/physics.md section 2),
 //! one module per effect, and the "true rig" that applies them.
 //!
 //! Each module carries its model, its parameters with bounds, where it shows
@@ -9,7 +9,7 @@
 //!
 //! # Public API (kept stable for the diagnosis and the simulated devices)
 //!
-//! * Catalogue: [`ALL`] (`[&EffectInfo; 10]`, physics.md order), [`info`]`(name)`;
+//! * Catalogue: [`ALL`] (`[&EffectInfo; 10]`, docs/physics.md order), [`info`]`(name)`;
 //!   [`EffectInfo`] `{ name, model, params: &[ParamInfo], signature,
 //!   identifiability, sentence, explanation, separate_by }`, [`ParamInfo`]
 //!   `{ name, unit, min, max, typical }` — `ParamInfo::name` is the TOML key.
@@ -105,7 +105,7 @@ pub struct EffectInfo {
     pub separate_by: Option<&'static str>,
 }
 
-/// Every effect of the library, in physics.md order.
+/// Every effect of the library, in docs/physics.md order.
 pub const ALL: [&EffectInfo; 10] = [
     &finite_thickness::INFO,
     &adhesion::INFO,

@@ -1,4 +1,4 @@
-//! `partial_slip`: Coulomb slip annulus under twist (physics.md 2.7).
+//! `partial_slip`: Coulomb slip annulus under twist (docs/physics.md 2.7).
 //!
 //! Model: Hertz pressure p0 sqrt(1 - r^2/a^2), friction mu. Jäger's superposition
 //! of rigid disc rotations with the density phi'(s) = mu p0 E(1 - s^2/a^2) / (2 Ge s)

@@ -1,4 +1,4 @@
-//! `rotation_backlash`: dead band of the rotation mount (physics.md 2.8).
+//! `rotation_backlash`: dead band of the rotation mount (docs/physics.md 2.8).
 //!
 //! Model: the play operator of [`super::stage_backlash::Play`] on the mount angle.
 //!

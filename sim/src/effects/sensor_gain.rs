@@ -1,4 +1,4 @@
-//! `sensor_gain`: scale error of the sensor's depth reading (physics.md 2.10).
+//! `sensor_gain`: scale error of the sensor's depth reading (docs/physics.md 2.10).
 //!
 //! Model: gamma1_read = g gamma1; theta1 unaffected.
 //!

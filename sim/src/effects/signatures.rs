@@ -1,5 +1,5 @@
 //! Per-effect tests through the true rig: each effect's limit (the neutral
-//! parameter gives the clean model), its documented signature (physics.md 2.x),
+//! parameter gives the clean model), its documented signature (docs/physics.md 2.x),
 //! and the physics numbers the note gives.
 
 use super::*;
@@ -115,7 +115,7 @@ fn finite_thickness_stiffens_at_depth_and_lowers_h3() {
     assert!(l[60].force_n > c[60].force_n);
     // Torsion at the same indenter deformation gamma2 = 1 mm (beta = 0.2): the
     // stiffer layer makes a smaller contact, the contact compliances grow against
-    // the rod's, and theta2/theta1 = H3 comes out low (the rod route, physics.md 2.1).
+    // the rod's, and theta2/theta1 = H3 comes out low (the rod route, docs/physics.md 2.1).
     let layer = SimProfile { finite_thickness: Some(finite_thickness::Params { h_mm: 20.0 }), ..Default::default() };
     let stage_for_gamma2 = |p: &SimProfile| {
         let (mut lo, mut hi) = (0.0, 10.0);
@@ -337,7 +337,7 @@ fn thermal_drift_grows_with_time_at_any_load() {
 #[test]
 fn sensor_gain_maps_h1_without_changing_the_shape() {
     // gamma2_read = stage - g gamma1 = gamma2 + (1 - g) gamma1: to first order
-    // H1 -> (H1 + 1 - g) / g (physics.md 2.10), at small depth exactly.
+    // H1 -> (H1 + 1 - g) / g (docs/physics.md 2.10), at small depth exactly.
     let g = 1.01;
     let cmds: Vec<CommandedPose> =
         [1e-6, 2e-6].iter().map(|&s| CommandedPose { t_s: 0.0, stage_mm: s, rot_deg: 0.0 }).collect();

@@ -1,4 +1,4 @@
-//! `stage_backlash`: lost motion of the stage on reversal (physics.md 2.5).
+//! `stage_backlash`: lost motion of the stage on reversal (docs/physics.md 2.5).
 //!
 //! Model: the play operator (Brokate & Sprekels) between commanded position x
 //! and true position y, y in [x, x + b]: loading pushes y = x, retraction leaves

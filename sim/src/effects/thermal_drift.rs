@@ -1,4 +1,4 @@
-//! `thermal_drift`: slow drift of the depth reading (physics.md 2.9).
+//! `thermal_drift`: slow drift of the depth reading (docs/physics.md 2.9).
 //!
 //! Model: while in contact gamma1_read = gamma1 + v t + vdot t^2 / 2 (t = the
 //! recording's time); the dead band still reads 0.

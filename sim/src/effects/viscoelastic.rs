@@ -1,4 +1,4 @@
-//! `viscoelastic`: the elastomer is a standard linear solid (physics.md 2.3).
+//! `viscoelastic`: the elastomer is a standard linear solid (docs/physics.md 2.3).
 //!
 //! Model: creep compliance J1(t) = J_inf - (J_inf - J0) exp(-t/tau), with
 //! J_inf = (1 - nu1^2)/E1 (E1 is the relaxed modulus) and J0 = J_inf / rho.

@@ -1,7 +1,7 @@
 //! Emulator of the rig's Thorlabs APT units on pseudo-terminals: a KDC101
 //! K-Cube driving a Z8 actuator (the rig's stage axis) and a K10CR1 rotation
 //! mount (the rig's rotation axis). It speaks the wire protocol of
-//! hardware.md A.2-A.5 byte for byte, using the same codec as the driver, so
+//! docs/hardware.md A.2-A.5 byte for byte, using the same codec as the driver, so
 //! easycalib's own driver and independent clients (thorlabs_apt_device,
 //! pylablib) can both talk to it through the slave tty.
 //!

@@ -14,7 +14,7 @@ pub fn h3_from_materials(elastomer: &Body, indenter: &Body, beta: f64) -> f64 {
     rod_correction_factor(beta) * (1.0 + indenter.nu) / (1.0 + elastomer.nu) * elastomer.e_mpa / indenter.e_mpa
 }
 
-/// Exact closed-form solution of H1(E1, nu1) and H3(E1, nu1) at depth beta (physics.md 1.5).
+/// Exact closed-form solution of H1(E1, nu1) and H3(E1, nu1) at depth beta (docs/physics.md 1.5).
 pub fn invert_exact(h1: f64, h3: f64, indenter_e_mpa: f64, indenter_nu: f64, beta: f64) -> Material {
     let c = rod_correction_factor(beta);
     let nu1 = 1.0 - YOFFE / c * (h3 / h1) * (1.0 - indenter_nu);

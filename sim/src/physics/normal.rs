@@ -267,7 +267,7 @@ mod tests {
         assert!((s.gamma2_mm - 1.0).abs() < 1e-12);
         let back = m.solve(s.delta_mm).unwrap();
         assert!((back.gamma1_mm - s.gamma1_mm).abs() < 1e-10);
-        // Orders of magnitude from physics.md 1.2 for a Tac3D-like case (E2 = 2.5 E1 there).
+        // Orders of magnitude from docs/physics.md 1.2 for a Tac3D-like case (E2 = 2.5 E1 there).
         let pair = ContactPair { elastomer: Body::new(0.3, 0.4, 33.0), indenter: Body::new(0.75, 0.4, 5.0) };
         let s = NormalModel::new(pair).unwrap().solve_for_gamma2(1.0).unwrap();
         assert!((s.delta_mm - 4.0).abs() < 0.6, "{s:?}");

@@ -63,7 +63,7 @@ mod tests {
         assert!((c - 2.014).abs() < 5e-4, "{c}");
         assert!((c - 2.01383).abs() < 1e-5, "{c}");
         assert_eq!(rod_correction_factor(0.0), 1.0);
-        // Steep around the working point: dc/dbeta ~ 8 (physics.md 2).
+        // Steep around the working point: dc/dbeta ~ 8 (docs/physics.md 2).
         let slope = (rod_correction_factor(0.201) - rod_correction_factor(0.199)) / 0.002;
         assert!((slope - 8.0).abs() < 0.5, "{slope}");
     }

@@ -17,7 +17,7 @@
 //!   (the same pressure; zero for an incompressible elastomer, nu = 0.5).
 //! * twist (full stick, rigid rotation theta of the contact disc):
 //!   inside u_phi = theta r, outside u_phi = (2 theta / pi) (r asin(a/r) - a sqrt(1 - a^2/r^2)),
-//!   the disc field of physics.md 2.7 with s = a. It is applied as a finite
+//!   the disc field of docs/physics.md 2.7 with s = a. It is applied as a finite
 //!   rotation of each ring by psi(r) = u_phi / r, so the stuck disc turns
 //!   rigidly by exactly theta even at several degrees (the linear field would
 //!   read as atan(theta), 0.01 deg low at 5 deg).
@@ -160,7 +160,7 @@ impl MarkerGrid {
     }
 
     /// The Tac3D layout measured from the PyTac3D example recordings
-    /// (hardware.md C.1): 20 x 20 markers, 1 mm pitch, dome radius 33 mm.
+    /// (docs/hardware.md C.1): 20 x 20 markers, 1 mm pitch, dome radius 33 mm.
     pub fn tac3d() -> Self {
         Self::dome(20, 20, 1.0, crate::defaults::ELASTOMER_R_MM)
     }
@@ -179,7 +179,7 @@ impl MarkerGrid {
 pub struct NoiseConfig {
     /// Gaussian noise per in-plane displacement component, mm.
     pub sigma_xy_mm: f64,
-    /// Gaussian noise of dz, mm (4 um measured on Tac3D, hardware.md C.1).
+    /// Gaussian noise of dz, mm (4 um measured on Tac3D, docs/hardware.md C.1).
     pub sigma_z_mm: f64,
     /// Fraction of markers replaced by outliers in each contact frame
     /// (exactly round(fraction * markers) of them).
@@ -399,7 +399,7 @@ mod tests {
     fn twist_shape_matches_disc_field_and_decays_as_inverse_square() {
         assert_eq!(twist_shape(0.5), 0.5);
         assert!((twist_shape(1.0 + 1e-12) - 1.0).abs() < 1e-5);
-        // physics.md 2.7: u = (2 phi / pi) (r asin(s/r) - s sqrt(1 - s^2/r^2)), s = a = 1.
+        // docs/physics.md 2.7: u = (2 phi / pi) (r asin(s/r) - s sqrt(1 - s^2/r^2)), s = a = 1.
         let r: f64 = 2.5;
         let disc = 2.0 / PI * (r * (1.0 / r).asin() - (1.0 - 1.0 / (r * r)).sqrt());
         assert!((twist_shape(r) - disc).abs() < 1e-15);

@@ -1,4 +1,4 @@
-//! GRBL 1.1 emulator driving the rig's stage axis (hardware.md section B).
+//! GRBL 1.1 emulator driving the rig's stage axis (docs/hardware.md section B).
 //!
 //! Modelled: the banner on power-up and on soft reset, the homing lock
 //! (Alarm at power-up with `$22=1`), `ok`/`error:N` for every line, status

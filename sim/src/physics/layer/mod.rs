@@ -12,7 +12,7 @@
 //! gamma1 = π g(0)/E1* - (2/E1*) ∫ g(s) C(s/h)/h ds and gamma2 = π g(0)/E2*.
 //! The indenter stays a half-space in the gap condition, and the paper's
 //! corrections of the axis values (Yoffe on gamma2, Tatara on both) are applied
-//! on top, so h -> infinity is the paper's model (physics.md, Eqs. 2-5, 20).
+//! on top, so h -> infinity is the paper's model (docs/physics.md, Eqs. 2-5, 20).
 //!
 //! Torsion: a patch of radius a bonded to the indenter and rotated by θ. With
 //! τ̄₁(ξ) = ∫_0^a ψ(t) sin(ξt) dt the same steps give
