@@ -26,7 +26,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
-use devices::motion::{Axis, AxisStatus, Deg, DeviceFault, FaultKind, Identify, LinearStage, Mm, RotationMount};
+use devices::motion::{Axis, AxisStatus, DeviceFault, FaultKind, Identify, LinearStage, Mm, RotationMount};
 use sim::recording::{Direction, Metadata, Phase, RecordingWriter, Sample};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 

@@ -2,6 +2,7 @@
 //! move, wait while taking the operator's controls), and the abort path.
 
 use super::*;
+use devices::motion::Unit;
 
 impl<S, R, G> Sequencer<S, R, G>
 where
@@ -19,23 +20,12 @@ where
         // From here on the stage may be anywhere up to the target.
         self.gamma1_bound_mm = self.guard.gamma1_bound(from, self.gamma1_bound_mm, target);
         self.last_inward_mm = if from.is_finite() { (target - from).max(0.0) } else { 0.0 };
-        self.stage
-            .start_move_to(Mm(target))
-            .await
-            .map_err(|e| self.stage_fault(&format!("{context}: move to {target:.4} mm"), e))?;
-        self.stage_mm = target;
         let timeout = self.script.move_timeout();
-        let res = until_done_or_stopped(
-            self.stage.wait_until_stopped(timeout).map_ok(f64::from),
-            &mut self.controls,
-            &mut self.pause_requested,
-        )
-        .await;
-        match res {
-            Ok(Ok(p)) => {
-                self.stage_mm = p;
-                Ok(p)
-            }
+        let moved =
+            drive(&mut self.stage, target, timeout, &mut self.stage_mm, &mut self.controls, &mut self.pause_requested)
+                .await;
+        match moved {
+            Ok(Ok(p)) => Ok(p),
             Ok(Err(e)) => Err(self.stage_fault(&format!("{context}: move to {target:.4} mm"), e)),
             Err(c) => Err(self.operator(c, context)),
         }
@@ -47,23 +37,12 @@ where
         if let Err(v) = self.guard.check_mount(target) {
             return Err(self.safety(context, v));
         }
-        self.mount
-            .start_move_to(Deg(target))
-            .await
-            .map_err(|e| self.mount_fault(&format!("{context}: move to {target:.3} deg"), e))?;
-        self.mount_deg = target;
         let timeout = self.script.move_timeout();
-        let res = until_done_or_stopped(
-            self.mount.wait_until_stopped(timeout).map_ok(f64::from),
-            &mut self.controls,
-            &mut self.pause_requested,
-        )
-        .await;
-        match res {
-            Ok(Ok(p)) => {
-                self.mount_deg = p;
-                Ok(p)
-            }
+        let moved =
+            drive(&mut self.mount, target, timeout, &mut self.mount_deg, &mut self.controls, &mut self.pause_requested)
+                .await;
+        match moved {
+            Ok(Ok(p)) => Ok(p),
             Ok(Err(e)) => Err(self.mount_fault(&format!("{context}: move to {target:.3} deg"), e)),
             Err(c) => Err(self.operator(c, context)),
         }
@@ -184,4 +163,28 @@ pub(super) async fn until_done_or_stopped<T>(
             },
         }
     }
+}
+
+/// Move one axis (stage or mount alike) to `target` in its own unit and wait
+/// for the end while taking the operator's controls. `position` follows what
+/// is known: the target once the move started, the device's answer at its end.
+/// The outer error is the control that interrupted the wait (the caller stops
+/// the device); the inner one the device's.
+async fn drive<A: Axis>(
+    axis: &mut A,
+    target: f64,
+    timeout: std::time::Duration,
+    position: &mut f64,
+    controls: &mut Option<UnboundedReceiver<RunControl>>,
+    pause_requested: &mut bool,
+) -> Result<Result<f64, A::Error>, RunControl> {
+    if let Err(e) = axis.start_move_to(A::Unit::new(target)).await {
+        return Ok(Err(e));
+    }
+    *position = target;
+    let end = until_done_or_stopped(axis.wait_until_stopped(timeout), controls, pause_requested).await?;
+    Ok(end.map(|p| {
+        *position = p.value();
+        p.value()
+    }))
 }
