@@ -450,6 +450,26 @@ async fn link_receiver_opens_a_serial_device_by_path() {
     assert_eq!(f.displacements[0], [0.0, 0.0, f64::from(-0.2f32)]);
 }
 
+/// A second run on the same rig opens the sensor's port right after the first
+/// run let it go; the port is held exclusively, so the first link must really
+/// have closed it. `close` waits for the receive task (which owns the read
+/// half); the reopen is immediate, with no yield to the runtime in between.
+#[tokio::test(flavor = "current_thread")]
+async fn a_closed_link_frees_its_serial_port_at_once() {
+    use tokio_serial::SerialPort;
+    let (_device, slave) = tokio_serial::SerialStream::pair().expect("pty pair");
+    let path = slave.name().expect("pty slave path");
+    drop(slave);
+    for round in 0..5 {
+        let mut rx = LinkReceiver::open_serial(&path, 921_600, LinkConfig::default())
+            .unwrap_or_else(|e| panic!("open #{round} of {path}: {e}"));
+        // Let the receive task start reading, as it does during a run.
+        tokio::task::yield_now().await;
+        rx.close().await;
+        drop(rx);
+    }
+}
+
 /// Issue 11's reproducer: one 24 KB datagram of 12,000 nested brackets used to
 /// overflow the stack of the receive task. Now it is a bad frame, counted, and
 /// the link keeps delivering the sensor's frames.

@@ -102,6 +102,9 @@ impl SensorLink for SensorDriver {
     fn stats(&self) -> LinkStats {
         self.0.stats()
     }
+    async fn close(&mut self) {
+        self.0.close().await
+    }
 }
 
 /// gamma1, theta1 and the contact radius of one frame. A frame without

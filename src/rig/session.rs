@@ -98,8 +98,11 @@ pub async fn run_calibration(
         .with_metadata(meta)
         .with_panic_after_samples(test_panic_after_samples());
     let outcome = seq.run().await;
-    // Close the devices (stop keep-alives, release the ports) before fitting.
-    drop(seq);
+    // Close the devices (stop keep-alives, release the ports) before fitting;
+    // the sensor's receive task is awaited, so its port is free when this returns.
+    let (stage, mount, mut gauge) = seq.into_parts();
+    gauge.close().await;
+    drop((stage, mount, gauge));
     if !outcome.completed() {
         return Ok(RunResult { outcome, calibration: None, report: None, fit_error: None });
     }

@@ -83,6 +83,12 @@ pub struct SensorGauge<L: SensorLink, F: Measure> {
 }
 
 impl<L: SensorLink, F: Measure> SensorGauge<L, F> {
+    /// End the link's background work (see [`SensorLink::close`]); dropping
+    /// the gauge afterwards releases the sensor's port at once.
+    pub async fn close(&mut self) {
+        self.link.close().await
+    }
+
     pub fn new(link: L, measure: F, name: impl Into<String>) -> Self {
         Self { link, measure, name: name.into(), unmeasured: 0 }
     }

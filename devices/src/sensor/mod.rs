@@ -44,4 +44,9 @@ pub trait SensorLink: Send {
     async fn tare(&mut self) -> Result<(), SensorError>;
     /// Counters so far.
     fn stats(&self) -> LinkStats;
+    /// End the link's background work now, so that once the link is dropped
+    /// the transport (a serial port held exclusively, a bound UDP port) is
+    /// free to be opened again at once: a second run on the same rig must not
+    /// race the first one's port closing. Nothing is delivered afterwards.
+    async fn close(&mut self) {}
 }

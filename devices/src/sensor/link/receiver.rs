@@ -213,6 +213,14 @@ impl SensorLink for LinkReceiver {
         self.command(LinkCommand::Tare).await
     }
 
+    /// The receive task owns the read half of the transport: wait until it is
+    /// gone, so that dropping the receiver (the write half) closes the port.
+    async fn close(&mut self) {
+        self.inbox.set_streaming(false);
+        self.task.abort();
+        let _ = (&mut self.task).await;
+    }
+
     fn stats(&self) -> LinkStats {
         self.inbox.stats()
     }

@@ -185,4 +185,11 @@ impl SensorLink for Tac3dReceiver {
     fn stats(&self) -> LinkStats {
         self.inbox.stats()
     }
+
+    /// The receive task holds the socket too: wait until it is gone, so that
+    /// dropping the receiver frees the port.
+    async fn close(&mut self) {
+        self.task.abort();
+        let _ = (&mut self.task).await;
+    }
 }
