@@ -256,7 +256,9 @@ impl FrictionalContact {
                 self.state(target, &p, &q)
             });
         }
-        Ok(out.into_iter().map(|s| s.expect("every entry is visited")).collect())
+        out.into_iter()
+            .map(|s| s.ok_or_else(|| FemError::Invalid("an approach of the path was not solved".into())))
+            .collect()
     }
 
     fn state(&self, delta_mm: f64, p: &[f64], q: &[f64]) -> ContactState {
