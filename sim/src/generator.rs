@@ -190,6 +190,8 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
                 theta1_deg: 0.0,
                 rep: Some(rep),
                 dir: Some(Direction::Load),
+                gamma1_sd_mm: None,
+                theta1_sd_deg: None,
             });
             t += plan.step_time_s;
             stage_path.push(stage);
@@ -215,6 +217,8 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
                 theta1_deg: 0.0,
                 rep: Some(rep),
                 dir: Some(Direction::Unload),
+                gamma1_sd_mm: None,
+                theta1_sd_deg: None,
             });
             t += plan.step_time_s;
         }
@@ -239,6 +243,8 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
             theta1_deg: th1 + rng.gaussian(noise.theta1_sigma_deg),
             rep: None,
             dir: Some(dir),
+            gamma1_sd_mm: None,
+            theta1_sd_deg: None,
         });
         t += plan.step_time_s;
     }

@@ -70,6 +70,29 @@ pub struct Sample {
     pub theta1_deg: f64,
     pub rep: Option<u32>,
     pub dir: Option<Direction>,
+    /// Standard error of `gamma1_mm` as the sensor's estimator reports it
+    /// (optional column `gamma1_sd_mm`; docs/recording-format.md), mm.
+    pub gamma1_sd_mm: Option<f64>,
+    /// Standard error of `theta1_deg` (optional column `theta1_sd_deg`), degrees.
+    pub theta1_sd_deg: Option<f64>,
+}
+
+impl Sample {
+    /// A sample without standard errors or repeat/direction labels.
+    pub fn new(t_s: f64, phase: Phase, stage_mm: f64, rot_deg: f64, gamma1_mm: f64, theta1_deg: f64) -> Self {
+        Self {
+            t_s,
+            phase,
+            stage_mm,
+            rot_deg,
+            gamma1_mm,
+            theta1_deg,
+            rep: None,
+            dir: None,
+            gamma1_sd_mm: None,
+            theta1_sd_deg: None,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -118,6 +141,9 @@ fn err(line: usize, message: impl Into<String>) -> RecordingError {
 }
 
 const REQUIRED_COLUMNS: [&str; 6] = ["t_s", "phase", "stage_mm", "rot_deg", "gamma1_mm", "theta1_deg"];
+
+/// The optional per-sample standard errors (docs/recording-format.md).
+const SD_COLUMNS: [&str; 2] = ["gamma1_sd_mm", "theta1_sd_deg"];
 
 fn parse_meta_number(line: usize, key: &str, value: &str) -> Result<f64, RecordingError> {
     let v = value.trim();
@@ -174,7 +200,12 @@ impl Recording {
     pub fn to_csv_string(&self) -> String {
         let mut buf = Vec::new();
         // Writing to a Vec cannot fail.
-        if let Ok(mut w) = RecordingWriter::new(&mut buf, &self.meta) {
+        let with_sd = self.samples.iter().any(|s| s.gamma1_sd_mm.is_some() || s.theta1_sd_deg.is_some());
+        let writer = match with_sd {
+            true => RecordingWriter::with_standard_errors(&mut buf, &self.meta),
+            false => RecordingWriter::new(&mut buf, &self.meta),
+        };
+        if let Ok(mut w) = writer {
             for s in &self.samples {
                 let _ = w.append(s);
             }
@@ -340,6 +371,8 @@ struct Columns<'t> {
     idx: [usize; 6],
     rep: Option<usize>,
     dir: Option<usize>,
+    gamma1_sd: Option<usize>,
+    theta1_sd: Option<usize>,
 }
 
 impl<'t> Columns<'t> {
@@ -356,7 +389,9 @@ impl<'t> Columns<'t> {
         }
         let rep = names.iter().position(|n| *n == "rep");
         let dir = names.iter().position(|n| *n == "dir");
-        Ok(Columns { names, idx, rep, dir })
+        let gamma1_sd = names.iter().position(|n| *n == SD_COLUMNS[0]);
+        let theta1_sd = names.iter().position(|n| *n == SD_COLUMNS[1]);
+        Ok(Columns { names, idx, rep, dir, gamma1_sd, theta1_sd })
     }
 }
 
@@ -451,7 +486,19 @@ fn parse_row(n: usize, line: &str, columns: &Columns, last_t: f64) -> Result<Sam
         },
         None => None,
     };
-    Ok(Sample { t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg, rep, dir })
+    // A standard error is optional per row (empty), but when given it is a
+    // positive finite number: zero would give the sample infinite weight.
+    let sd = |col: Option<usize>| -> Result<Option<f64>, RecordingError> {
+        let Some(i) = col.filter(|&i| !fields[i].is_empty()) else { return Ok(None) };
+        let s = fields[i];
+        match s.parse::<f64>() {
+            Ok(x) if x.is_finite() && x > 0.0 => Ok(Some(x)),
+            _ => Err(col_err(i, format!("`{s}` is not a standard error (a positive finite number, or empty)"))),
+        }
+    };
+    let gamma1_sd_mm = sd(columns.gamma1_sd)?;
+    let theta1_sd_deg = sd(columns.theta1_sd)?;
+    Ok(Sample { t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg, rep, dir, gamma1_sd_mm, theta1_sd_deg })
 }
 
 /// The declared layer from its three keys: a base or a tolerance without a
@@ -493,11 +540,23 @@ fn fmt_radius(r: f64) -> String {
 /// Appends samples to a recording as they are taken, flushing each row.
 pub struct RecordingWriter<W: Write> {
     out: W,
+    /// The header names the standard-error columns.
+    sd_columns: bool,
 }
 
 impl<W: Write> RecordingWriter<W> {
     /// Writes the metadata block and the header row.
-    pub fn new(mut out: W, meta: &Metadata) -> io::Result<Self> {
+    pub fn new(out: W, meta: &Metadata) -> io::Result<Self> {
+        Self::start(out, meta, false)
+    }
+
+    /// As [`RecordingWriter::new`], with the optional standard-error columns
+    /// `gamma1_sd_mm` and `theta1_sd_deg` (empty for a sample without them).
+    pub fn with_standard_errors(out: W, meta: &Metadata) -> io::Result<Self> {
+        Self::start(out, meta, true)
+    }
+
+    fn start(mut out: W, meta: &Metadata, sd_columns: bool) -> io::Result<Self> {
         writeln!(out, "# easycalib-recording: {FORMAT_VERSION}")?;
         if let Some(s) = &meta.sensor {
             writeln!(out, "# sensor: {s}")?;
@@ -519,9 +578,13 @@ impl<W: Write> RecordingWriter<W> {
         for (k, v) in &meta.extra {
             writeln!(out, "# {k}: {v}")?;
         }
-        writeln!(out, "t_s,phase,stage_mm,rot_deg,gamma1_mm,theta1_deg,rep,dir")?;
+        write!(out, "t_s,phase,stage_mm,rot_deg,gamma1_mm,theta1_deg,rep,dir")?;
+        if sd_columns {
+            write!(out, ",{},{}", SD_COLUMNS[0], SD_COLUMNS[1])?;
+        }
+        writeln!(out)?;
         out.flush()?;
-        Ok(Self { out })
+        Ok(Self { out, sd_columns })
     }
 
     /// Appends one row and flushes it. Non-finite values are refused, not written.
@@ -540,9 +603,17 @@ impl<W: Write> RecordingWriter<W> {
                 ));
             }
         }
+        for (name, v) in [("gamma1_sd_mm", s.gamma1_sd_mm), ("theta1_sd_deg", s.theta1_sd_deg)] {
+            if v.is_some_and(|v| !(v.is_finite() && v > 0.0)) {
+                return Err(io::Error::new(
+                    io::ErrorKind::InvalidData,
+                    format!("refusing to record {name} = {v:?}: not a positive finite number"),
+                ));
+            }
+        }
         let rep = s.rep.map(|r| r.to_string()).unwrap_or_default();
         let dir = s.dir.map(Direction::as_str).unwrap_or("");
-        writeln!(
+        write!(
             self.out,
             "{:.3},{},{:.4},{:.3},{:.5},{:.5},{},{}",
             s.t_s,
@@ -554,6 +625,12 @@ impl<W: Write> RecordingWriter<W> {
             rep,
             dir
         )?;
+        if self.sd_columns {
+            // Two significant digits at least, however small the error.
+            let sd = |v: Option<f64>| v.map(|v| format!("{v:.3e}")).unwrap_or_default();
+            write!(self.out, ",{},{}", sd(s.gamma1_sd_mm), sd(s.theta1_sd_deg))?;
+        }
+        writeln!(self.out)?;
         self.out.flush()
     }
 
@@ -632,6 +709,27 @@ mod tests {
         assert_eq!(back.meta, r.meta);
     }
 
+    #[test]
+    fn standard_error_columns_are_optional_per_row_and_round_trip() {
+        let text = GOOD
+            .replace("theta1_deg\n", "theta1_deg,gamma1_sd_mm,theta1_sd_deg\n")
+            .replace("0.0171,0.0000\n", "0.0171,0.0000,0.0021,\n")
+            .replace("0.0000,0.0000\n", "0.0000,0.0000,,\n")
+            .replace("1.0,0.1602\n", "1.0,0.1602,0.0015,0.0008\n");
+        let r = Recording::parse(&text).unwrap();
+        let sds: Vec<_> = r.samples.iter().map(|s| (s.gamma1_sd_mm, s.theta1_sd_deg)).collect();
+        assert_eq!(sds, vec![(None, None), (Some(0.0021), None), (Some(0.0015), Some(0.0008))]);
+        let back = Recording::parse(&r.to_csv_string()).unwrap();
+        assert_eq!(back.samples, r.samples);
+        // Zero, negative or non-numeric errors name the line and the column.
+        for bad in ["0", "-0.002", "x", "inf"] {
+            let e = error_of(&text.replace("0.0171,0.0000,0.0021,", &format!("0.0171,0.0000,{bad},")));
+            assert_eq!((e.line, e.column.clone().map(|c| c.1)), (11, Some("gamma1_sd_mm".to_string())), "{e}");
+        }
+        // Without any error the writer keeps the six-plus-two columns.
+        assert!(Recording::parse(GOOD).unwrap().to_csv_string().contains("theta1_deg,rep,dir\n"));
+    }
+
     fn error_of(text: &str) -> RecordingError {
         Recording::parse(text).expect_err("must be rejected")
     }
@@ -694,6 +792,8 @@ mod tests {
             theta1_deg: 0.0,
             rep: None,
             dir: None,
+            gamma1_sd_mm: None,
+            theta1_sd_deg: None,
         };
         assert!(w.append(&s).is_err());
         let ok = Sample { gamma1_mm: 0.05, ..s };
