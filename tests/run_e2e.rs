@@ -331,7 +331,7 @@ fn tac3d_sensor_over_loopback_udp_reads_the_emulated_press() {
     use easycalib::rig::emulated::EmulatedSensor;
     use easycalib::rig::{SensorSpec, measure_frame};
     use easycalib::run::gauge::{Gauge, SensorGauge};
-    use easycalib::sensing::SensingConfig;
+    use easycalib::sensing::{FrameEstimator, SensingConfig};
 
     one_at_a_time(async {
         // A free loopback port for the receiver (the emulated Tac3D sends to it).
@@ -346,8 +346,8 @@ fn tac3d_sensor_over_loopback_udp_reads_the_emulated_press() {
         assert_eq!(rig.spec().sensor, SensorSpec::Tac3d { bind: to, source: None });
         assert_eq!(rig.device_lines()[2], format!("sensor udp://{to}"));
         let link = open_sensor(&rig.spec().sensor).await.unwrap();
-        let measure =
-            |f: &devices::sensor::SensorFrame| measure_frame(f, &SensingConfig::for_contact(5.0, f64::INFINITY));
+        let mut estimator = FrameEstimator::new(SensingConfig::for_contact(5.0, f64::INFINITY));
+        let measure = move |f: &devices::sensor::SensorFrame| measure_frame(&mut estimator, f);
         let mut gauge = SensorGauge::new(link, measure, "tac3d");
         gauge.start().await.unwrap();
         // Out of contact: a valid reading of zero.

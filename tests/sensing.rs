@@ -320,51 +320,86 @@ async fn end_to_end_stage_move_reaches_gamma1_over_loopback_tac3d() {
 }
 
 /// gamma1 against the truth over the contact sizes the normal sweep visits,
-/// from first contact (a well under the 1 mm marker pitch) to 3 mm, with the
-/// Tac3D's 4 µm noise: per contact radius, the mean error of 200 frames (the
-/// estimator's bias, what averaging the settle frames cannot remove) and the
-/// scatter of one frame, with and without the indenter's curvature bound
-/// (docs/sensing.md, "Small contacts"). The depth follows the radius as in a
-/// Hertz contact of the default 5 mm indenter (gamma1 = 0.7 a^2 / R2).
+/// from first contact (a well under the 1 mm marker pitch) to 3 mm, through the
+/// estimator a run uses (docs/sensing.md, "Small contacts"): it first sees
+/// the approach's resolved contacts, as a run does, and learns the field's
+/// curvature and the contact's place from them. The contacts are the default
+/// rig's (Hertz–Tatara state of E1 0.33 MPa, nu1 0.39 under the 5 mm
+/// indenter), with the Tac3D's 4 µm marker noise, centred between four
+/// markers (the worst place) and on one. Per contact radius: the mean error of
+/// 200 frames (the bias) and the error of a sample as a run records it (the
+/// mean of four frames), against the standard error the estimator reports.
 #[test]
 fn gamma1_is_unbiased_from_first_contact_to_torsion_sizes() {
-    let grid = MarkerGrid::tac3d();
-    let bounded = SensingConfig::for_contact(5.0, f64::INFINITY);
-    let free = SensingConfig::default();
-    let mut rng = Rng::seed_from(77);
-    let (mut worst_sd, mut worst_sd_free): (f64, f64) = (0.0, 0.0);
-    println!("   a mm   gamma1 um   bias um   sd um   | without the bound: bias um   sd um   (200 frames, 4 um noise)");
-    for a in [0.3, 0.4, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0] {
-        let gamma1 = 0.7 * a * a / 5.0;
-        let (mut errs, mut errs_free) = (Vec::new(), Vec::new());
-        for k in 0..200 {
-            let centre = [0.137 + (rng.uniform() - 0.5), -0.211 + (rng.uniform() - 0.5)];
-            let state = ContactState::new(centre, gamma1, a, 0.0).with_nu1(0.45);
-            let frame = synth_frame(&state, &grid, &NoiseConfig::gaussian(0.004), &mut rng, k, 0.0);
-            if let Ok(m) = measure(&frame, &bounded) {
-                errs.push((m.gamma1_mm - gamma1) * 1e3);
-            }
-            if let Ok(m) = measure(&frame, &free) {
-                errs_free.push((m.gamma1_mm - gamma1) * 1e3);
-            }
+    use easycalib::sensing::FrameEstimator;
+    use sim::physics::{Body, ContactPair, NormalModel};
+    let pair = ContactPair { elastomer: Body::new(0.33, 0.39, 33.0), indenter: Body::new(1.1, 0.39, 5.0) };
+    let model = NormalModel::new(pair).unwrap();
+    // The approach depth whose contact radius is `a` (bisection: a grows with depth).
+    let state_at = |a: f64| {
+        let (mut lo, mut hi) = (1e-6, 4.0);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if model.solve(mid).unwrap().contact_radius_mm < a { lo = mid } else { hi = mid }
         }
-        let stats = |e: &[f64]| {
-            let mean = e.iter().sum::<f64>() / e.len() as f64;
-            (mean, (e.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (e.len() - 1) as f64).sqrt())
+        model.solve(0.5 * (lo + hi)).unwrap()
+    };
+    let grid = MarkerGrid::tac3d();
+    let noise = NoiseConfig::gaussian(0.004);
+    let mut rng = Rng::seed_from(77);
+    let mut sample_errors = Vec::new();
+    println!(
+        "centre      a mm  gamma1 um   bias um   frame sd um  reported sd um   sample rms um  (200 frames, 4 um noise)"
+    );
+    for centre in [[0.0, 0.0], [0.5, 0.5]] {
+        let mut estimator = FrameEstimator::new(SensingConfig::for_contact(5.0, 33.0));
+        let mut index = 0;
+        let mut frame_of = |a: f64, rng: &mut Rng| {
+            let st = state_at(a);
+            index += 1;
+            let state = ContactState::new(centre, st.gamma1_mm, st.contact_radius_mm, 0.0).with_nu1(0.39);
+            (st.gamma1_mm, synth_frame(&state, &grid, &noise, rng, index, 0.0))
         };
-        let ((bias, sd), (bias_free, sd_free)) = (stats(&errs), stats(&errs_free));
-        println!(
-            "  {a:5.2}   {:9.1}   {bias:+7.2}   {sd:5.2}   |                    {bias_free:+9.2}   {sd_free:6.2}",
-            gamma1 * 1e3
-        );
-        assert!(errs.len() >= 195, "a {a}: {} of 200 frames measured", errs.len());
-        // Under a pitch the markers barely see the contact: a few µm of bias
-        // remain there (the sweep's first samples); above it, none to speak of.
-        let limit = if a < 1.0 { 10.0 } else { 1.0 };
-        assert!(bias.abs() <= limit && sd <= 12.0, "a {a}: bias {bias} um, sd {sd} um");
-        worst_sd = worst_sd.max(sd);
-        worst_sd_free = worst_sd_free.max(sd_free);
+        // The approach: settled frames at contacts of 1.5-1.8 mm.
+        for k in 0..40 {
+            let (_, f) = frame_of(1.5 + 0.3 * (k as f64 / 40.0), &mut rng);
+            let _ = estimator.measure(&f);
+        }
+        assert!(estimator.curvature().is_some() && estimator.centre().is_some(), "nothing learnt on the approach");
+        for a in [0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0] {
+            let (mut errs, mut sds) = (Vec::new(), Vec::new());
+            for _ in 0..200 {
+                let (truth, f) = frame_of(a, &mut rng);
+                // A contact too faint to see reads as none (zero), as the gauge records it.
+                match estimator.measure(&f) {
+                    Ok(m) => {
+                        errs.push((m.gamma1_mm - truth) * 1e3);
+                        sds.push(m.gamma1_sd_mm * 1e3);
+                    }
+                    Err(SensingError::NoContact { .. }) => errs.push(-truth * 1e3),
+                    Err(e) => panic!("a {a}: {e}"),
+                }
+            }
+            let n = errs.len() as f64;
+            let bias = errs.iter().sum::<f64>() / n;
+            let sd = (errs.iter().map(|e| (e - bias).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+            let reported = (sds.iter().map(|s| s * s).sum::<f64>() / sds.len() as f64).sqrt();
+            let samples: Vec<f64> = errs.chunks(4).map(|c| c.iter().sum::<f64>() / c.len() as f64).collect();
+            let sample_rms = (samples.iter().map(|e| e * e).sum::<f64>() / samples.len() as f64).sqrt();
+            println!(
+                "{centre:?}  {a:5.2}  {:9.1}   {bias:+7.2}   {sd:9.2}   {reported:12.2}   {sample_rms:12.2}",
+                state_at(a).gamma1_mm * 1e3
+            );
+            // No trend with the contact's size: the bias is within three of
+            // its own standard errors and a micrometre everywhere (the
+            // curvature learnt at 1.5-1.8 mm is a percent off at 1 mm).
+            assert!(bias.abs() <= 3.0 * sd / n.sqrt() + 1.0, "a {a}: bias {bias:+.2} um (frame sd {sd:.2} um)");
+            // The reported error is the error: within a factor 1.3 either way.
+            assert!(reported / sd < 1.3 && sd / reported < 1.3, "a {a}: scatter {sd:.2} um, reported {reported:.2} um");
+            sample_errors.extend(samples);
+        }
     }
-    println!("worst frame scatter: {worst_sd:.1} um with the bound, {worst_sd_free:.1} um without");
-    assert!(worst_sd < worst_sd_free);
+    let rms = (sample_errors.iter().map(|e| e * e).sum::<f64>() / sample_errors.len() as f64).sqrt();
+    println!("gamma1 error of a recorded sample over a = 0.3-3 mm: {rms:.2} um rms");
+    assert!(rms <= 2.0, "{rms} um");
 }

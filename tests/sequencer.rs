@@ -601,7 +601,7 @@ mod mocks {
         m.expect_read().returning(move |_| {
             let mut t = t.lock().unwrap();
             *t += 0.04;
-            Ok(GaugeReading { t_s: *t, gamma1_mm: 0.0, theta1_deg: 0.0, contact_radius_mm: 0.0 })
+            Ok(GaugeReading::new(*t, 0.0, 0.0, 0.0))
         });
         m.expect_link_stats().returning(SensorStatus::default);
         m.expect_describe().return_const("mock-sensor".to_string());

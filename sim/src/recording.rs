@@ -110,6 +110,19 @@ pub struct Metadata {
     pub extra: Vec<(String, String)>,
 }
 
+/// Metadata key of the stage zero's standard uncertainty: how well the
+/// recorder found the first contact, mm (docs/recording-format.md).
+pub const CONTACT_SD_KEY: &str = "contact_sd_mm";
+
+impl Metadata {
+    /// The declared uncertainty of the stage zero ([`CONTACT_SD_KEY`]), when
+    /// given as a positive number.
+    pub fn contact_sd_mm(&self) -> Option<f64> {
+        let (_, v) = self.extra.iter().find(|(k, _)| k == CONTACT_SD_KEY)?;
+        v.trim().parse::<f64>().ok().filter(|x| x.is_finite() && *x > 0.0)
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Recording {
     pub meta: Metadata,

@@ -32,7 +32,7 @@ pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Resu
         (last.cands.iter().map(|c| c.name()).collect(), explained(final_fit))
     };
     // contact_offset is every fit's z0: named when it is significant at the same guard.
-    if !unexplained && let Some(e) = contact_offset(final_fit) {
+    if !unexplained && let Some(e) = contact_offset(final_fit, rec.meta.contact_sd_mm()) {
         effects.insert(0, e.effect);
         explanation.insert(0, e);
     }
@@ -97,10 +97,14 @@ fn located_mismatch(
     mismatch
 }
 
-/// The fitted stage zero z0 as an explanation when it is significant at the guard.
-fn contact_offset(fit: &Fitted) -> Option<Explained> {
+/// The fitted stage zero z0 as an explanation when it is significant at the
+/// guard. A recorder that declares how well it found the first contact
+/// (`contact_sd_mm`: a rig's approach step) expects an offset of that size:
+/// z0 is then judged against both errors, and named only beyond them.
+fn contact_offset(fit: &Fitted, contact_sd_mm: Option<f64>) -> Option<Explained> {
     let (z0, z0_se) = (fit.base().contact_offset_mm, fit.se(2));
-    if !(z0_se.is_finite() && z0_se > 0.0 && (z0 / z0_se).powi(2) > chi2_crit(1)) {
+    let expected = z0_se.hypot(contact_sd_mm.unwrap_or(0.0));
+    if !(z0_se.is_finite() && z0_se > 0.0 && (z0 / expected).powi(2) > chi2_crit(1)) {
         return None;
     }
     let t = t_quantile_975(fit.dof);

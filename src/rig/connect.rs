@@ -15,8 +15,8 @@ use devices::sensor::tac3d::{Tac3dReceiver, Tac3dReceiverConfig};
 use devices::sensor::{LinkStats, SensorError, SensorFrame, SensorLink};
 
 pub use super::drivers::{OpenError, RotationSpec, StageSpec};
-use crate::run::gauge::SensorGauge;
-use crate::sensing::{SensingConfig, SensingError, measure};
+use crate::run::gauge::{GaugeReading, SensorGauge};
+use crate::sensing::{FrameEstimator, SensingConfig, SensingError};
 
 /// Where the sensor's frames come from.
 #[derive(Debug, Clone, PartialEq)]
@@ -107,13 +107,16 @@ impl SensorLink for SensorDriver {
     }
 }
 
-/// gamma1, theta1 and the contact radius of one frame. A frame without
-/// contact is a valid reading of zero: the sequencer needs readings out of
-/// contact to find the contact.
-pub fn measure_frame(frame: &SensorFrame, cfg: &SensingConfig) -> Result<(f64, f64, f64), String> {
-    match measure(frame, cfg) {
-        Ok(m) => Ok((m.gamma1_mm, m.theta1_deg, m.contact_radius_mm)),
-        Err(SensingError::NoContact { .. }) => Ok((0.0, 0.0, 0.0)),
+/// gamma1, theta1, the contact radius and their standard errors from one
+/// frame, through the run's estimator (which learns the contact's curvature
+/// from the frames it resolves: docs/sensing.md). A frame without contact is
+/// a valid reading of zero: the sequencer needs readings out of contact to
+/// find the contact.
+pub fn measure_frame(estimator: &mut FrameEstimator, frame: &SensorFrame) -> Result<GaugeReading, String> {
+    match estimator.measure(frame) {
+        Ok(m) => Ok(GaugeReading::new(frame.t_s, m.gamma1_mm, m.theta1_deg, m.contact_radius_mm)
+            .with_errors(m.gamma1_sd_mm, m.theta1_std_deg)),
+        Err(SensingError::NoContact { .. }) => Ok(GaugeReading::new(frame.t_s, 0.0, 0.0, 0.0)),
         Err(e) => Err(e.to_string()),
     }
 }
@@ -122,8 +125,8 @@ pub fn measure_frame(frame: &SensorFrame, cfg: &SensingConfig) -> Result<(f64, f
 pub type RigGauge = SensorGauge<SensorDriver, MeasureFn>;
 
 /// The frame-measuring function of a [`RigGauge`]: [`measure_frame`] with the
-/// rig's sensing settings.
-pub type MeasureFn = Box<dyn Fn(&SensorFrame) -> Result<(f64, f64, f64), String> + Send + Sync>;
+/// rig's estimator.
+pub type MeasureFn = Box<dyn FnMut(&SensorFrame) -> Result<GaugeReading, String> + Send>;
 
 /// The opened devices of a rig.
 pub struct RigDevices {
@@ -181,7 +184,8 @@ pub async fn open_rig(spec: &RigSpec, sensing: SensingConfig) -> Result<RigDevic
     let stage = open_stage(&spec.stage).await?;
     let rotation = open_rotation(&spec.rotation).await?;
     let sensor = open_sensor(&spec.sensor).await?;
-    let measure: MeasureFn = Box::new(move |frame: &SensorFrame| measure_frame(frame, &sensing));
+    let mut estimator = FrameEstimator::new(sensing);
+    let measure: MeasureFn = Box::new(move |frame: &SensorFrame| measure_frame(&mut estimator, frame));
     let gauge = SensorGauge::new(sensor, measure, spec.sensor_name.clone());
     Ok(RigDevices { stage, rotation, gauge })
 }

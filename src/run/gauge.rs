@@ -25,6 +25,24 @@ pub struct GaugeReading {
     pub theta1_deg: f64,
     /// Radius of the contact region, mm (0 out of contact).
     pub contact_radius_mm: f64,
+    /// Standard error of `gamma1_mm` as the frame's estimator reports it, mm
+    /// (`None`: the gauge cannot say, or no contact).
+    pub gamma1_sd_mm: Option<f64>,
+    /// Standard error of `theta1_deg`, degrees.
+    pub theta1_sd_deg: Option<f64>,
+}
+
+impl GaugeReading {
+    /// A reading without standard errors.
+    pub fn new(t_s: f64, gamma1_mm: f64, theta1_deg: f64, contact_radius_mm: f64) -> Self {
+        Self { t_s, gamma1_mm, theta1_deg, contact_radius_mm, gamma1_sd_mm: None, theta1_sd_deg: None }
+    }
+
+    /// The same reading with standard errors.
+    pub fn with_errors(self, gamma1_sd_mm: f64, theta1_sd_deg: f64) -> Self {
+        let ok = |v: f64| (v.is_finite() && v > 0.0).then_some(v);
+        Self { gamma1_sd_mm: ok(gamma1_sd_mm), theta1_sd_deg: ok(theta1_sd_deg), ..self }
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -65,13 +83,13 @@ pub trait Gauge: Send {
     fn describe(&self) -> String;
 }
 
-/// The measuring function a [`SensorGauge`] applies to each frame:
-/// `Ok((gamma1_mm, theta1_deg, contact_radius_mm))` or why it failed. A frame
-/// without contact is a valid reading, `Ok((0.0, 0.0, 0.0))`, not an error:
-/// the sequencer needs readings out of contact to find the contact, and it
-/// aborts after 50 unmeasurable frames in a row.
-pub trait Measure: Fn(&SensorFrame) -> Result<(f64, f64, f64), String> + Send + Sync {}
-impl<F: Fn(&SensorFrame) -> Result<(f64, f64, f64), String> + Send + Sync> Measure for F {}
+/// The measuring function a [`SensorGauge`] applies to each frame, in order
+/// (it may learn from the frames it has seen): the reading, stamped with the
+/// frame's time, or why it failed. A frame without contact is a valid reading
+/// of zero, not an error: the sequencer needs readings out of contact to find
+/// the contact, and it aborts after 50 unmeasurable frames in a row.
+pub trait Measure: FnMut(&SensorFrame) -> Result<GaugeReading, String> + Send {}
+impl<F: FnMut(&SensorFrame) -> Result<GaugeReading, String> + Send> Measure for F {}
 
 /// A gauge made of a sensor link and a frame-measuring function.
 pub struct SensorGauge<L: SensorLink, F: Measure> {
@@ -110,16 +128,17 @@ impl<L: SensorLink, F: Measure> Gauge for SensorGauge<L, F> {
             other => GaugeError::Link(other),
         })?;
         match (self.measure)(&frame) {
-            Ok((gamma1_mm, theta1_deg, contact_radius_mm))
-                if gamma1_mm.is_finite() && theta1_deg.is_finite() && contact_radius_mm.is_finite() =>
-            {
-                Ok(GaugeReading { t_s: frame.t_s, gamma1_mm, theta1_deg, contact_radius_mm })
+            Ok(r) if r.gamma1_mm.is_finite() && r.theta1_deg.is_finite() && r.contact_radius_mm.is_finite() => {
+                Ok(GaugeReading { t_s: frame.t_s, ..r })
             }
-            Ok((g, t, a)) => {
+            Ok(r) => {
                 self.unmeasured += 1;
                 Err(GaugeError::Measure {
                     index: frame.index,
-                    reason: format!("non-finite result gamma1 {g}, theta1 {t}, radius {a}"),
+                    reason: format!(
+                        "non-finite result gamma1 {}, theta1 {}, radius {}",
+                        r.gamma1_mm, r.theta1_deg, r.contact_radius_mm
+                    ),
                 })
             }
             Err(reason) => {
@@ -191,9 +210,9 @@ mod tests {
     }
 
     /// Peak inward displacement; refuses empty frames.
-    fn peak(f: &SensorFrame) -> Result<(f64, f64, f64), String> {
+    fn peak(f: &SensorFrame) -> Result<GaugeReading, String> {
         let g = f.displacements.iter().map(|d| -d[2]).fold(f64::NAN, f64::max);
-        if f.displacements.is_empty() { Err("no markers".into()) } else { Ok((g, 0.0, 0.0)) }
+        if f.displacements.is_empty() { Err("no markers".into()) } else { Ok(GaugeReading::new(0.0, g, 0.0, 0.0)) }
     }
 
     #[tokio::test]

@@ -98,6 +98,27 @@ fn fit_linear<const P: usize>(
     best.map(|f| readmit(pts, basis, k, floor, f))
 }
 
+/// Standard errors of the isotropic paraboloid w = c0 + c1 x + c2 y + c3 r^2
+/// fitted to the kept points: of its value at `at` (the peak: there the
+/// slope is zero, so the peak value moves with the coefficients as the basis
+/// at `at` says) and of its curvature 2 c3. The marker noise is taken from
+/// the fit's own residuals, `rms` over the kept points. `None` when the
+/// points leave no spare degree of freedom or do not determine the surface.
+pub fn paraboloid_errors(pts: &[[f64; 3]], kept: &[bool], at: [f64; 2], rms: f64) -> Option<(f64, f64)> {
+    let basis = |x: f64, y: f64| [1.0, x, y, x * x + y * y];
+    let m = kept.iter().filter(|&&b| b).count();
+    if m <= 4 {
+        return None;
+    }
+    let (ata, _, _) = normal_equations(pts, basis, kept);
+    let inv = ata.try_inverse()?;
+    let s2 = rms * rms * m as f64 / (m - 4) as f64;
+    let g = SVector::<f64, 4>::from(basis(at[0], at[1]));
+    let var_value = s2 * (g.transpose() * inv * g)[0];
+    let var_curvature = 4.0 * s2 * inv[(3, 3)];
+    (var_value >= 0.0 && var_curvature >= 0.0).then(|| (var_value.sqrt(), var_curvature.sqrt()))
+}
+
 fn normal_equations<const P: usize>(
     pts: &[[f64; 3]],
     basis: impl Fn(f64, f64) -> [f64; P],
@@ -346,6 +367,20 @@ pub fn hertz_slope(rho: f64) -> f64 {
     }
 }
 
+/// What the Hertz field fit knows of the field's curvature inside the
+/// contact, gamma1 / a^2 (docs/sensing.md, "Small contacts").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Curvature {
+    /// Nothing: depth and radius are both free.
+    Free,
+    /// At most `max_per_mm` (the indenter's curvature): a fit whose radius
+    /// ends under `below_mm` beyond it is redone on the bound.
+    Bounded { max_per_mm: f64, below_mm: f64 },
+    /// Measured on this run's resolved contacts, with its standard error: the
+    /// radius follows the depth, a = sqrt(gamma1 / c).
+    Known { per_mm: f64, sd_per_mm: f64 },
+}
+
 /// Result of [`fit_hertz`].
 #[derive(Debug, Clone)]
 pub struct HertzFit {
@@ -354,6 +389,9 @@ pub struct HertzFit {
     pub radius: f64,
     pub kept: Vec<bool>,
     pub rms: f64,
+    /// Standard error of gamma1: the fit's own (marker noise through the
+    /// Jacobian) and, with a known curvature, that curvature's.
+    pub gamma1_sd: f64,
 }
 
 /// Fit the Hertz normal field w = gamma1 f(|p - c| / a) to `(x, y, w)` by
@@ -362,30 +400,36 @@ pub struct HertzFit {
 /// small for the quadratic window to stay inside it: outside the contact the
 /// field is no paraboloid, but it still is Hertz's.
 ///
-/// `bound = (c, below_mm)`, when known, bounds the field's curvature inside
-/// the contact, gamma1 / a^2 <= c (docs/sensing.md, "Small contacts"): the
-/// elastomer conforms to the indenter there, and a pressed sphere is no more
-/// curved than it was, so c = 1/R2 + 1/R1 in small strain. A fit whose radius
-/// is under `below_mm` (the marker pitch: only there are depth and radius hard
-/// to tell apart) and ends beyond the bound is redone on it (a tied to gamma1).
+/// Below about a marker pitch the markers mostly see the field outside the
+/// contact, which fixes gamma1 * a but hardly gamma1 and a apart; `curvature`
+/// says what settles that (see [`Curvature`]).
+///
+/// `fixed_centre`: the centre is known (`start`'s) and held, not fitted.
 pub fn fit_hertz(
     pts: &[[f64; 3]],
     start: (f64, [f64; 2], f64),
     k: f64,
     floor: f64,
-    bound: Option<(f64, f64)>,
+    curvature: Curvature,
+    fixed_centre: bool,
 ) -> Option<HertzFit> {
     let n = pts.len();
     let mut kept = vec![true; n];
     let mut params = [start.0, start.1[0], start.1[1], start.2];
+    let mut tie = match curvature {
+        Curvature::Known { per_mm, .. } if per_mm > 0.0 => Some(per_mm),
+        _ => None,
+    };
     const ROUNDS: usize = 4;
     for round in 0..ROUNDS {
-        params = lm_hertz(pts, &kept, params, None)?;
-        if let Some((kmax, below_mm)) = bound.filter(|b| b.0 > 0.0)
+        params = lm_hertz(pts, &kept, params, tie, fixed_centre)?;
+        if let Curvature::Bounded { max_per_mm, below_mm } = curvature
+            && max_per_mm > 0.0
             && params[3] < below_mm
-            && params[0] > kmax * params[3] * params[3]
+            && params[0] > max_per_mm * params[3] * params[3]
         {
-            params = lm_hertz(pts, &kept, params, Some(kmax))?;
+            tie = Some(max_per_mm);
+            params = lm_hertz(pts, &kept, params, tie, fixed_centre)?;
         }
         let [g, cx, cy, a] = params;
         let resid: Vec<f64> = pts.iter().map(|p| p[2] - g * hertz_shape((p[0] - cx).hypot(p[1] - cy) / a)).collect();
@@ -394,11 +438,39 @@ pub fn fit_hertz(
         let limit = (k * MAD_TO_SIGMA * median(&mut kr)).max(floor);
         let next: Vec<bool> = resid.iter().map(|e| e.abs() <= limit).collect();
         if round + 1 == ROUNDS || next == kept || next.iter().filter(|&&b| b).count() < 5 {
-            return Some(HertzFit { gamma1: g, centre: [cx, cy], radius: a, kept, rms });
+            let mut gamma1_sd = hertz_gamma1_sd(pts, &kept, params, tie, fixed_centre, rms)?;
+            if let (Some(_), Curvature::Known { per_mm, sd_per_mm }) = (tie, curvature) {
+                // With the field's far part fixing gamma1 a and a = sqrt(gamma1 / c),
+                // gamma1 goes as c^(1/3): a relative error of c passes on a third.
+                gamma1_sd = gamma1_sd.hypot(g * sd_per_mm / (3.0 * per_mm));
+            }
+            return Some(HertzFit { gamma1: g, centre: [cx, cy], radius: a, kept, rms, gamma1_sd });
         }
         kept = next;
     }
     None
+}
+
+/// Standard error of gamma1 from the Hertz fit's Jacobian at `p`, with the
+/// marker noise from the fit's residual `rms` over the kept markers.
+fn hertz_gamma1_sd(
+    pts: &[[f64; 3]],
+    kept: &[bool],
+    p: [f64; 4],
+    tie: Option<f64>,
+    fixed_centre: bool,
+    rms: f64,
+) -> Option<f64> {
+    let m = kept.iter().filter(|&&b| b).count();
+    let free = 4 - usize::from(tie.is_some()) - 2 * usize::from(fixed_centre);
+    if m <= free {
+        return None;
+    }
+    let mut field = HertzField { pts, kept, tie, fixed_centre };
+    let (jtj, _) = field.normal_equations(&Vector4::from(p))?;
+    let inv = jtj.try_inverse()?;
+    let var = rms * rms * m as f64 / (m - free) as f64 * inv[(0, 0)];
+    (var.is_finite() && var >= 0.0).then(|| var.sqrt())
 }
 
 fn hertz_cost(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4]) -> f64 {
@@ -413,11 +485,13 @@ fn hertz_cost(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4]) -> f64 {
 /// The Hertz field over the kept markers as a least-squares problem in
 /// (gamma1, cx, cy, a); with `tie = Some(c)` the radius follows the depth,
 /// a = sqrt(gamma1 / c), and only (gamma1, cx, cy) are free. Depth and radius
-/// stay positive (other points are refused).
+/// stay positive (other points are refused). With `fixed_centre` the
+/// centre is held where it starts.
 struct HertzField<'a> {
     pts: &'a [[f64; 3]],
     kept: &'a [bool],
     tie: Option<f64>,
+    fixed_centre: bool,
 }
 
 impl Problem<U4> for HertzField<'_> {
@@ -451,6 +525,14 @@ impl Problem<U4> for HertzField<'_> {
         if self.tie.is_some() {
             jtj[(3, 3)] = 1.0;
         }
+        if self.fixed_centre {
+            for i in 1..3 {
+                jtj.row_mut(i).fill(0.0);
+                jtj.column_mut(i).fill(0.0);
+                jtj[(i, i)] = 1.0;
+                jtr[i] = 0.0;
+            }
+        }
         // The residuals are marker minus model: their Jacobian is -j.
         Some((jtj, -jtr))
     }
@@ -468,8 +550,8 @@ const HERTZ_LM: LmOptions =
     LmOptions { max_iterations: 500, cost_tolerance: 1e-16, step_tolerance: 1e-12, fd_step: 0.0 };
 
 /// Levenberg-Marquardt on the Hertz field (see [`HertzField`]) from `p`.
-fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4], tie: Option<f64>) -> Option<[f64; 4]> {
-    let mut field = HertzField { pts, kept, tie };
+fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4], tie: Option<f64>, fixed_centre: bool) -> Option<[f64; 4]> {
+    let mut field = HertzField { pts, kept, tie, fixed_centre };
     let out = lm::solve(&mut field, Vector4::from(p), &HERTZ_LM, &Strategy::FIELD).ok()?;
     out.x.iter().all(|v| v.is_finite()).then(|| out.x.into())
 }

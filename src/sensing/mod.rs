@@ -17,12 +17,14 @@
 //! * Outlier markers are rejected in both fits by a median-based scale and the
 //!   fits repeated.
 
+mod estimator;
 pub mod fit;
 
 use devices::sensor::SensorFrame;
 use serde::Serialize;
 
-use fit::{fit_hertz, fit_quadratic, fit_rotation};
+pub use estimator::{CurvatureLearner, FrameEstimator};
+use fit::{Curvature, fit_hertz, fit_quadratic, fit_rotation, paraboloid_errors};
 
 use crate::numerics::stats::median;
 
@@ -63,6 +65,18 @@ pub struct SensingConfig {
     /// depth the markers around them cannot separate from their radius
     /// (docs/sensing.md, "Small contacts"). `None`: not known, not used.
     pub max_curvature_per_mm: Option<f64>,
+    /// The normal field's curvature inside the contact, gamma1 / a^2 (1/mm),
+    /// and its standard error, as measured on this run's resolved contacts
+    /// ([`FrameEstimator`] learns it). Contacts too small for the paraboloid
+    /// are then fitted with the radius tied to the depth, a = sqrt(gamma1 / c)
+    /// (docs/sensing.md, "Small contacts"). `None`: not known yet.
+    pub contact_curvature_per_mm: Option<(f64, f64)>,
+    /// Where the indenter touches the sensor, in marker coordinates (mm), as
+    /// learnt on resolved contacts: it stays put through a normal sweep. With
+    /// the curvature known too, a contact too small to resolve is fitted
+    /// there with gamma1 its only unknown: no search for the deepest spot,
+    /// which in a frame of pure noise finds a few µm of "contact" anywhere.
+    pub contact_centre_mm: Option<[f64; 2]>,
 }
 
 impl SensingConfig {
@@ -87,6 +101,8 @@ impl Default for SensingConfig {
             outlier_sigmas: 4.0,
             outlier_floor_mm: 2e-4,
             max_curvature_per_mm: None,
+            contact_curvature_per_mm: None,
+            contact_centre_mm: None,
         }
     }
 }
@@ -107,6 +123,14 @@ pub struct Measurement {
     pub contact_centre_mm: [f64; 2],
     /// Contact radius from the curvature of the normal field, mm.
     pub contact_radius_mm: f64,
+    /// Standard error of gamma1 from the field fit behind it (the marker
+    /// noise seen in its residuals, through the fit; with a tied radius, the
+    /// tie's own error too), mm.
+    pub gamma1_sd_mm: f64,
+    /// The field's curvature inside the contact, gamma1 / a^2 (1/mm), with its
+    /// standard error, when this frame resolved the contact (the paraboloid
+    /// lay inside it); what [`FrameEstimator`] learns from.
+    pub contact_curvature_per_mm: Option<(f64, f64)>,
     /// RMS residual of the quadratic fit, mm.
     pub gamma1_residual_mm: f64,
     /// RMS tangential residual of the stick markers after the rotation, mm.
@@ -225,6 +249,10 @@ struct Depth {
     rms: f64,
     /// Radius of the final quadratic window (0 for the Hertz fit).
     window: f64,
+    /// Standard error of gamma1, mm.
+    gamma1_sd: f64,
+    /// The paraboloid's curvature -2 c3 = gamma1 / a^2 and its standard error.
+    curvature: Option<(f64, f64)>,
 }
 
 /// Quadratic fit, re-centred on its own peak with a window shrunk or grown
@@ -268,7 +296,21 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
         // the field is no longer a paraboloid.
         let used_window = sel.iter().map(|&i| dist2(xy(&frame.positions[i]), centre)).fold(0.0, f64::max).sqrt();
         window = (cfg.window_fraction * radius).max(min_window);
-        best = Some(Depth { gamma1, centre, radius, selected: sel, kept: qf.kept, rms: qf.rms, window: used_window });
+        let errors = if cfg.isotropic { paraboloid_errors(&pts, &qf.kept, peak, qf.rms) } else { None };
+        let gamma1_sd = errors.map_or(f64::NAN, |e| e.0);
+        // Only a window inside the contact sees the contact's own curvature.
+        let curvature = errors.filter(|_| used_window <= radius).map(|e| (-qf.surface.mean_curvature(), e.1));
+        best = Some(Depth {
+            gamma1,
+            centre,
+            radius,
+            selected: sel,
+            kept: qf.kept,
+            rms: qf.rms,
+            window: used_window,
+            gamma1_sd,
+            curvature,
+        });
     }
     best.ok_or(SensingError::TooFewMarkers { index, stage: "quadratic fit", found: 0, needed: 7 })
 }
@@ -293,12 +335,21 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
     // which depends on about gamma1 * a): refine the quadratic fit's estimate
     // locally when there is one, else start from a few radii and keep the
     // best fit. Far-apart minima can fit noisy markers equally well there.
-    let starts: &[f64] = if start.2 > 0.0 { &[start.2] } else { &[0.3, 0.55, 0.9] };
-    let bound = cfg.max_curvature_per_mm.map(|c| (c, pitch));
+    let curvature = match (cfg.contact_curvature_per_mm, cfg.max_curvature_per_mm) {
+        (Some((per_mm, sd_per_mm)), _) if per_mm > 0.0 => Curvature::Known { per_mm, sd_per_mm },
+        (_, Some(max_per_mm)) => Curvature::Bounded { max_per_mm, below_mm: pitch },
+        _ => Curvature::Free,
+    };
+    // Known curvature and centre leave gamma1 alone to fit: one start.
+    let fixed_centre = matches!(curvature, Curvature::Known { .. }) && cfg.contact_centre_mm == Some(start.1);
+    let starts: &[f64] = if start.2 > 0.0 || fixed_centre { &[start.2] } else { &[0.3, 0.55, 0.9] };
     let hf = starts
         .iter()
-        .map(|&a0| if start.2 > 0.0 { a0 } else { a0 * pitch })
-        .filter_map(|a0| fit_hertz(&pts, (start.0, start.1, a0), cfg.outlier_sigmas, cfg.outlier_floor_mm, bound))
+        .map(|&a0| if start.2 > 0.0 || fixed_centre { a0 } else { a0 * pitch })
+        .filter_map(|a0| {
+            let (k, floor) = (cfg.outlier_sigmas, cfg.outlier_floor_mm);
+            fit_hertz(&pts, (start.0, start.1, a0), k, floor, curvature, fixed_centre)
+        })
         .min_by(|x, y| {
             let score = |h: &fit::HertzFit| h.rms * (pts.len() as f64 / h.kept.iter().filter(|&&b| b).count() as f64);
             score(x).total_cmp(&score(y))
@@ -315,6 +366,8 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
         kept: hf.kept,
         rms: hf.rms,
         window: 0.0,
+        gamma1_sd: hf.gamma1_sd,
+        curvature: None,
     })
 }
 
@@ -336,16 +389,28 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
     // The paraboloid is Hertz's field only inside the contact: when the
     // smallest usable window reaches outside it (a contact under ~1.5
     // pitches), or no paraboloid fits at all, fit the Hertz field itself.
+    // A paraboloid over markers outside a small contact sees a flatter field
+    // and so a wider contact: with the curvature known, the depth says how
+    // wide the contact is.
+    let implied_radius = |d: &Depth| match cfg.contact_curvature_per_mm {
+        Some((c, _)) if c > 0.0 => d.radius.min((d.gamma1 / c).sqrt()),
+        _ => d.radius,
+    };
     let needs_hertz = cfg.hertz_refine
         && match &quad {
-            Ok(d) => d.window > d.radius,
+            Ok(d) => d.window > implied_radius(d),
             Err(_) => true,
         };
     let depth = if needs_hertz {
-        let start = match &quad {
-            Ok(d) => (d.gamma1, d.centre, d.radius.min(2.0 * pitch)),
+        let start = match (&quad, cfg.contact_curvature_per_mm, cfg.contact_centre_mm) {
+            // The contact's curvature and place are known: only its depth is not.
+            (_, Some((c, _)), Some(centre)) if c > 0.0 => {
+                let g = quad.as_ref().map_or(seed_depth, |d| d.gamma1).max(cfg.min_depth_mm);
+                (g, centre, (g / c).sqrt())
+            }
+            (Ok(d), ..) => (d.gamma1, d.centre, d.radius.min(2.0 * pitch)),
             // No usable paraboloid: multi-start (radius 0 asks for it).
-            Err(_) => (seed_depth, xy(&frame.positions[seed]), 0.0),
+            (Err(_), ..) => (seed_depth, xy(&frame.positions[seed]), 0.0),
         };
         let h = hertz_stage(frame, start, pitch, cfg);
         match h {
@@ -355,7 +420,7 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
     } else {
         quad?
     };
-    let Depth { gamma1, centre, radius, selected, kept: depth_kept, rms: depth_rms, .. } = depth;
+    let Depth { gamma1, centre, radius, selected, kept: depth_kept, rms: depth_rms, gamma1_sd, curvature, .. } = depth;
     if gamma1.is_nan() || gamma1 < cfg.min_depth_mm {
         return Err(SensingError::NoContact { index, depth_mm: gamma1.max(0.0) });
     }
@@ -412,6 +477,8 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
         t_s: frame.t_s,
         gamma1_mm: gamma1,
         theta1_deg: rf.theta.to_degrees(),
+        gamma1_sd_mm: gamma1_sd,
+        contact_curvature_per_mm: curvature,
         contact_centre_mm: centre,
         contact_radius_mm: radius,
         gamma1_residual_mm: depth_rms,

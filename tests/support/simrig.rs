@@ -444,14 +444,9 @@ impl Gauge for SimGauge {
         let noise_t = st.rng.gaussian(ths);
         let (_, _, a) = st.truth();
         if st.cfg.zero_out_of_contact && st.shown_gamma1 <= 0.0 {
-            return Ok(GaugeReading { t_s: st.t_s, gamma1_mm: 0.0, theta1_deg: 0.0, contact_radius_mm: 0.0 });
+            return Ok(GaugeReading::new(st.t_s, 0.0, 0.0, 0.0));
         }
-        Ok(GaugeReading {
-            t_s: st.t_s,
-            gamma1_mm: st.shown_gamma1 - st.tare + noise_g,
-            theta1_deg: st.shown_theta1 + noise_t,
-            contact_radius_mm: a,
-        })
+        Ok(GaugeReading::new(st.t_s, st.shown_gamma1 - st.tare + noise_g, st.shown_theta1 + noise_t, a))
     }
     async fn tare(&mut self) -> Result<(), GaugeError> {
         let mut st = self.rig.state();

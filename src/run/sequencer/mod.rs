@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
 use devices::motion::{Axis, AxisStatus, DeviceFault, FaultKind, Identify, LinearStage, Mm, RotationMount};
-use sim::recording::{Direction, Metadata, Phase, RecordingWriter, Sample};
+use sim::recording::{CONTACT_SD_KEY, Direction, Metadata, Phase, RecordingWriter, Sample};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
 use crate::run::events::{DeviceStatus, FitUpdate, LogLevel, Progress, RunControl, RunEvent, RunPhase};
@@ -103,6 +103,10 @@ pub struct Sequencer<S, R, G> {
     last_inward_mm: f64,
     noise: ReadingNoise,
     clock: RigClock,
+    /// The recording's file, created at connect (a path that cannot be
+    /// written stops the run before anything moves); its header is written
+    /// once the contact is found, since it declares how well.
+    recording_file: Option<File>,
     writer: Option<RecordingWriter<BufWriter<File>>>,
     samples: Vec<Sample>,
     contact_mm: Option<f64>,
@@ -188,6 +192,7 @@ where
             last_inward_mm: 0.0,
             noise: ReadingNoise::default(),
             clock: RigClock::default(),
+            recording_file: None,
             writer: None,
             samples: Vec::new(),
             contact_mm: None,

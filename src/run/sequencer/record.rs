@@ -29,8 +29,8 @@ where
             theta1_deg: if phase == Phase::Torsion { r.theta1_deg } else { 0.0 },
             rep,
             dir,
-            gamma1_sd_mm: None,
-            theta1_sd_deg: None,
+            gamma1_sd_mm: r.gamma1_sd_mm,
+            theta1_sd_deg: if phase == Phase::Torsion { r.theta1_sd_deg } else { None },
         };
         let Some(w) = self.writer.as_mut() else {
             return Err(Halt { culprit: Culprit::Recording, message: "recording is not open".into() });

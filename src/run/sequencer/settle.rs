@@ -105,7 +105,9 @@ where
                     self.guard.note_gamma1(self.stage_mm, upper);
                     self.last_inward_mm = 0.0;
                     self.learn_noise(&buf[k - 2 * n..]);
-                    return Ok(m3);
+                    // The last two windows agree within the tolerance: the
+                    // sample is their mean, twice the frames of one window.
+                    return Ok(mean(&buf[k - 2 * n..]));
                 }
                 // Sensor time bounds the wait; the read count guards against a sensor whose clock stands still.
                 if r.t_s - t_first >= s.timeout_s || buf.len() >= MAX_SETTLE_READINGS {
@@ -148,19 +150,23 @@ where
     }
 }
 
+/// The mean of `xs`, with the standard error of the mean from theirs (`None`
+/// unless every reading has one).
 pub(super) fn mean(xs: &[GaugeReading]) -> GaugeReading {
     let n = xs.len().max(1) as f64;
-    let mut m = GaugeReading {
-        t_s: xs.last().map(|r| r.t_s).unwrap_or(0.0),
-        gamma1_mm: 0.0,
-        theta1_deg: 0.0,
-        contact_radius_mm: 0.0,
-    };
+    let t_s = xs.last().map(|r| r.t_s).unwrap_or(0.0);
+    let mut m = GaugeReading::new(t_s, 0.0, 0.0, 0.0);
     for r in xs {
         m.gamma1_mm += r.gamma1_mm / n;
         m.theta1_deg += r.theta1_deg / n;
         m.contact_radius_mm += r.contact_radius_mm / n;
     }
+    let of_mean = |sd: fn(&GaugeReading) -> Option<f64>| -> Option<f64> {
+        let squares: Option<Vec<f64>> = xs.iter().map(|r| sd(r).map(|v| v * v)).collect();
+        squares.filter(|v| !v.is_empty()).map(|v| v.iter().sum::<f64>().sqrt() / n)
+    };
+    m.gamma1_sd_mm = of_mean(|r| r.gamma1_sd_mm);
+    m.theta1_sd_deg = of_mean(|r| r.theta1_sd_deg);
     m
 }
 

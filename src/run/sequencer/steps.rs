@@ -46,8 +46,21 @@ where
         }
         let file =
             crate::run::outdir::create_nofollow(&self.recording_path).map_err(|e| fail(e, &self.recording_path))?;
+        self.recording_file = Some(file);
+        Ok(())
+    }
+
+    /// Write the recording's header: what the run knows of the rig, and how
+    /// well it found the first contact (`contact_sd_mm`, docs/recording-format.md).
+    pub(super) fn start_recording(&mut self, contact_sd_mm: Option<f64>) -> Step<()> {
+        let Some(file) = self.recording_file.take() else {
+            return Err(Halt { culprit: Culprit::Recording, message: "recording is not open".into() });
+        };
         let mut extra =
             vec![("stage".to_string(), sanitize(&self.stage_name)), ("mount".to_string(), sanitize(&self.mount_name))];
+        if let Some(sd) = contact_sd_mm.filter(|v| v.is_finite() && *v > 0.0) {
+            extra.push((CONTACT_SD_KEY.to_string(), format!("{sd:.6}")));
+        }
         extra.extend(self.extra_meta.iter().map(|(k, v)| (sanitize(k), sanitize(v))));
         let meta = Metadata {
             sensor: Some(sanitize(self.script.sensor.name.as_deref().unwrap_or(&self.gauge.describe()))),
@@ -57,7 +70,10 @@ where
             created: Some(crate::report::rfc3339_utc(SystemTime::now())),
             extra,
         };
-        let w = RecordingWriter::new(BufWriter::new(file), &meta).map_err(|e| fail(e, &self.recording_path))?;
+        let w = RecordingWriter::with_standard_errors(BufWriter::new(file), &meta).map_err(|e| Halt {
+            culprit: Culprit::Recording,
+            message: format!("cannot write the recording {}: {e}", self.recording_path.display()),
+        })?;
         self.writer = Some(w);
         Ok(())
     }
@@ -154,12 +170,15 @@ where
         let window: Vec<(f64, f64)> =
             pts.iter().copied().filter(|p| (a.refine_from_gamma1_mm..=a.refine_to_gamma1_mm).contains(&p.1)).collect();
         let line = if window.len() >= 2 { contact_from_line(&window, threshold) } else { None };
+        let contact_sd_mm = if line.is_some() { contact_uncertainty(&window, threshold) } else { None };
         let contact = line
             .or_else(|| contact_from_line(&pts, threshold))
             .unwrap_or(0.5 * (last_clear + pts[0].0))
             .clamp(last_clear - a.step_mm, pts[0].0);
         self.contact_mm = Some(contact);
-        self.log(LogLevel::Info, format!("first contact at stage {contact:.4} mm"));
+        let sd_text = contact_sd_mm.map(|sd| format!(" (± {:.1} um)", sd * 1e3)).unwrap_or_default();
+        self.log(LogLevel::Info, format!("first contact at stage {contact:.4} mm{sd_text}"));
+        self.start_recording(contact_sd_mm)?;
         // Back off to the normal sweep's start (the same direction of travel as loading follows).
         let start = (contact - a.pre_contact_mm).max(self.guard.limits().stage_min_mm);
         self.move_stage(start, "back to the normal sweep start").await?;
@@ -283,6 +302,33 @@ where
 
 pub(super) fn unreachable_path<T>() -> Step<T> {
     Err(Halt { culprit: Culprit::Procedure, message: "normal sweep recorded no load point".into() })
+}
+
+/// How far the stage position of first contact from [`contact_from_line`]
+/// may be off, mm: the line's own statistical error, and how far the lines
+/// through the shallower and the deeper half of the points disagree (gamma1
+/// bends away from a line as the contact deepens, so extrapolating to zero
+/// carries that bend). `None` with fewer than four points.
+pub(super) fn contact_uncertainty(pts: &[(f64, f64)], threshold: f64) -> Option<f64> {
+    let mut p: Vec<(f64, f64)> = pts.iter().copied().filter(|&(_, g)| g > threshold).collect();
+    if p.len() < 4 {
+        return None;
+    }
+    p.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let half = p.len() / 2;
+    let (lo, hi) = (contact_from_line(&p[..half], threshold)?, contact_from_line(&p[half..], threshold)?);
+    let x0 = contact_from_line(&p, threshold)?;
+    // Statistical: the intercept's standard error from the line's residuals.
+    let n = p.len() as f64;
+    let mx = p.iter().map(|q| q.0).sum::<f64>() / n;
+    let sxx: f64 = p.iter().map(|q| (q.0 - mx).powi(2)).sum();
+    let my = p.iter().map(|q| q.1).sum::<f64>() / n;
+    let slope = my / (mx - x0);
+    let ssr: f64 = p.iter().map(|q| (q.1 - slope * (q.0 - x0)).powi(2)).sum();
+    let s2 = ssr / (n - 2.0);
+    let se = (s2 * (1.0 / n + (x0 - mx).powi(2) / sxx)).sqrt() / slope;
+    let sd = se.hypot(hi - lo);
+    (sd.is_finite() && sd > 0.0).then_some(sd)
 }
 
 /// Stage position where a line through the in-contact points (gamma1 above
