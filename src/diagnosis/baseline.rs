@@ -57,7 +57,8 @@ pub(super) fn compare<'a>(rec: &'a Recording, opts: &DiagnoseOptions) -> Result<
     let floor_of = |q: Quantity, recorded: bool| {
         if recorded {
             // Never below the recorded errors: only inflated when the scatter between samples asks for it.
-            locate::standard_error_factor(rec, &base0.readings, &segs, q).map(|f| Floor { sigma: f.sigma.max(1.0), ..f })
+            locate::standard_error_factor(rec, &base0.readings, &segs, q)
+                .map(|f| Floor { sigma: f.sigma.max(1.0), ..f })
         } else {
             locate::noise_floor_dof(&locate::series(rec, &base0.readings, &segs, q))
                 .map(|f| Floor { sigma: f.sigma.max(1e-6), ..f })

@@ -409,7 +409,9 @@ pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) ->
 /// one; a gain beyond a chi² quantile locates a mismatch that the branch test
 /// alone (against an uncertain floor) may leave below its threshold.
 pub fn chi2_gain(rec: &Recording, before: &[Reading], after: &[Reading], seg: &Segment, floor: Floor) -> f64 {
-    let ss = |pred: &[Reading]| -> f64 { segment_residuals(rec, pred, seg).2.iter().map(|r| (r / floor.sigma).powi(2)).sum() };
+    let ss = |pred: &[Reading]| -> f64 {
+        segment_residuals(rec, pred, seg).2.iter().map(|r| (r / floor.sigma).powi(2)).sum()
+    };
     ss(before) - ss(after)
 }
 

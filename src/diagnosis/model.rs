@@ -344,8 +344,14 @@ impl<'a> Model<'a> {
 
     /// The theta1 noise the residuals are judged against, degrees (as [`Model::noise_gamma1_mm`]).
     pub fn noise_theta1_deg(&self) -> f64 {
-        let mut tor: Vec<f64> =
-            self.rec.samples.iter().zip(&self.sd_t).filter(|(s, _)| s.phase == Phase::Torsion).map(|(_, v)| *v).collect();
+        let mut tor: Vec<f64> = self
+            .rec
+            .samples
+            .iter()
+            .zip(&self.sd_t)
+            .filter(|(s, _)| s.phase == Phase::Torsion)
+            .map(|(_, v)| *v)
+            .collect();
         self.sigma_t * if tor.is_empty() { 1.0 } else { median(&mut tor) }
     }
 
