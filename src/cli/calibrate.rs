@@ -62,6 +62,12 @@ pub fn human_summary(out: &CalibrationOutput, meta: &sim::recording::Metadata) -
         f.noise_floor.torsion_deg,
         f.r2.torsion
     );
+    if let Some(c) = f.chi2_dof {
+        s += &format!(
+            "  weighted by the recording's standard errors: chi²/dof {c:.2}{}\n",
+            if c > 1.0 { " (the intervals are widened by its square root)" } else { "" }
+        );
+    }
     for w in &out.warnings {
         s += &format!("  warning ({}): {}\n", w.code, w.message);
     }

@@ -17,7 +17,7 @@ use crate::numerics::stats::t_quantile_975;
 
 /// The diagnosis from the baseline and the search's outcome.
 pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Result<Diagnosis, DiagnoseError> {
-    let Baseline { model, fit: baseline, segs, floor_g, floor_t, before, warnings } = base;
+    let Baseline { model, fit: baseline, segs, floor_g, floor_t, before, warnings, standard_errors } = base;
     let Search { scores, ambiguous, degenerate, last } = search;
     let after = locate::locate(rec, &last.readings, &segs, floor_g, floor_t);
     let mismatch = located_mismatch(rec, &baseline, &last, &segs, [floor_g, floor_t], &before, &after);
@@ -38,7 +38,8 @@ pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Resu
     }
     let profile = model.profile(&final_fit.cands, &final_fit.x).ok_or(DiagnoseError::Model)?;
     let residuals = sample_residuals(rec, &baseline, &last);
-    let noise = Rms { normal_um: model.sigma_g * 1e3, hold_um: model.sigma_g * 1e3, torsion_deg: model.sigma_t };
+    let (g_mm, t_deg) = (model.noise_gamma1_mm(), model.noise_theta1_deg());
+    let noise = Rms { normal_um: g_mm * 1e3, hold_um: g_mm * 1e3, torsion_deg: t_deg };
     let fin = summary(rec, final_fit);
     let mut d = Diagnosis {
         effects,
@@ -46,6 +47,7 @@ pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Resu
         e1_mpa: fin.e1_mpa,
         nu1: fin.nu1,
         noise,
+        standard_errors,
         baseline: summary(rec, &baseline),
         corrected: summary(rec, &last),
         mismatch,

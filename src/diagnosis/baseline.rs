@@ -7,7 +7,8 @@ use sim::recording::{Phase, Recording};
 
 use super::locate::{self, Floor, Quantity, Segment, SegmentReport};
 use super::model::{Base, Fitted, Model};
-use super::{DiagnoseError, DiagnoseOptions};
+use super::{DiagnoseError, DiagnoseOptions, StandardErrors};
+use crate::fit::weights::SampleSd;
 use crate::fit::{FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper};
 
 /// The baseline of a diagnosis: the model weighted by the noise floors, its
@@ -22,6 +23,8 @@ pub(super) struct Baseline<'a> {
     pub before: Vec<SegmentReport>,
     /// The full-model fit's warnings (empty when it failed).
     pub warnings: Vec<Warning>,
+    /// How the recorded standard errors were used, when there are any.
+    pub standard_errors: Option<StandardErrors>,
 }
 
 /// Where the baseline fit starts, and the noise the first fit is weighted with.
@@ -35,26 +38,47 @@ struct Starts {
 /// Compare and locate: the baseline fit, the noise floors, the branch tests.
 pub(super) fn compare<'a>(rec: &'a Recording, opts: &DiagnoseOptions) -> Result<Baseline<'a>, DiagnoseError> {
     let sg_given = opts.noise_um.map(|u| u * 1e-3);
+    // A given gamma1 noise replaces that channel's recorded standard errors.
+    let mut sd = SampleSd::of(rec);
+    if sg_given.is_some() {
+        sd.gamma1_mm = None;
+    }
     let starts = start_points(rec, sg_given)?;
-    let (sg0, st0) = (starts.sigma_g_mm, starts.sigma_t_deg);
-    let mut model = Model::new(rec, sg0, st0);
+    // With recorded errors, a channel's sigma is the factor on them: 1 to start.
+    let sg0 = if sd.gamma1_mm.is_some() { 1.0 } else { starts.sigma_g_mm };
+    let st0 = if sd.theta1_deg.is_some() { 1.0 } else { starts.sigma_t_deg };
+    let mut model = Model::new(rec, sg0, st0).with_standard_errors(&sd);
     model.max_iterations = opts.max_iterations.max(1);
     let base0 = starts.bases.iter().find_map(|b| model.fit(&[], &b.internal())).ok_or(DiagnoseError::Model)?;
 
     // locate: noise floor from the baseline residuals, then the per-branch tests.
-    let segs: Vec<Segment> = locate::segments(rec);
+    let mut segs: Vec<Segment> = locate::segments(rec);
+    locate::attach_standard_errors(&mut segs, &sd);
+    let floor_of = |q: Quantity, recorded: bool| {
+        if recorded {
+            // Never below the recorded errors: only inflated when the scatter between samples asks for it.
+            locate::standard_error_factor(rec, &base0.readings, &segs, q)
+                .map(|f| Floor { sigma: f.sigma.max(1.0), ..f })
+        } else {
+            locate::noise_floor_dof(&locate::series(rec, &base0.readings, &segs, q))
+                .map(|f| Floor { sigma: f.sigma.max(1e-6), ..f })
+        }
+    };
     let floor_g = sg_given
         .map(Floor::known)
-        .or_else(|| locate::noise_floor_dof(&locate::series(rec, &base0.readings, &segs, Quantity::Gamma1)))
-        .map_or(Floor::known(sg0), |f| Floor { sigma: f.sigma.max(1e-6), ..f });
-    let floor_t = locate::noise_floor_dof(&locate::series(rec, &base0.readings, &segs, Quantity::Theta1))
-        .map_or(Floor::known(st0), |f| Floor { sigma: f.sigma.max(1e-6), ..f });
+        .or_else(|| floor_of(Quantity::Gamma1, sd.gamma1_mm.is_some()))
+        .unwrap_or(Floor::known(sg0));
+    let floor_t = floor_of(Quantity::Theta1, sd.theta1_deg.is_some()).unwrap_or(Floor::known(st0));
     model.sigma_g = floor_g.sigma;
     model.sigma_t = floor_t.sigma;
     let mut fit = model.fit(&[], &base0.x).ok_or(DiagnoseError::Model)?;
     model.finish(&mut fit);
     let before = locate::locate(rec, &fit.readings, &segs, floor_g, floor_t);
-    Ok(Baseline { model, fit, segs, floor_g, floor_t, before, warnings: starts.warnings })
+    let standard_errors = sd.any().then_some(StandardErrors {
+        gamma1_factor: sd.gamma1_mm.as_ref().map(|_| floor_g.sigma),
+        theta1_factor: sd.theta1_deg.as_ref().map(|_| floor_t.sigma),
+    });
+    Ok(Baseline { model, fit, segs, floor_g, floor_t, before, warnings: starts.warnings, standard_errors })
 }
 
 /// Whether the recording has the samples a full-model fit needs at all.

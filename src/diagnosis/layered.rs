@@ -78,6 +78,7 @@ pub fn diagnose_layered(rec: &Recording, noise_um: Option<f64>) -> Result<Diagno
         e1_mpa: f.e1_mpa,
         nu1: f.nu1,
         noise,
+        standard_errors: None,
         baseline: summary.clone(),
         corrected: summary,
         mismatch: Vec::new(),

@@ -8,6 +8,7 @@ use serde::Serialize;
 use sim::effects::Reading;
 use sim::recording::{Direction, Phase, Recording};
 
+use crate::fit::weights::SampleSd;
 use crate::numerics::stats::normal_quantile_upper;
 
 /// Significance of every test here: |z| beyond this is systematic (p ~ 1e-4
@@ -30,6 +31,10 @@ pub struct Segment {
     pub quantity: Quantity,
     /// Sample indices, in time order.
     pub idx: Vec<usize>,
+    /// The recorded standard error of each sample in `idx` (mm for gamma1,
+    /// degrees for theta1), when the recording carries them: residuals are
+    /// then judged in units of these, and the segment's floor is a factor on them.
+    pub sd: Option<Vec<f64>>,
 }
 
 impl Segment {
@@ -61,7 +66,7 @@ pub fn segments(rec: &Recording) -> Vec<Segment> {
         .find(|s| s.quantity == q)
     {
         Some(last) if last.phase == phase && !split && last.idx.last().is_some_and(|&j| j + 1 == i) => last.idx.push(i),
-        _ => out.push(Segment { phase, quantity: q, idx: vec![i] }),
+        _ => out.push(Segment { phase, quantity: q, idx: vec![i], sd: None }),
     };
     let (mut prev_stage, mut prev_rot) = (None::<f64>, None::<f64>);
     let (mut load, mut out_dir) = (true, true);
@@ -93,6 +98,32 @@ pub fn segments(rec: &Recording) -> Vec<Segment> {
                 prev_rot = Some(s.rot_deg);
                 push(if out_dir { "torsion/out" } else { "torsion/back" }, Quantity::Theta1, i, &mut out, false);
             }
+        }
+    }
+    out
+}
+
+/// Give each segment its samples' recorded standard errors (those of the
+/// channels `sd` has).
+pub fn attach_standard_errors(segs: &mut [Segment], sd: &SampleSd) {
+    for seg in segs {
+        let per_sample = match seg.quantity {
+            Quantity::Gamma1 => sd.gamma1_mm.as_ref(),
+            Quantity::Theta1 => sd.theta1_deg.as_ref(),
+        };
+        seg.sd = per_sample.map(|v| seg.idx.iter().map(|&i| v[i]).collect());
+    }
+}
+
+/// A segment's residuals: axis values, residuals in reading units, and the
+/// same divided by each sample's recorded standard error (unchanged without).
+fn segment_residuals(rec: &Recording, pred: &[Reading], seg: &Segment) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mut out = (Vec::new(), Vec::new(), Vec::new());
+    for (k, &i) in seg.idx.iter().enumerate() {
+        if let Some(r) = residual(rec, pred, i, seg.quantity) {
+            out.0.push(seg.axis_value(rec, i));
+            out.1.push(r);
+            out.2.push(seg.sd.as_ref().map_or(r, |sd| r / sd[k]));
         }
     }
     out
@@ -143,6 +174,36 @@ pub fn noise_floor(series: &[Vec<f64>]) -> Option<f64> {
 /// 40 for the ~80 theta1 samples of a torsion sweep, a floor uncertain by ~11 %.
 pub fn noise_floor_dof(series: &[Vec<f64>]) -> Option<Floor> {
     let d: Vec<f64> = series.iter().flat_map(|v| v.windows(3).map(|w| w[0] - 2.0 * w[1] + w[2])).collect();
+    floor_of_differences(d, 6.0)
+}
+
+/// How far the recorded standard errors understate what varies between
+/// samples: second differences of the residuals along each segment, each
+/// divided by the standard error the recorded errors give it
+/// (sqrt(s0² + 4 s1² + s2²)), have unit variance when the errors are right;
+/// the returned floor's `sigma` is the factor k they are off by (robust as
+/// [`noise_floor_dof`]). `None` without recorded errors or with too few samples.
+pub fn standard_error_factor(rec: &Recording, pred: &[Reading], segs: &[Segment], q: Quantity) -> Option<Floor> {
+    let mut d = Vec::new();
+    for seg in segs.iter().filter(|s| s.quantity == q) {
+        seg.sd.as_ref()?;
+        let mut pairs = Vec::new();
+        for (k, &i) in seg.idx.iter().enumerate() {
+            if let (Some(r), Some(sd)) = (residual(rec, pred, i, q), seg.sd.as_ref()) {
+                pairs.push((r, sd[k]));
+            }
+        }
+        d.extend(pairs.windows(3).map(|w| {
+            let se = (w[0].1.powi(2) + 4.0 * w[1].1.powi(2) + w[2].1.powi(2)).sqrt();
+            (w[0].0 - 2.0 * w[1].0 + w[2].0) / se
+        }));
+    }
+    floor_of_differences(d, 1.0)
+}
+
+/// The noise floor from second differences `d` whose variance is `unit_var`
+/// times the floor's square.
+fn floor_of_differences(d: Vec<f64>, unit_var: f64) -> Option<Floor> {
     if d.len() < 5 {
         return None;
     }
@@ -153,7 +214,7 @@ pub fn noise_floor_dof(series: &[Vec<f64>]) -> Option<Floor> {
     if kept.is_empty() {
         return None;
     }
-    let sigma = (kept.iter().map(|x| x * x).sum::<f64>() / (6.0 * kept.len() as f64)).sqrt();
+    let sigma = (kept.iter().map(|x| x * x).sum::<f64>() / (unit_var * kept.len() as f64)).sqrt();
     Some(Floor { sigma, dof: kept.len() as f64 * 36.0 / 70.0 })
 }
 
@@ -292,11 +353,8 @@ fn shape_of(seg: &Segment, x: &[f64], r: &[f64], sigma: f64) -> String {
 /// Test one segment's residuals against the noise floor.
 pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) -> Option<SegmentReport> {
     let sigma = floor.sigma;
-    let (xs, rs): (Vec<f64>, Vec<f64>) = seg
-        .idx
-        .iter()
-        .filter_map(|&i| residual(rec, pred, i, seg.quantity).map(|r| (seg.axis_value(rec, i), r)))
-        .unzip();
+    // `raw` in reading units for the figures; `rs` in the floor's units for the tests.
+    let (xs, raw, rs) = segment_residuals(rec, pred, seg);
     let n = rs.len();
     if n < 5 {
         return None;
@@ -304,8 +362,8 @@ pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) ->
     let chi2: f64 = rs.iter().map(|r| (r / sigma).powi(2)).sum();
     let cz = excess_z(chi2, n, floor.dof);
     let rz = runs_z(&rs);
-    let mean = rs.iter().sum::<f64>() / n as f64;
-    let rms = (rs.iter().map(|r| r * r).sum::<f64>() / n as f64).sqrt();
+    let mean = raw.iter().sum::<f64>() / n as f64;
+    let rms = (raw.iter().map(|r| r * r).sum::<f64>() / n as f64).sqrt();
     let lag1 = {
         let num: f64 = rs.windows(2).map(|w| w[0] * w[1]).sum();
         let den: f64 = rs.iter().map(|r| r * r).sum();
@@ -352,7 +410,7 @@ pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) ->
 /// alone (against an uncertain floor) may leave below its threshold.
 pub fn chi2_gain(rec: &Recording, before: &[Reading], after: &[Reading], seg: &Segment, floor: Floor) -> f64 {
     let ss = |pred: &[Reading]| -> f64 {
-        seg.idx.iter().filter_map(|&i| residual(rec, pred, i, seg.quantity)).map(|r| (r / floor.sigma).powi(2)).sum()
+        segment_residuals(rec, pred, seg).2.iter().map(|r| (r / floor.sigma).powi(2)).sum()
     };
     ss(before) - ss(after)
 }
@@ -362,11 +420,7 @@ pub fn chi2_gain(rec: &Recording, before: &[Reading], after: &[Reading], seg: &S
 pub fn describe(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) -> Option<SegmentReport> {
     let mut r = assess(rec, pred, seg, floor)?;
     if !r.systematic {
-        let (xs, rs): (Vec<f64>, Vec<f64>) = seg
-            .idx
-            .iter()
-            .filter_map(|&i| residual(rec, pred, i, seg.quantity).map(|v| (seg.axis_value(rec, i), v)))
-            .unzip();
+        let (xs, _, rs) = segment_residuals(rec, pred, seg);
         r.shape = shape_of(seg, &xs, &rs, floor.sigma);
     }
     Some(r)

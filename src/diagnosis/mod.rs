@@ -26,7 +26,7 @@ use sim::recording::Recording;
 use crate::fit::{FitError, Warning, plausible};
 pub use schema::{
     Alternative, CandidateScore, Ci95, Degenerate, Diagnosis, Explained, FitSummary, Mismatch, ParamEstimate, Rms,
-    SampleResidual,
+    SampleResidual, StandardErrors,
 };
 
 /// Variance inflation of an effect's parameter against E1, nu1 and z0 beyond

@@ -11,7 +11,9 @@ use sim::effects::{
 use sim::physics::{Body, ContactPair};
 use sim::recording::{Phase, Recording};
 
+use crate::fit::weights::SampleSd;
 use crate::numerics::lm::{self, LmOptions};
+use crate::numerics::stats::median;
 
 /// An effect of the library the diagnosis can fit, with its parametrisation.
 /// `contact_offset` is not here: z0 is part of every fit (the baseline's third parameter).
@@ -290,10 +292,15 @@ impl Fitted {
 pub struct Model<'a> {
     rec: &'a Recording,
     cmds: Vec<CommandedPose>,
-    /// Noise of gamma1 readings, mm.
+    /// Noise of gamma1 readings, mm; with recorded standard errors, the
+    /// factor they are multiplied by (1, or the inflation the data ask for).
     pub sigma_g: f64,
-    /// Noise of theta1 readings, degrees.
+    /// Noise of theta1 readings, degrees; with recorded standard errors, their factor.
     pub sigma_t: f64,
+    /// Per-sample gamma1 standard error (mm) where the recording carries them, else 1.
+    sd_g: Vec<f64>,
+    /// Per-sample theta1 standard error (degrees) where the recording carries them, else 1.
+    sd_t: Vec<f64>,
     /// Iteration cap of each refit.
     pub max_iterations: usize,
     /// LM stops when a step lowers chi² by less than this fraction.
@@ -311,7 +318,41 @@ impl<'a> Model<'a> {
                 rot_deg: if s.phase == Phase::Torsion { s.rot_deg } else { 0.0 },
             })
             .collect();
-        Self { rec, cmds, sigma_g, sigma_t, max_iterations: 40, cost_tolerance: 1e-5 }
+        let ones = vec![1.0; rec.samples.len()];
+        Self { rec, cmds, sigma_g, sigma_t, sd_g: ones.clone(), sd_t: ones, max_iterations: 40, cost_tolerance: 1e-5 }
+    }
+
+    /// Weigh each reading by its recorded standard error (the channels `sd`
+    /// has); `sigma_g` / `sigma_t` then scale those errors.
+    pub fn with_standard_errors(mut self, sd: &SampleSd) -> Self {
+        if let Some(g) = &sd.gamma1_mm {
+            self.sd_g.clone_from(g);
+        }
+        if let Some(t) = &sd.theta1_deg {
+            self.sd_t.clone_from(t);
+        }
+        self
+    }
+
+    /// The gamma1 noise the residuals are judged against, mm: the floor, or
+    /// the median recorded standard error of the live samples times its factor.
+    pub fn noise_gamma1_mm(&self) -> f64 {
+        let mut live: Vec<f64> =
+            self.rec.samples.iter().zip(&self.sd_g).filter(|(s, _)| s.gamma1_mm != 0.0).map(|(_, v)| *v).collect();
+        self.sigma_g * if live.is_empty() { 1.0 } else { median(&mut live) }
+    }
+
+    /// The theta1 noise the residuals are judged against, degrees (as [`Model::noise_gamma1_mm`]).
+    pub fn noise_theta1_deg(&self) -> f64 {
+        let mut tor: Vec<f64> = self
+            .rec
+            .samples
+            .iter()
+            .zip(&self.sd_t)
+            .filter(|(s, _)| s.phase == Phase::Torsion)
+            .map(|(_, v)| *v)
+            .collect();
+        self.sigma_t * if tor.is_empty() { 1.0 } else { median(&mut tor) }
     }
 
     pub fn recording(&self) -> &Recording {
@@ -352,15 +393,15 @@ impl<'a> Model<'a> {
     }
 
     /// Weighted residuals: gamma1 of every sample (the dead band pins z0), then
-    /// theta1 of every torsion sample.
+    /// theta1 of every torsion sample, each divided by its noise.
     pub fn weighted(&self, pred: &[Reading], out: &mut Vec<f64>) {
         out.clear();
-        for (s, p) in self.rec.samples.iter().zip(pred) {
-            out.push((s.gamma1_mm - p.gamma1_mm) / self.sigma_g);
+        for ((s, p), sd) in self.rec.samples.iter().zip(pred).zip(&self.sd_g) {
+            out.push((s.gamma1_mm - p.gamma1_mm) / (self.sigma_g * sd));
         }
-        for (s, p) in self.rec.samples.iter().zip(pred) {
+        for ((s, p), sd) in self.rec.samples.iter().zip(pred).zip(&self.sd_t) {
             if s.phase == Phase::Torsion {
-                out.push((s.theta1_deg - p.theta1_deg) / self.sigma_t);
+                out.push((s.theta1_deg - p.theta1_deg) / (self.sigma_t * sd));
             }
         }
     }

@@ -6,7 +6,7 @@
 use std::fmt::Write as _;
 
 use super::model::Candidate;
-use super::{Diagnosis, FitSummary, Mismatch, ParamEstimate, Rms};
+use super::{Diagnosis, FitSummary, Mismatch, ParamEstimate, Rms, StandardErrors};
 
 /// A fitted parameter of an effect: value, unit and 95 % interval (an open
 /// end is `open`), flagged when the sweeps determine it only weakly.
@@ -171,6 +171,19 @@ pub(super) fn layered_verdict(
     }
 }
 
+/// How the recorded standard errors entered the noise line.
+fn standard_errors_note(e: &StandardErrors) -> String {
+    let factor = |name: &str, k: Option<f64>| match k {
+        Some(k) if k > 1.0 => Some(format!("{name} inflated x{k:.2} to the scatter between samples")),
+        Some(_) => Some(format!("{name} as recorded")),
+        None => None,
+    };
+    let parts: Vec<String> =
+        [factor("gamma1", e.gamma1_factor), factor("theta1", e.theta1_factor)].into_iter().flatten().collect();
+    let how = if e.inflated() { "; the recorded errors were too small" } else { "" };
+    format!(" (per-sample standard errors, median shown: {}{how})", parts.join(", "))
+}
+
 /// The human report `easycalib diagnose` prints: noise floor, baseline,
 /// mismatch, the effects with their parameters, the corrected estimate,
 /// residuals, degeneracies, warnings, then the verdict.
@@ -179,7 +192,13 @@ pub fn report(d: &Diagnosis) -> String {
     let b = &d.baseline;
     let c = &d.corrected;
     // Writing to a String cannot fail.
-    let _ = writeln!(s, "Noise floor: gamma1 {:.2} µm, theta1 {:.4} deg", d.noise.normal_um, d.noise.torsion_deg);
+    let _ = writeln!(
+        s,
+        "Noise floor: gamma1 {:.2} µm, theta1 {:.4} deg{}",
+        d.noise.normal_um,
+        d.noise.torsion_deg,
+        d.standard_errors.map(|e| standard_errors_note(&e)).unwrap_or_default()
+    );
     let _ =
         writeln!(s, "Baseline (paper's physics, full-model fit): {}, z0 {:+.4} mm", estimate(b), b.contact_offset_mm);
     if d.mismatch.is_empty() {

@@ -122,6 +122,23 @@ pub struct SampleResidual {
     pub theta1_after_deg: Option<f64>,
 }
 
+/// How the recording's per-sample standard errors were used: the factor each
+/// channel's errors were multiplied by before judging the residuals (1 when
+/// they account for the scatter between samples; never below 1). `None`: the
+/// channel has no recorded errors.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StandardErrors {
+    pub gamma1_factor: Option<f64>,
+    pub theta1_factor: Option<f64>,
+}
+
+impl StandardErrors {
+    /// Whether a channel's recorded errors were found too small and inflated.
+    pub fn inflated(&self) -> bool {
+        self.gamma1_factor.is_some_and(|k| k > 1.0) || self.theta1_factor.is_some_and(|k| k > 1.0)
+    }
+}
+
 /// The diagnosis of one recording. Its JSON form is documented in docs/diagnosis.md.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Diagnosis {
@@ -133,8 +150,12 @@ pub struct Diagnosis {
     #[serde(rename = "E1_MPa")]
     pub e1_mpa: f64,
     pub nu1: f64,
-    /// Noise floor used (gamma1 in µm for normal_um and hold_um, theta1 in degrees).
+    /// Noise floor used (gamma1 in µm for normal_um and hold_um, theta1 in degrees);
+    /// with recorded standard errors, their median times the factor applied.
     pub noise: Rms,
+    /// Present when the recording carries per-sample standard errors.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub standard_errors: Option<StandardErrors>,
     pub baseline: FitSummary,
     pub corrected: FitSummary,
     /// Where the baseline's residuals are systematic.

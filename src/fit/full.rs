@@ -13,6 +13,7 @@ use serde::Serialize;
 use sim::physics::{Body, ContactPair, Layer, LayerBase, NormalModel, torsion_at};
 use sim::recording::{Phase, Recording, Sample};
 
+use super::weights::SampleSd;
 use super::{FitError, Warning, start_points};
 use crate::numerics::lm::{self, LmOptions, LmResult};
 use crate::numerics::stats::{interval, noise_from_second_differences, r_squared, rms};
@@ -247,6 +248,11 @@ pub struct FullFit {
     pub noise_floor: GroupFigures,
     /// R² of gamma1 (normal) and theta1 (torsion).
     pub r2: R2,
+    /// chi²/dof of the fit weighted by the recording's per-sample standard
+    /// errors (absent when the recording has none); the covariance is scaled
+    /// by max(1, chi²/dof).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub chi2_dof: Option<f64>,
     pub iterations: usize,
     pub converged: bool,
     pub samples_used: usize,
@@ -315,24 +321,56 @@ fn from_physical(v: &[f64]) -> ModelParams {
     ModelParams { e1_mpa: v[0], nu1: v[1], contact_offset_mm: v[2], contact_friction: v.get(3).copied() }
 }
 
+/// The noise each sample's residuals are divided by: the recording's own
+/// standard errors where it carries them, else one floor per channel.
+#[derive(Debug, Clone)]
+struct Sigmas {
+    gamma1_mm: Vec<f64>,
+    theta1_deg: Vec<f64>,
+    /// Whether a channel is weighted by recorded standard errors.
+    recorded: bool,
+}
+
+impl Sigmas {
+    fn new(sd: &SampleSd, n: usize, sg: f64, st: f64) -> Self {
+        Sigmas {
+            gamma1_mm: sd.gamma1_mm.clone().unwrap_or_else(|| vec![sg; n]),
+            theta1_deg: sd.theta1_deg.clone().unwrap_or_else(|| vec![st; n]),
+            recorded: sd.any(),
+        }
+    }
+}
+
+/// The recording's standard errors the fit weighs by: a noise given in the
+/// options replaces its channel's.
+fn recorded_errors(rec: &Recording, opts: &FullOptions) -> SampleSd {
+    let mut sd = SampleSd::of(rec);
+    if opts.gamma1_sigma_mm.is_some() {
+        sd.gamma1_mm = None;
+    }
+    if opts.theta1_sigma_deg.is_some() {
+        sd.theta1_deg = None;
+    }
+    sd
+}
+
 /// Weighted residual vector: gamma1 of every sample (dead band included: it pins z0),
-/// then theta1 of every torsion sample.
+/// then theta1 of every torsion sample, each divided by its sample's noise.
 fn weighted_residuals(
     rec: &Recording,
     p: &ModelParams,
     correction: Option<&Correction>,
-    sg: f64,
-    st: f64,
+    sig: &Sigmas,
     out: &mut Vec<f64>,
 ) -> bool {
     let Ok(pred) = predict_with(rec, p, correction) else {
         return false;
     };
     out.clear();
-    for (s, q) in rec.samples.iter().zip(&pred) {
+    for ((s, q), sg) in rec.samples.iter().zip(&pred).zip(&sig.gamma1_mm) {
         out.push((s.gamma1_mm - q.gamma1_mm) / sg);
     }
-    for (s, q) in rec.samples.iter().zip(&pred) {
+    for ((s, q), st) in rec.samples.iter().zip(&pred).zip(&sig.theta1_deg) {
         if s.phase == Phase::Torsion {
             out.push((s.theta1_deg - q.theta1_deg) / st);
         }
@@ -382,6 +420,7 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
             torsion_deg: noise_from_second_differences(&r.torsion_deg).unwrap_or(f64::NAN),
         },
         r2: r_squared_of(rec, &pred),
+        chi2_dof: passes.sigma.recorded.then_some(cov.chi2_dof),
         iterations: passes.out.iterations,
         converged: passes.out.converged,
         samples_used: n_obs,
@@ -427,8 +466,8 @@ fn usable_start(rec: &Recording, mut start: ModelParams) -> ModelParams {
 struct Passes {
     params: ModelParams,
     out: LmResult,
-    /// Noise of gamma1 (mm) and theta1 (degrees) the last pass weighted by.
-    sigma: (f64, f64),
+    /// Per-sample noise of gamma1 and theta1 the last pass weighted by.
+    sigma: Sigmas,
     /// Whether the passes iterated on the FE model's friction correction.
     corrected: bool,
 }
@@ -439,6 +478,8 @@ struct Passes {
 fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result<Passes, FitError> {
     let mut sg = opts.gamma1_sigma_mm.unwrap_or(sim::defaults::GAMMA1_SIGMA_MM);
     let mut st = opts.theta1_sigma_deg.unwrap_or(sim::defaults::THETA1_SIGMA_DEG);
+    let sd = recorded_errors(rec, opts);
+    let mut sigma = Sigmas::new(&sd, rec.samples.len(), sg, st);
     let mut params = start;
     let mut res = None;
     let mut correction = None;
@@ -446,7 +487,7 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result
         correction = friction_correction(rec, &params)?;
         let x0 = to_internal(&params);
         let out = lm::minimize(
-            |x, r| weighted_residuals(rec, &from_internal(x), correction.as_ref(), sg, st, r),
+            |x, r| weighted_residuals(rec, &from_internal(x), correction.as_ref(), &sigma, r),
             &x0,
             LmOptions::default(),
         )?;
@@ -460,20 +501,22 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result
         if pass == 0 {
             let pred = predict(rec, &params)?;
             let r = residuals(rec, &pred);
-            if opts.gamma1_sigma_mm.is_none() {
+            // Channels weighted by recorded standard errors keep them.
+            if opts.gamma1_sigma_mm.is_none() && sd.gamma1_mm.is_none() {
                 if let Some(s) = noise_from_second_differences(&r.normal_mm) {
                     sg = s.max(1e-6);
                 }
             }
-            if opts.theta1_sigma_deg.is_none() {
+            if opts.theta1_sigma_deg.is_none() && sd.theta1_deg.is_none() {
                 if let Some(s) = noise_from_second_differences(&r.torsion_deg) {
                     st = s.max(1e-5);
                 }
             }
+            sigma = Sigmas::new(&sd, rec.samples.len(), sg, st);
         }
     }
     let out = res.ok_or_else(|| FitError::Model("no fit pass ran".into()))?;
-    Ok(Passes { params, out, sigma: (sg, st), corrected: correction.is_some() })
+    Ok(Passes { params, out, sigma, corrected: correction.is_some() })
 }
 
 /// nu1 is mapped onto (0, 0.5); an optimum pressed against either end means
@@ -505,6 +548,8 @@ struct Covariance {
     matrix: DMatrix<f64>,
     dof: usize,
     corr_e1_nu1: f64,
+    /// chi²/dof of the weighted residuals.
+    chi2_dof: f64,
 }
 
 /// Covariance in physical parameters from a central-difference Jacobian at the
@@ -519,7 +564,12 @@ fn covariance(
     let params = &passes.params;
     let (jac, r0) = physical_jacobian(rec, passes)?;
     let dof = n_obs.saturating_sub(jac.ncols()).max(1);
-    let s2 = r0.iter().map(|v| v * v).sum::<f64>() / dof as f64;
+    let chi2_dof = r0.iter().map(|v| v * v).sum::<f64>() / dof as f64;
+    // Weights from a floor the data set: chi²/dof is the residual variance in
+    // its units. Weights from recorded standard errors: the errors already
+    // set the scale, and only a misfit beyond them (the Birge ratio above 1,
+    // model error or errors reported too small) widens the intervals.
+    let s2 = if passes.sigma.recorded { chi2_dof.max(1.0) } else { chi2_dof };
     let mut np = jac.ncols();
     if np == 4 {
         let norm = |j: usize| jac.column(j).norm();
@@ -546,19 +596,19 @@ fn covariance(
             "the covariance of E1, nu1 and z0 is not positive definite: these sweeps cannot separate them".into(),
         ));
     }
-    Ok(Covariance { matrix: cov, dof, corr_e1_nu1: corr })
+    Ok(Covariance { matrix: cov, dof, corr_e1_nu1: corr, chi2_dof })
 }
 
 /// The weighted residuals at the optimum and their central-difference
 /// Jacobian in the physical parameters (E1, nu1, z0[, friction]).
 fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<(DMatrix<f64>, Vec<f64>), FitError> {
-    let (params, (sg, st)) = (&passes.params, passes.sigma);
+    let (params, sig) = (&passes.params, &passes.sigma);
     let mut phys = vec![params.e1_mpa, params.nu1, params.contact_offset_mm];
     phys.extend(params.contact_friction);
     let np = phys.len();
     let correction = if passes.corrected { friction_correction(rec, params)? } else { None };
     let mut r0 = Vec::new();
-    weighted_residuals(rec, params, correction.as_ref(), sg, st, &mut r0);
+    weighted_residuals(rec, params, correction.as_ref(), sig, &mut r0);
     let m = r0.len();
     let mut jac = DMatrix::zeros(m, np);
     let steps = [1e-5 * params.e1_mpa, 1e-5, 1e-6, 1e-4 * params.contact_friction.unwrap_or(1.0)];
@@ -568,8 +618,8 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<(DMatrix<f64>, 
         hi[j] += steps[j];
         lo[j] -= steps[j];
         let (mut rp, mut rm) = (Vec::new(), Vec::new());
-        let up = weighted_residuals(rec, &from_physical(&hi), correction.as_ref(), sg, st, &mut rp);
-        let down = weighted_residuals(rec, &from_physical(&lo), correction.as_ref(), sg, st, &mut rm);
+        let up = weighted_residuals(rec, &from_physical(&hi), correction.as_ref(), sig, &mut rp);
+        let down = weighted_residuals(rec, &from_physical(&lo), correction.as_ref(), sig, &mut rm);
         // Deep sweeps end close to the contact model's turning point, where a
         // step to one side may leave the model's range: difference one-sided then.
         for i in 0..m {

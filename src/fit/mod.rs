@@ -5,6 +5,7 @@ pub mod paper;
 pub mod plausible;
 pub mod regression;
 pub mod start_points;
+pub mod weights;
 
 use serde::Serialize;
 use sim::recording::Recording;
@@ -157,8 +158,12 @@ fn paper_warnings(p: &PaperFit) -> Vec<Warning> {
     w
 }
 
-/// Residual size of a full fit against its own noise floors (smaller is better).
+/// Residual size of a full fit against its own noise floors (smaller is
+/// better): chi²/dof when the recording's standard errors weighted it.
 fn fit_cost(f: &FullFit) -> f64 {
+    if let Some(c) = f.chi2_dof {
+        return c;
+    }
     let n = f.rms.normal_um / f.noise_floor.normal_um.max(1e-9);
     let t = f.rms.torsion_deg / f.noise_floor.torsion_deg.max(1e-12);
     n * n + t * t
