@@ -33,9 +33,12 @@ elastomer_r_mm = 33.0
 # most refine_steps steps of step_mm) until gamma1 reaches
 # refine_to_gamma1_mm, and a line through the settled readings with gamma1 in
 # [refine_from_gamma1_mm, refine_to_gamma1_mm] is extrapolated to gamma1 = 0.
-# (A marker grid reads small contacts poorly, so the shallowest readings would
-# bias the contact point, and with it every gamma2 of the paper's method.)
-# The normal sweep starts pre_contact_mm before the contact.
+# Those deep readings teach the sensing the contact's shape; the stage then
+# steps in again from just above that point, and the line through the settled
+# readings below refine_from_gamma1_mm (where gamma1 bends least) gives the
+# contact point, and its uncertainty to the recording (every gamma2 of the
+# paper's method hangs on it). The normal sweep starts pre_contact_mm before
+# the contact.
 [approach]
 start_mm = 10.0
 step_mm = 0.05

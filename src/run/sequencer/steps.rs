@@ -170,11 +170,14 @@ where
         let window: Vec<(f64, f64)> =
             pts.iter().copied().filter(|p| (a.refine_from_gamma1_mm..=a.refine_to_gamma1_mm).contains(&p.1)).collect();
         let line = if window.len() >= 2 { contact_from_line(&window, threshold) } else { None };
-        let contact_sd_mm = if line.is_some() { contact_uncertainty(&window, threshold) } else { None };
-        let contact = line
+        let provisional = line
             .or_else(|| contact_from_line(&pts, threshold))
             .unwrap_or(0.5 * (last_clear + pts[0].0))
             .clamp(last_clear - a.step_mm, pts[0].0);
+        let (contact, contact_sd_mm) = match self.reapproach(provisional, threshold).await? {
+            Some(found) => found,
+            None => (provisional, if line.is_some() { contact_uncertainty(&window, threshold) } else { None }),
+        };
         self.contact_mm = Some(contact);
         let sd_text = contact_sd_mm.map(|sd| format!(" (± {:.1} um)", sd * 1e3)).unwrap_or_default();
         self.log(LogLevel::Info, format!("first contact at stage {contact:.4} mm{sd_text}"));
@@ -183,6 +186,39 @@ where
         let start = (contact - a.pre_contact_mm).max(self.guard.limits().stage_min_mm);
         self.move_stage(start, "back to the normal sweep start").await?;
         Ok(())
+    }
+
+    /// Find the contact again from above, now that the sensing has learnt the
+    /// contact's shape on the deep readings (docs/sensing.md, "Small
+    /// contacts"): step in from just above `provisional`, settled readings
+    /// until gamma1 reaches `refine_from_gamma1_mm`, and a line through them
+    /// to gamma1 = 0. Near contact gamma1 is proportional to the approach
+    /// (Hertz), so the shallow readings carry the least bend: the line's error
+    /// is a few micrometres where the deep window's was tens. `None` when
+    /// fewer than three readings fall in the window (the deep line stands).
+    async fn reapproach(&mut self, provisional: f64, threshold: f64) -> Step<Option<(f64, Option<f64>)>> {
+        let a = self.script.approach;
+        let mut pos = (provisional - a.step_mm).max(self.guard.limits().stage_min_mm);
+        self.move_stage(pos, "above the contact").await?;
+        let mut pts = Vec::new();
+        for _ in 0..a.refine_steps {
+            let next = pos + a.step_mm;
+            if self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, next).is_err() {
+                break;
+            }
+            self.move_stage(next, "contact refinement").await?;
+            pos = next;
+            let g = self.settle().await?.gamma1_mm;
+            if g >= a.refine_from_gamma1_mm {
+                break;
+            }
+            pts.push((pos, g));
+        }
+        let shallow: Vec<(f64, f64)> = pts.into_iter().filter(|p| p.1 > threshold).collect();
+        if shallow.len() < 3 {
+            return Ok(None);
+        }
+        Ok(contact_from_line(&shallow, threshold).map(|c| (c, contact_uncertainty(&shallow, threshold))))
     }
 
     /// One load/unload cycle. Returns the two load points around the target
@@ -311,12 +347,13 @@ pub(super) fn unreachable_path<T>() -> Step<T> {
 /// carries that bend). `None` with fewer than four points.
 pub(super) fn contact_uncertainty(pts: &[(f64, f64)], threshold: f64) -> Option<f64> {
     let mut p: Vec<(f64, f64)> = pts.iter().copied().filter(|&(_, g)| g > threshold).collect();
-    if p.len() < 4 {
+    if p.len() < 3 {
         return None;
     }
     p.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let half = p.len() / 2;
-    let (lo, hi) = (contact_from_line(&p[..half], threshold)?, contact_from_line(&p[half..], threshold)?);
+    // Two overlapping halves (the middle point in both when the count is odd).
+    let half = p.len().div_ceil(2);
+    let (lo, hi) = (contact_from_line(&p[..half], threshold)?, contact_from_line(&p[p.len() - half..], threshold)?);
     let x0 = contact_from_line(&p, threshold)?;
     // Statistical: the intercept's standard error from the line's residuals.
     let n = p.len() as f64;
