@@ -216,6 +216,9 @@ pub enum RunEvent {
     Aborted {
         reason: String,
     },
+    /// After a completed run's fit, before `Finished`: the diagnosis of the
+    /// recording (docs/run.md), or why it could not be made.
+    Diagnosis(Box<crate::report::RunDiagnosis>),
     /// The run completed.
     Finished {
         summary: RunSummary,
@@ -330,9 +333,24 @@ impl ProgressLine {
             RunEvent::Paused => Some(format!("{} paused", self.prefix())),
             RunEvent::Resumed => Some(format!("{} resumed", self.prefix())),
             RunEvent::Aborted { reason } => Some(format!("{} ABORTED: {}", self.prefix(), reason)),
+            RunEvent::Diagnosis(d) => Some(diagnosis_line(d)),
             RunEvent::Finished { summary } => Some(summary_line(summary)),
             RunEvent::History { lines } => Some(lines.join("\n")),
         }
+    }
+}
+
+/// One line with the diagnosis' verdict and its E1, nu1.
+pub fn diagnosis_line(d: &crate::report::RunDiagnosis) -> String {
+    let values = format!(
+        "E1 = {:.4} MPa [{:.4}, {:.4}], nu1 = {:.3} [{:.3}, {:.3}]",
+        d.e1_mpa, d.ci95.e1_mpa[0], d.ci95.e1_mpa[1], d.nu1, d.ci95.nu1[0], d.ci95.nu1[1]
+    );
+    let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+    match (d.corrected(), &d.error) {
+        (true, _) => format!("diagnosis: {} ({}); corrected {values}", d.verdict.as_str(), names.join(", ")),
+        (false, Some(e)) => format!("diagnosis: not made ({e}); the calibration stands"),
+        (false, None) => format!("diagnosis: {}; nothing named, {values} as calibrated", d.verdict.as_str()),
     }
 }
 
