@@ -285,7 +285,8 @@ fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<()
     }
     let rec = Recording::read_path(&o.recording)
         .map_err(|e| CliError::other(format!("cannot read back {}: {e}", o.recording.display())))?;
-    let out = calibration_output(&rec, cal, Some(&o.recording), truth);
+    let mut out = calibration_output(&rec, cal, Some(&o.recording), truth);
+    out.diagnosis = result.diagnosis.clone();
     println!();
     print!("{}", human_summary(&out, &rec.meta));
     if let Some(d) = &result.diagnosis {
