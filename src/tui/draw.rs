@@ -341,7 +341,7 @@ fn draw_footer(state: &State, frame: &mut Frame, area: Rect) {
 
 /// The diagnosis' verdict and its E1, nu1 (corrected, or the calibration's when nothing is named).
 fn diagnosis_lines(d: &RunDiagnosis) -> Vec<Line<'static>> {
-    let verdict = d.verdict.as_str().to_uppercase();
+    let verdict = d.verdict.as_str().replace('_', " ").to_uppercase();
     let style = match d.verdict {
         VerdictClass::Clean => Style::new().fg(Color::Green),
         VerdictClass::Effects => Style::new().fg(Color::Yellow),
@@ -356,13 +356,13 @@ fn diagnosis_lines(d: &RunDiagnosis) -> Vec<Line<'static>> {
     let mut l = vec![Line::from(head)];
     if let Some(e) = &d.error {
         l.push(Line::from(format!("  {e}")));
-        return l;
+    } else if d.corrected() {
+        let (e1, nu1) = (d.ci95.e1_mpa, d.ci95.nu1);
+        l.push(Line::from(format!("  corrected E1  = {:.4} MPa  95% [{:.4}, {:.4}]", d.e1_mpa, e1[0], e1[1])));
+        l.push(Line::from(format!("  corrected nu1 = {:.3}  95% [{:.3}, {:.3}]", d.nu1, nu1[0], nu1[1])));
+    } else {
+        l.push(Line::from("  nothing named: E1 and nu1 as calibrated"));
     }
-    let label = if d.corrected() { "  corrected" } else { "  as calibrated" };
-    l.push(Line::from(format!(
-        "{label}: E1 = {:.4} MPa [{:.4}, {:.4}], nu1 = {:.3} [{:.3}, {:.3}]",
-        d.e1_mpa, d.ci95.e1_mpa[0], d.ci95.e1_mpa[1], d.nu1, d.ci95.nu1[0], d.ci95.nu1[1]
-    )));
     l
 }
 
