@@ -2,6 +2,9 @@
 //! display loop against a fake sequencer over channels, and plain mode.
 
 use devices::motion::AxisStatus;
+use easycalib::diagnosis::DiagnoseOptions;
+use easycalib::fit::{FitOptions, calibrate};
+use easycalib::report::diagnose_run;
 use easycalib::run::events::{
     DeviceStatus, FitUpdate, LogLevel, Progress, RunControl, RunEvent, RunPhase, RunSummary, SensorStatus,
 };
@@ -9,9 +12,6 @@ use easycalib::tui::{DriveOptions, NO_RESULT_REASON, RunStatus, State, draw, dri
 use ratatui::Terminal;
 use ratatui::backend::TestBackend;
 use ratatui::crossterm::event::{Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
-use easycalib::diagnosis::DiagnoseOptions;
-use easycalib::fit::{FitOptions, calibrate};
-use easycalib::report::diagnose_run;
 use sim::effects::{SimProfile, stage_backlash};
 use sim::generator::{GeneratorConfig, generate};
 use sim::physics::{Body, ContactPair};

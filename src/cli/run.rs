@@ -290,7 +290,11 @@ fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<()
     println!();
     print!("{}", human_summary(&out, &rec.meta));
     if let Some(d) = &result.diagnosis {
-        println!("\nDiagnosis ({:.2} s; `easycalib diagnose {}` for the full report):", d.wall_time_s, o.recording.display());
+        println!(
+            "\nDiagnosis ({:.2} s; `easycalib diagnose {}` for the full report):",
+            d.wall_time_s,
+            o.recording.display()
+        );
         print!("{}", d.summary);
     }
     println!(

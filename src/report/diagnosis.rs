@@ -85,11 +85,8 @@ impl RunDiagnosis {
     pub fn from_diagnosis(d: &Diagnosis, cal: &Calibration, wall_time_s: f64) -> Self {
         let verdict = VerdictClass::of(d);
         let named = verdict == VerdictClass::Effects;
-        let (e1_mpa, nu1, ci95) = if named {
-            (d.corrected.e1_mpa, d.corrected.nu1, d.corrected.ci95)
-        } else {
-            baseline(cal)
-        };
+        let (e1_mpa, nu1, ci95) =
+            if named { (d.corrected.e1_mpa, d.corrected.nu1, d.corrected.ci95) } else { baseline(cal) };
         let effects = if named {
             d.explanation.iter().map(|e| EffectFound { name: e.effect, params: e.params.clone() }).collect()
         } else {

@@ -107,9 +107,17 @@ fn write_result(s: &mut String, out: &CalibrationOutput) {
 fn write_diagnosis(s: &mut String, out: &CalibrationOutput) {
     let Some(d) = &out.diagnosis else { return };
     let f = &out.full;
-    let _ = writeln!(s, "## Diagnosis
-");
-    let _ = writeln!(s, "Verdict: **{}** (`easycalib diagnose` on the recording, {:.2} s).\n", d.verdict.as_str(), d.wall_time_s);
+    let _ = writeln!(
+        s,
+        "## Diagnosis
+"
+    );
+    let _ = writeln!(
+        s,
+        "Verdict: **{}** (`easycalib diagnose` on the recording, {:.2} s).\n",
+        d.verdict.as_str(),
+        d.wall_time_s
+    );
     let _ = writeln!(s, "```text\n{}```\n", d.summary);
     for e in &d.effects {
         let params: Vec<String> = e.params.iter().map(crate::diagnosis::prose::param).collect();

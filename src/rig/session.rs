@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
 use super::connect::{ConnectError, RigSpec, open_rig};
-use crate::fit::{Calibration, FitOptions, calibrate};
 use crate::diagnosis::DiagnoseOptions;
+use crate::fit::{Calibration, FitOptions, calibrate};
 use crate::report::{ReportFiles, RunDiagnosis, RunExtras, RunTimings, Truth, diagnose_run, write_report_for};
 use crate::run::events::{LogLevel, RunControl, RunEvent};
 use crate::run::{RunOutcome, Script, ScriptError, Sequencer};

@@ -468,6 +468,42 @@ mod tests {
     }
 
     #[test]
+    fn plain_diagnosis_line_gives_the_verdict_and_which_values() {
+        use crate::diagnosis::ParamEstimate;
+        use crate::report::{EffectFound, RunDiagnosis, VerdictClass};
+        let b = ParamEstimate {
+            name: "b_mm",
+            unit: "mm",
+            value: 0.02,
+            ci95: [Some(0.018), Some(0.022)],
+            well_determined: true,
+        };
+        let ci95 = crate::fit::Ci95 { e1_mpa: [0.329, 0.331], nu1: [0.385, 0.395] };
+        let named = RunDiagnosis {
+            verdict: VerdictClass::Effects,
+            summary: "EFFECTS: stage_backlash.\n".into(),
+            effects: vec![EffectFound { name: "stage_backlash", params: vec![b] }],
+            e1_mpa: 0.33,
+            nu1: 0.39,
+            ci95,
+            error: None,
+            wall_time_s: 0.1,
+        };
+        let mut pl = ProgressLine::new();
+        assert_eq!(
+            pl.line(&RunEvent::Diagnosis(Box::new(named.clone()))).unwrap(),
+            "diagnosis: effects (stage_backlash); corrected E1 = 0.3300 MPa [0.3290, 0.3310], nu1 = 0.390 [0.385, 0.395]"
+        );
+        let clean = RunDiagnosis { verdict: VerdictClass::Unexplained, effects: vec![], ..named.clone() };
+        assert_eq!(
+            diagnosis_line(&clean),
+            "diagnosis: unexplained; nothing named, E1 = 0.3300 MPa [0.3290, 0.3310], nu1 = 0.390 [0.385, 0.395] as calibrated"
+        );
+        let failed = RunDiagnosis { verdict: VerdictClass::NotMade, error: Some("no torsion".into()), ..clean };
+        assert_eq!(diagnosis_line(&failed), "diagnosis: not made (no torsion); the calibration stands");
+    }
+
+    #[test]
     fn running_fit_recovers_truth_from_a_generated_recording() {
         let cfg = GeneratorConfig::default();
         let rec = generate(&cfg).unwrap();

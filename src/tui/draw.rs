@@ -413,7 +413,9 @@ fn draw_banner(state: &State, frame: &mut Frame, area: Rect) {
                 Line::from("press q or Enter to leave".italic()),
             ],
         ),
-        RunStatus::Finished(s) => (" RUN FINISHED ", Style::new().fg(Color::Cyan), summary_lines(s, state.history(), state.diagnosis())),
+        RunStatus::Finished(s) => {
+            (" RUN FINISHED ", Style::new().fg(Color::Cyan), summary_lines(s, state.history(), state.diagnosis()))
+        }
         RunStatus::Idle | RunStatus::Running => return,
     };
     let height = (lines.len() as u16 + 2).min(area.height);
