@@ -128,22 +128,20 @@ fn write_diagnosis(s: &mut String, out: &CalibrationOutput) {
     }
     let _ = writeln!(s, "| quantity | calibration (full model) | 95 % interval | diagnosis | 95 % interval | unit |");
     let _ = writeln!(s, "| --- | ---: | --- | ---: | --- | --- |");
-    let _ = writeln!(
-        s,
-        "| E1 | {} | {} | {} | {} | MPa |",
-        num(f.e1_mpa, 4),
-        interval(f.ci95.e1_mpa, 4),
-        num(d.e1_mpa, 4),
-        interval(d.ci95.e1_mpa, 4)
-    );
-    let _ = writeln!(
-        s,
-        "| nu1 | {} | {} | {} | {} | – |",
-        num(f.nu1, 4),
-        interval(f.ci95.nu1, 4),
-        num(d.nu1, 4),
-        interval(d.ci95.nu1, 4)
-    );
+    let rows = [
+        ("E1", "MPa", [f.e1_mpa, d.e1_mpa], [f.ci95.e1_mpa, d.ci95.e1_mpa]),
+        ("nu1", "–", [f.nu1, d.nu1], [f.ci95.nu1, d.ci95.nu1]),
+    ];
+    for (name, unit, [fv, dv], [fci, dci]) in rows {
+        let _ = writeln!(
+            s,
+            "| {name} | {} | {} | {} | {} | {unit} |",
+            num(fv, 4),
+            interval(fci, 4),
+            num(dv, 4),
+            interval(dci, 4)
+        );
+    }
     let _ = writeln!(
         s,
         "\nThe report's best estimate stays the calibration's; {}.\n",
