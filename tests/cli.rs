@@ -69,6 +69,78 @@ fn run_on_the_simulated_rig_reports_truth_alongside_the_fit() {
     for f in ["recording.csv", "report.json", "report.md", "normal_sweep.svg", "torsion_sweep.svg"] {
         assert!(dir.path().join(f).is_file(), "{f} missing");
     }
+    // It ended with the diagnosis of its recording; the top-level answer stays the calibration's.
+    let d = check_diagnosis(&v);
+    eprintln!("diagnosis of the clean emulated run: {}", d["summary"].as_str().unwrap());
+    assert_eq!(v["E1_MPa"], v["full"]["E1_MPa"]);
+    assert_eq!(v["nu1"], v["full"]["nu1"]);
+    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(md.contains("## Diagnosis") && md.contains("| diagnosis ("), "{md}");
+}
+
+/// report.json's `diagnosis`: a verdict, effects with parameters, E1/nu1 with
+/// intervals around them; the calibration's values when nothing is named.
+fn check_diagnosis(v: &serde_json::Value) -> &serde_json::Value {
+    let d = &v["diagnosis"];
+    let verdict = d["verdict"].as_str().unwrap_or_else(|| panic!("no diagnosis verdict in {v:#}"));
+    assert!(["clean", "effects", "ambiguous", "unexplained"].contains(&verdict), "{d:#}");
+    let effects = d["effects"].as_array().unwrap();
+    assert_eq!(effects.is_empty(), verdict != "effects", "{d:#}");
+    for e in effects {
+        assert!(e["name"].is_string() && e["params"].as_array().is_some_and(|p| !p.is_empty()), "{e:#}");
+    }
+    for (k, ci) in [("E1_MPa", "E1_MPa"), ("nu1", "nu1")] {
+        let x = d[k].as_f64().unwrap();
+        let [lo, hi] = [0, 1].map(|i| d["ci95"][ci][i].as_f64().unwrap());
+        assert!(lo <= x && x <= hi, "{k} {x} outside [{lo}, {hi}]");
+    }
+    if verdict != "effects" {
+        assert_eq!((&d["E1_MPa"], &d["nu1"]), (&v["full"]["E1_MPa"], &v["full"]["nu1"]));
+    }
+    d
+}
+
+#[test]
+fn run_with_no_diagnose_skips_the_diagnosis() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = easycalib(&["run", "--json", "--seed", "6", "--no-diagnose", "--out", dir.path().to_str().unwrap()]);
+    assert!(out.status.success(), "run failed: {}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v.get("diagnosis").is_none(), "{v:#}");
+    assert!(v["E1_MPa"].as_f64().is_some());
+    // Not run at all: the progress never announces it, the report has no section.
+    let progress = String::from_utf8_lossy(&out.stderr);
+    assert!(!progress.contains("diagnos"), "{progress}");
+    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(!md.contains("## Diagnosis"));
+}
+
+/// A rig whose stage has 20 µm of backlash: the run's report carries the
+/// diagnosis and the CLI's last lines print its verdict. On rig-made
+/// recordings the diagnosis does not name effects yet (issue 12): this
+/// asserts the structure and prints what it said; a named effect must be the
+/// backlash.
+#[test]
+fn run_with_a_backlash_profile_prints_and_reports_the_diagnosis() {
+    let dir = tempfile::tempdir().unwrap();
+    let profile = dir.path().join("backlash.toml");
+    std::fs::write(&profile, "[stage_backlash]\nb_mm = 0.02\nengaged = true\n").unwrap();
+    let run_dir = dir.path().join("run");
+    let args = ["run", "--seed", "7", "--no-history", "--profile", profile.to_str().unwrap()];
+    let out = easycalib(&[&args[..], &["--out", run_dir.to_str().unwrap()]].concat());
+    assert!(out.status.success(), "run failed: {}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("report.json")).unwrap()).unwrap();
+    let d = check_diagnosis(&v);
+    let summary = d["summary"].as_str().unwrap();
+    eprintln!("backlash 0.02 mm on the emulated rig: verdict {}\n{summary}", d["verdict"]);
+    assert!(text.contains("\nDiagnosis (") && text.contains(summary), "{text}");
+    let headline = d["verdict"].as_str().unwrap().to_uppercase();
+    assert!(summary.starts_with(&format!("{headline}:")), "{summary}");
+    if d["verdict"] == "effects" {
+        assert!(d["effects"].as_array().unwrap().iter().any(|e| e["name"] == "stage_backlash"), "{d:#}");
+    }
 }
 
 fn expect_bad_input(path: &Path, what: &str) {

@@ -247,6 +247,7 @@ fn a_registered_third_stage_driver_runs_a_calibration_from_a_rig_file() {
             out_dir: dir.path().to_path_buf(),
             truth: Some(rig.truth()),
             metadata: Vec::new(),
+            diagnose: false,
         };
         let (ev_tx, mut ev_rx) = unbounded_channel();
         let (_ctl_tx, ctl_rx) = unbounded_channel();

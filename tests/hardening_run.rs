@@ -179,6 +179,7 @@ mod in_process {
             out_dir: dir.to_path_buf(),
             truth: Some(rig.truth()),
             metadata: vec![],
+            diagnose: false,
         };
         let (ev_tx, mut ev_rx) = unbounded_channel();
         let (_ctl_tx, ctl_rx) = unbounded_channel();

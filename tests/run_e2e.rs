@@ -47,14 +47,27 @@ async fn rig(grbl: bool) -> EmulatedRig {
     EmulatedRig::start(setup(), ServeOptions { grbl, ..ServeOptions::default() }).await.unwrap()
 }
 
-/// Run the default script (with `tweak`) on `rig`; after the `at`-th recorded
-/// sample, call `fault`. Returns the result and every event.
+/// Run the default script (with `tweak`) on `rig`, without the diagnosis at
+/// the end; after the `at`-th recorded sample, call `fault`. Returns the
+/// result and every event.
 async fn run_on(
     rig: &EmulatedRig,
     dir: &Path,
     tweak: impl FnOnce(&mut Script),
     at: usize,
     fault: impl FnOnce(&EmulatedRig),
+) -> (RunResult, Vec<RunEvent>) {
+    run_with(rig, dir, tweak, at, fault, false).await
+}
+
+/// [`run_on`], with the diagnosis when `diagnose`.
+async fn run_with(
+    rig: &EmulatedRig,
+    dir: &Path,
+    tweak: impl FnOnce(&mut Script),
+    at: usize,
+    fault: impl FnOnce(&EmulatedRig),
+    diagnose: bool,
 ) -> (RunResult, Vec<RunEvent>) {
     let mut script = Script::default();
     tweak(&mut script);
@@ -64,6 +77,7 @@ async fn run_on(
         out_dir: dir.to_path_buf(),
         truth: Some(rig.truth()),
         metadata: vec![("test".into(), "run_e2e".into())],
+        diagnose,
     };
     let (ev_tx, mut ev_rx) = unbounded_channel();
     let (_ctl_tx, ctl_rx) = unbounded_channel();
@@ -108,12 +122,32 @@ fn check_recording(r: &RunResult, events: &[RunEvent], at_least: usize) -> Recor
     rec
 }
 
+/// The diagnosis a run made: announced by its event just before `Finished`,
+/// written into report.json beside the calibration (whose top-level values it
+/// leaves alone), and E1/nu1 are the calibration's unless an effect was named.
+fn check_run_diagnosis(r: &RunResult, events: &[RunEvent], v: &serde_json::Value, (e1, nu1): (f64, f64)) {
+    let d = r.diagnosis.as_ref().expect("the run diagnosed its recording");
+    eprintln!("diagnosis ({:.2} s): {}", d.wall_time_s, d.summary);
+    let n = events.len();
+    assert!(matches!(&events[n - 2], RunEvent::Diagnosis(ev) if **ev == *d), "{:?}", &events[n - 2]);
+    let j = &v["diagnosis"];
+    assert_eq!(j["verdict"].as_str(), Some(d.verdict.as_str()));
+    assert_ne!(d.verdict.as_str(), "not_made", "{:?}", d.error);
+    assert_eq!(j["effects"].as_array().map(Vec::len), Some(d.effects.len()));
+    assert_eq!(j["E1_MPa"].as_f64(), Some(d.e1_mpa));
+    assert!(j["ci95"]["nu1"][0].as_f64().unwrap() <= d.nu1 && d.nu1 <= j["ci95"]["nu1"][1].as_f64().unwrap());
+    assert_eq!(v["E1_MPa"].as_f64(), Some(e1), "the run's own answer stays the calibration's");
+    if d.effects.is_empty() {
+        assert_eq!((d.e1_mpa, d.nu1), (e1, nu1));
+    }
+}
+
 #[test]
 fn default_run_through_the_real_drivers_recovers_the_truth() {
     one_at_a_time(async {
         let dir = tempfile::tempdir().unwrap();
         let rig = rig(false).await;
-        let (r, events) = run_on(&rig, dir.path(), |_| {}, usize::MAX, |_| {}).await;
+        let (r, events) = run_with(&rig, dir.path(), |_| {}, usize::MAX, |_| {}, true).await;
         assert_eq!(r.outcome.status, RunStatus::Completed, "{:?}", r.outcome.status);
         let truth = rig.truth();
         let cal = r.calibration.as_ref().expect("fit");
@@ -164,6 +198,7 @@ fn default_run_through_the_real_drivers_recovers_the_truth() {
         assert!(phases[0].1 > 365.0 / 5.0, "homing {} s", phases[0].1);
         assert!(std::fs::read_to_string(&files.markdown).unwrap().contains("| run | rig time"));
         assert!(std::fs::read_to_string(&files.torsion_svg).unwrap().starts_with("<svg"));
+        check_run_diagnosis(&r, &events, &v, (e1, nu1));
         // The run ended with the summary, and the stage is back at the retract position.
         assert!(matches!(events.last(), Some(RunEvent::Finished { summary }) if summary.e1_mpa == Some(e1)));
         let pose = rig.pose();

@@ -2,6 +2,9 @@
 //! display loop against a fake sequencer over channels, and plain mode.
 
 use devices::motion::AxisStatus;
+use easycalib::diagnosis::DiagnoseOptions;
+use easycalib::fit::{FitOptions, calibrate};
+use easycalib::report::diagnose_run;
 use easycalib::run::events::{
     DeviceStatus, FitUpdate, LogLevel, Progress, RunControl, RunEvent, RunPhase, RunSummary, SensorStatus,
 };
@@ -9,7 +12,9 @@ use easycalib::tui::{DriveOptions, NO_RESULT_REASON, RunStatus, State, draw, dri
 use ratatui::Terminal;
 use ratatui::backend::TestBackend;
 use ratatui::crossterm::event::{Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
+use sim::effects::{SimProfile, stage_backlash};
 use sim::generator::{GeneratorConfig, generate};
+use sim::physics::{Body, ContactPair};
 use sim::recording::{Phase, Recording};
 use std::time::Duration;
 use tokio::sync::mpsc;
@@ -195,6 +200,40 @@ fn finished_screen_shows_the_result() {
     let s = render(&st);
     assert!(s.contains("calibration 7 of 7"), "{s}");
     assert!(s.contains("E1  +2.10 % against the 6 before"), "{s}");
+}
+
+/// The final panel with the diagnosis the run made: its verdict and, when it
+/// named an effect, the corrected E1 and nu1 (a diagnosis of the generator's
+/// recording with stage backlash, as the run makes it).
+#[test]
+fn finished_screen_shows_the_diagnosis_verdict_and_corrected_values() {
+    let pair = ContactPair { elastomer: Body::new(0.33, 0.39, 33.0), indenter: Body::new(1.1, 0.39, 5.0) };
+    let profile = SimProfile {
+        stage_backlash: Some(stage_backlash::Params { b_mm: 0.008, engaged: true }),
+        ..Default::default()
+    };
+    let rec = generate(&GeneratorConfig { pair, profile, seed: 12, ..Default::default() }).unwrap();
+    let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+    let d = diagnose_run(&rec, &cal, &DiagnoseOptions::default());
+    assert!(d.corrected(), "{}", d.summary);
+    let (mut st, _, _) = mid_normal();
+    st.apply(&RunEvent::Diagnosis(Box::new(d.clone())));
+    st.apply(&RunEvent::Finished { summary: RunSummary { e1_mpa: Some(cal.full.e1_mpa), ..RunSummary::default() } });
+    assert_eq!(st.diagnosis(), Some(&d));
+    let s = render(&st);
+    assert!(s.contains("diagnosis: EFFECTS (stage_backlash"), "{s}");
+    let e1 = format!("corrected E1  = {:.4} MPa  95% [{:.4}, {:.4}]", d.e1_mpa, d.ci95.e1_mpa[0], d.ci95.e1_mpa[1]);
+    assert!(s.contains(&e1), "{e1}\n{s}");
+    assert!(s.contains(&format!("corrected nu1 = {:.3}  95% [", d.nu1)), "{s}");
+    assert!(s.contains(&format!("E1  = {:.4} MPa", cal.full.e1_mpa)), "{s}");
+
+    // A diagnosis that could not be made says so, and why.
+    let failed = diagnose_run(&rec, &cal, &DiagnoseOptions { noise_um: Some(0.0), ..Default::default() });
+    st.apply(&RunEvent::Diagnosis(Box::new(failed)));
+    let s = render(&st);
+    assert!(s.contains("diagnosis: NOT MADE"), "{s}");
+    assert!(s.contains("--noise-um must be > 0"), "{s}");
+    assert!(!s.contains("corrected E1"), "{s}");
 }
 
 #[test]

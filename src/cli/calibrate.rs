@@ -103,6 +103,13 @@ pub fn human_summary(out: &CalibrationOutput, meta: &sim::recording::Metadata) -
             (p.e1_mpa / t.e1_mpa - 1.0) * 100.0,
             (p.nu1 / t.nu1 - 1.0) * 100.0
         );
+        if let Some(d) = out.diagnosis.as_ref().filter(|d| d.corrected()) {
+            s += &format!(
+                "  diagnosis (corrected) error E1 {:+.2}%, nu1 {:+.2}%\n",
+                (d.e1_mpa / t.e1_mpa - 1.0) * 100.0,
+                (d.nu1 / t.nu1 - 1.0) * 100.0
+            );
+        }
     }
     s
 }

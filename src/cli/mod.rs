@@ -167,6 +167,10 @@ pub struct RunArgs {
     /// Do not write the calibration to the history (docs/history.md).
     #[arg(long)]
     pub no_history: bool,
+    /// Do not diagnose the recording after the fit (by default the run ends
+    /// with `easycalib diagnose`'s verdict and corrected E1, nu1; docs/run.md).
+    #[arg(long)]
+    pub no_diagnose: bool,
     #[command(flatten)]
     pub db: history::DbArg,
     /// The simulated elastomer and indenter (emulated rig only).

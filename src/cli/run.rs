@@ -41,6 +41,7 @@ pub fn run(args: &RunArgs) -> Result<(), CliError> {
 struct Completed {
     recording: PathBuf,
     calibration: crate::fit::Calibration,
+    diagnosis: Option<crate::report::RunDiagnosis>,
     truth: Option<Truth>,
     rig_note: String,
     script_toml: Option<String>,
@@ -53,11 +54,23 @@ fn write_history(db: &super::history::DbArg, done: Completed) -> Vec<String> {
             let out = calibration_output(&rec, &done.calibration, Some(&done.recording), done.truth);
             let mut outcome = super::history::outcome_of_fit(&out, history::Source::Run);
             outcome.rig = Some(done.rig_note);
+            outcome.warnings.extend(done.diagnosis.as_ref().and_then(diagnosis_note));
             outcome.script = done.script_toml;
             super::history::record(db, &done.recording, &rec, outcome)
         }
         Err(e) => vec![format!("history: not recorded: cannot read back {}: {e}", done.recording.display())],
     }
+}
+
+/// The diagnosis' verdict as a note on the run's history record (a warning
+/// record, so the schema stays as it is): only when it is not clean. The
+/// record's E1 and nu1 stay the calibration's.
+fn diagnosis_note(d: &crate::report::RunDiagnosis) -> Option<history::record::WarningRecord> {
+    use crate::report::VerdictClass;
+    (d.verdict != VerdictClass::Clean).then(|| history::record::WarningRecord {
+        code: format!("diagnosis_{}", d.verdict.as_str()),
+        message: d.summary.trim_end().to_string(),
+    })
 }
 
 /// The rig a run drives and what it knows of it.
@@ -147,7 +160,7 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
     };
     let metadata = vec![("rig".to_string(), rig_note.clone())];
     let script_toml = script.to_toml().ok();
-    let req = RunRequest { spec, script, out_dir: out_dir.clone(), truth, metadata };
+    let req = RunRequest { spec, script, out_dir: out_dir.clone(), truth, metadata, diagnose: !args.no_diagnose };
     let history_tx = ev_tx.clone();
     let result = run_calibration(req, ev_tx, ctl_rx).await;
     // The history, while the display still shows the result (its verdict goes
@@ -159,6 +172,7 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
         let done = Completed {
             recording: r.outcome.recording.clone(),
             calibration: cal.clone(),
+            diagnosis: r.diagnosis.clone(),
             truth,
             rig_note: rig_note.clone(),
             script_toml: script_toml.clone(),
@@ -271,9 +285,18 @@ fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<()
     }
     let rec = Recording::read_path(&o.recording)
         .map_err(|e| CliError::other(format!("cannot read back {}: {e}", o.recording.display())))?;
-    let out = calibration_output(&rec, cal, Some(&o.recording), truth);
+    let mut out = calibration_output(&rec, cal, Some(&o.recording), truth);
+    out.diagnosis = result.diagnosis.clone();
     println!();
     print!("{}", human_summary(&out, &rec.meta));
+    if let Some(d) = &result.diagnosis {
+        println!(
+            "\nDiagnosis ({:.2} s; `easycalib diagnose {}` for the full report):",
+            d.wall_time_s,
+            o.recording.display()
+        );
+        print!("{}", d.summary);
+    }
     println!(
         "\nRun: {} samples, rig time {}, wall time {}",
         o.samples,

@@ -235,3 +235,50 @@ pub fn report(d: &Diagnosis) -> String {
     let _ = writeln!(s, "\n{}", d.verdict);
     s
 }
+
+/// The diagnosis in a few lines, for the end of `easycalib run`: the verdict's
+/// headline, each named effect with its parameters, and the corrected E1, nu1
+/// beside the diagnosis' baseline. `easycalib diagnose` prints the whole report.
+pub fn brief(d: &Diagnosis) -> String {
+    let mut s = if d.unexplained {
+        format!(
+            "UNEXPLAINED: a systematic mismatch remains that no effect of the library explains ({}); no effect \
+             is named, E1 and nu1 stay the calibration's.\n",
+            where_(&d.remaining)
+        )
+    } else if !d.ambiguous.is_empty() {
+        let alts: Vec<String> = d.ambiguous.iter().map(|a| a.effects.join(" + ")).collect();
+        format!(
+            "AMBIGUOUS: these sweeps cannot tell apart {}; none is named, E1 and nu1 stay the calibration's \
+             (the best of them: {}).\n",
+            alts.join(" / "),
+            estimate_change(&d.baseline, &d.corrected)
+        )
+    } else if d.effects.is_empty() {
+        if d.mismatch.is_empty() {
+            "CLEAN: no mismatch beyond the noise floor; no effect named.\n".to_string()
+        } else {
+            format!("CLEAN: no effect named (a refit removes the mismatch at {}).\n", where_(&d.mismatch))
+        }
+    } else {
+        format!("EFFECTS: {}.\n", d.effects.join(", "))
+    };
+    if !d.unexplained && d.ambiguous.is_empty() {
+        for e in &d.explanation {
+            let _ = writeln!(s, "  {}: {}", e.effect, e.params.iter().map(param).collect::<Vec<_>>().join(", "));
+        }
+        if !d.effects.is_empty() {
+            let _ = writeln!(s, "  corrected {}", estimate(&d.corrected));
+            let _ = writeln!(s, "  baseline  {}", estimate(&d.baseline));
+        }
+    }
+    for g in &d.degenerate {
+        let _ = writeln!(s, "  {} cannot be told from E1/nu1 here (variance inflation {:.0})", g.effect, g.vif);
+    }
+    s
+}
+
+/// Why a run's report has no diagnosis: it was tried and failed.
+pub fn not_made(why: &str) -> String {
+    format!("NOT MADE: the diagnosis could not be made ({why}); the calibration stands as fitted.\n")
+}

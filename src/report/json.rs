@@ -26,6 +26,10 @@ pub struct CalibrationOutput {
     /// How long the run took, when a run made the recording (docs/run.md).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub run: Option<RunTimings>,
+    /// The diagnosis at the end of a run (docs/run.md); the top-level E1_MPa
+    /// and nu1 stay the calibration's, the corrected values are in here.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub diagnosis: Option<super::RunDiagnosis>,
 }
 
 /// A run's timings: rig time (the sensor's clock, homing included), wall
@@ -63,6 +67,7 @@ pub fn calibration_output(
         warnings: cal.warnings.clone(),
         sim_truth: truth,
         run: None,
+        diagnosis: None,
     }
 }
 

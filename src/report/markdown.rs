@@ -24,6 +24,7 @@ pub fn render_markdown(out: &CalibrationOutput, rec: &Recording, normal_svg: &st
     let mut s = String::new();
     write_header(&mut s, out, rec);
     write_result(&mut s, out);
+    write_diagnosis(&mut s, out);
     write_truth(&mut s, out);
     write_fit_quality(&mut s, out);
     write_figures(&mut s, normal_svg, torsion_svg);
@@ -101,6 +102,57 @@ fn write_result(s: &mut String, out: &CalibrationOutput) {
     let _ = writeln!(s);
 }
 
+/// The diagnosis made at the end of a run: verdict, effects, and the corrected
+/// E1, nu1 beside the calibration's (docs/run.md).
+fn write_diagnosis(s: &mut String, out: &CalibrationOutput) {
+    let Some(d) = &out.diagnosis else { return };
+    let f = &out.full;
+    let _ = writeln!(
+        s,
+        "## Diagnosis
+"
+    );
+    let _ = writeln!(
+        s,
+        "Verdict: **{}** (`easycalib diagnose` on the recording, {:.2} s).\n",
+        d.verdict.as_str(),
+        d.wall_time_s
+    );
+    let _ = writeln!(s, "```text\n{}```\n", d.summary);
+    for e in &d.effects {
+        let params: Vec<String> = e.params.iter().map(crate::diagnosis::prose::param).collect();
+        let _ = writeln!(s, "- `{}`: {}", e.name, params.join(", "));
+    }
+    if !d.effects.is_empty() {
+        let _ = writeln!(s);
+    }
+    let _ = writeln!(s, "| quantity | calibration (full model) | 95 % interval | diagnosis | 95 % interval | unit |");
+    let _ = writeln!(s, "| --- | ---: | --- | ---: | --- | --- |");
+    let rows = [
+        ("E1", "MPa", [f.e1_mpa, d.e1_mpa], [f.ci95.e1_mpa, d.ci95.e1_mpa]),
+        ("nu1", "–", [f.nu1, d.nu1], [f.ci95.nu1, d.ci95.nu1]),
+    ];
+    for (name, unit, [fv, dv], [fci, dci]) in rows {
+        let _ = writeln!(
+            s,
+            "| {name} | {} | {} | {} | {} | {unit} |",
+            num(fv, 4),
+            interval(fci, 4),
+            num(dv, 4),
+            interval(dci, 4)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nThe report's best estimate stays the calibration's; {}.\n",
+        if d.corrected() {
+            "the diagnosis' values are corrected for the effects it named"
+        } else {
+            "the diagnosis named nothing, so its values are the calibration's"
+        }
+    );
+}
+
 /// The simulated rig's true elastomer and each method's error against it (simulated runs only).
 fn write_truth(s: &mut String, out: &CalibrationOutput) {
     let f = &out.full;
@@ -111,7 +163,17 @@ fn write_truth(s: &mut String, out: &CalibrationOutput) {
         let _ = writeln!(s, "| truth | {} | {} |", num(t.e1_mpa, 4), num(t.nu1, 4));
         let err = |est: f64, truth: f64| format!("{:+.2} %", (est / truth - 1.0) * 100.0);
         let _ = writeln!(s, "| full model error | {} | {} |", err(f.e1_mpa, t.e1_mpa), err(f.nu1, t.nu1));
-        let _ = writeln!(s, "| paper's method error | {} | {} |\n", err(p.e1_mpa, t.e1_mpa), err(p.nu1, t.nu1));
+        let _ = writeln!(s, "| paper's method error | {} | {} |", err(p.e1_mpa, t.e1_mpa), err(p.nu1, t.nu1));
+        if let Some(d) = &out.diagnosis {
+            let _ = writeln!(
+                s,
+                "| diagnosis ({}) error | {} | {} |",
+                if d.corrected() { "corrected" } else { "nothing named: the full model's" },
+                err(d.e1_mpa, t.e1_mpa),
+                err(d.nu1, t.nu1)
+            );
+        }
+        let _ = writeln!(s);
     }
 }
 

@@ -2,6 +2,7 @@
 //! `report.md` (summary with units and intervals, fit quality, figures) and
 //! one SVG figure per sweep, written into an output directory.
 
+pub mod diagnosis;
 pub mod json;
 mod markdown;
 pub mod plot;
@@ -13,6 +14,7 @@ use sim::recording::{Recording, RecordingError};
 
 use crate::fit::{Calibration, FitError};
 
+pub use diagnosis::{EffectFound, RunDiagnosis, VerdictClass, diagnose_run};
 pub use json::{CalibrationOutput, RunTimings, Truth, calibration_output};
 pub use markdown::render_markdown;
 pub use plot::{NORMAL_TEXT, PlotText, SweepPlot, TORSION_TEXT, normal_plot, render_svg, torsion_plot};
@@ -65,20 +67,15 @@ pub fn write_report(
 ) -> Result<ReportFiles, ReportError> {
     let rec = Recording::read_path(recording_path)
         .map_err(|source| ReportError::Recording { path: recording_path.to_path_buf(), source })?;
-    write_report_for(out_dir, &rec, Some(recording_path), cal, truth, None)
+    write_report_for(out_dir, &rec, Some(recording_path), cal, truth, RunExtras::default())
 }
 
-/// [`write_report`] for a run: the report also carries the run's timings.
-pub fn write_run_report(
-    out_dir: &Path,
-    recording_path: &Path,
-    cal: &Calibration,
-    truth: Option<Truth>,
-    timings: RunTimings,
-) -> Result<ReportFiles, ReportError> {
-    let rec = Recording::read_path(recording_path)
-        .map_err(|source| ReportError::Recording { path: recording_path.to_path_buf(), source })?;
-    write_report_for(out_dir, &rec, Some(recording_path), cal, truth, Some(timings))
+/// What a run adds to the report of its calibration.
+#[derive(Debug, Clone, Default)]
+pub struct RunExtras {
+    pub timings: Option<RunTimings>,
+    /// The diagnosis made at the end of the run (absent with `--no-diagnose`).
+    pub diagnosis: Option<RunDiagnosis>,
 }
 
 /// Write the report of `cal`, fitted to `rec`, into `out_dir` (created if
@@ -89,14 +86,15 @@ pub fn write_report_for(
     recording_path: Option<&Path>,
     cal: &Calibration,
     truth: Option<Truth>,
-    timings: Option<RunTimings>,
+    extras: RunExtras,
 ) -> Result<ReportFiles, ReportError> {
     std::fs::create_dir_all(out_dir).map_err(|source| ReportError::Io { path: out_dir.to_path_buf(), source })?;
     // Figures first: a model that cannot be evaluated fails before any file is written.
     let normal = render_svg(&normal_plot(rec, cal)?, &NORMAL_TEXT)?;
     let torsion = render_svg(&torsion_plot(rec, cal)?, &TORSION_TEXT)?;
     let mut out = calibration_output(rec, cal, recording_path, truth);
-    out.run = timings;
+    out.run = extras.timings;
+    out.diagnosis = extras.diagnosis;
     let json = json::to_json_explained(&out)?;
     let md = render_markdown(&out, rec, NORMAL_SVG_FILE, TORSION_SVG_FILE);
     Ok(ReportFiles {

@@ -7,8 +7,9 @@ use std::path::{Path, PathBuf};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
 use super::connect::{ConnectError, RigSpec, open_rig};
+use crate::diagnosis::DiagnoseOptions;
 use crate::fit::{Calibration, FitOptions, calibrate};
-use crate::report::{ReportFiles, RunTimings, Truth, write_run_report};
+use crate::report::{ReportFiles, RunDiagnosis, RunExtras, RunTimings, Truth, diagnose_run, write_report_for};
 use crate::run::events::{LogLevel, RunControl, RunEvent};
 use crate::run::{RunOutcome, Script, ScriptError, Sequencer};
 use crate::sensing::SensingConfig;
@@ -27,6 +28,9 @@ pub struct RunRequest {
     pub truth: Option<Truth>,
     /// More `# key: value` metadata for the recording.
     pub metadata: Vec<(String, String)>,
+    /// Diagnose the recording after the fit (docs/run.md); its answer goes
+    /// into the report and the `Diagnosis` event.
+    pub diagnose: bool,
 }
 
 /// How a run ended.
@@ -38,6 +42,9 @@ pub struct RunResult {
     pub report: Option<ReportFiles>,
     /// Why there is no fit or report after a completed run.
     pub fit_error: Option<String>,
+    /// The diagnosis of the recording, when asked for and the fit succeeded
+    /// (a failed diagnosis is here too, as `not_made`).
+    pub diagnosis: Option<RunDiagnosis>,
 }
 
 /// Why a run could not start.
@@ -51,19 +58,31 @@ pub enum StartError {
     OutDir { path: PathBuf, source: std::io::Error },
 }
 
-/// Fit a finished recording and write the report next to it.
+/// A fitted run: the calibration, its report, and the diagnosis when made.
+#[derive(Debug)]
+pub struct Reported {
+    pub calibration: Calibration,
+    pub files: ReportFiles,
+    pub diagnosis: Option<RunDiagnosis>,
+}
+
+/// Fit a finished recording, diagnose it when `diagnose` is set (a failed
+/// diagnosis is reported, never an error here), and write the report next to it.
 pub fn fit_and_report(
     recording: &Path,
     out_dir: &Path,
     truth: Option<Truth>,
     timings: RunTimings,
-) -> Result<(Calibration, ReportFiles), String> {
+    diagnose: bool,
+) -> Result<Reported, String> {
     let rec = sim::recording::Recording::read_path(recording)
         .map_err(|e| format!("cannot read the recording {}: {e}", recording.display()))?;
     let cal = calibrate(&rec, &FitOptions::default()).map_err(|e| format!("cannot fit the recording: {e}"))?;
-    let files = write_run_report(out_dir, recording, &cal, truth, timings)
+    let diagnosis = diagnose.then(|| diagnose_run(&rec, &cal, &DiagnoseOptions::default()));
+    let extras = RunExtras { timings: Some(timings), diagnosis: diagnosis.clone() };
+    let files = write_report_for(out_dir, &rec, Some(recording), &cal, truth, extras)
         .map_err(|e| format!("cannot write the report: {e}"))?;
-    Ok((cal, files))
+    Ok(Reported { calibration: cal, files, diagnosis })
 }
 
 /// Test facility (docs/hardening.md): `EASYCALIB_TEST_PANIC_AFTER_SAMPLES=N`
@@ -104,24 +123,31 @@ pub async fn run_calibration(
     gauge.close().await;
     drop((stage, mount, gauge));
     if !outcome.completed() {
-        return Ok(RunResult { outcome, calibration: None, report: None, fit_error: None });
+        return Ok(RunResult { outcome, calibration: None, report: None, fit_error: None, diagnosis: None });
     }
     let timings = RunTimings {
         rig_time_s: outcome.rig_time_s,
         wall_time_s: outcome.wall_time_s,
         phases: outcome.phase_rig_time_s.clone(),
     };
-    match fit_and_report(&outcome.recording, &req.out_dir, req.truth, timings) {
-        Ok((cal, files)) => {
+    if req.diagnose {
+        let message = "fitting, then diagnosing the recording (--no-diagnose skips the diagnosis)".to_string();
+        let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
+    }
+    match fit_and_report(&outcome.recording, &req.out_dir, req.truth, timings, req.diagnose) {
+        Ok(Reported { calibration: cal, files, diagnosis }) => {
+            if let Some(d) = &diagnosis {
+                let _ = events.send(RunEvent::Diagnosis(Box::new(d.clone())));
+            }
             let mut summary = outcome.summary(Some(&cal));
             summary.report = Some(files.json.display().to_string());
             let _ = events.send(RunEvent::Finished { summary });
-            Ok(RunResult { outcome, calibration: Some(cal), report: Some(files), fit_error: None })
+            Ok(RunResult { outcome, calibration: Some(cal), report: Some(files), fit_error: None, diagnosis })
         }
         Err(e) => {
             let _ = events.send(RunEvent::Log { level: LogLevel::Error, message: e.clone() });
             let _ = events.send(RunEvent::Finished { summary: outcome.summary(None) });
-            Ok(RunResult { outcome, calibration: None, report: None, fit_error: Some(e) })
+            Ok(RunResult { outcome, calibration: None, report: None, fit_error: Some(e), diagnosis: None })
         }
     }
 }

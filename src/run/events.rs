@@ -216,6 +216,9 @@ pub enum RunEvent {
     Aborted {
         reason: String,
     },
+    /// After a completed run's fit, before `Finished`: the diagnosis of the
+    /// recording (docs/run.md), or why it could not be made.
+    Diagnosis(Box<crate::report::RunDiagnosis>),
     /// The run completed.
     Finished {
         summary: RunSummary,
@@ -330,9 +333,24 @@ impl ProgressLine {
             RunEvent::Paused => Some(format!("{} paused", self.prefix())),
             RunEvent::Resumed => Some(format!("{} resumed", self.prefix())),
             RunEvent::Aborted { reason } => Some(format!("{} ABORTED: {}", self.prefix(), reason)),
+            RunEvent::Diagnosis(d) => Some(diagnosis_line(d)),
             RunEvent::Finished { summary } => Some(summary_line(summary)),
             RunEvent::History { lines } => Some(lines.join("\n")),
         }
+    }
+}
+
+/// One line with the diagnosis' verdict and its E1, nu1.
+pub fn diagnosis_line(d: &crate::report::RunDiagnosis) -> String {
+    let values = format!(
+        "E1 = {:.4} MPa [{:.4}, {:.4}], nu1 = {:.3} [{:.3}, {:.3}]",
+        d.e1_mpa, d.ci95.e1_mpa[0], d.ci95.e1_mpa[1], d.nu1, d.ci95.nu1[0], d.ci95.nu1[1]
+    );
+    let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+    match (d.corrected(), &d.error) {
+        (true, _) => format!("diagnosis: {} ({}); corrected {values}", d.verdict.as_str(), names.join(", ")),
+        (false, Some(e)) => format!("diagnosis: not made ({e}); the calibration stands"),
+        (false, None) => format!("diagnosis: {}; nothing named, {values} as calibrated", d.verdict.as_str()),
     }
 }
 
@@ -447,6 +465,42 @@ mod tests {
             pl.line(&RunEvent::Finished { summary: fin }).unwrap(),
             "finished: 7 samples, E1 = 0.3301 MPa [0.3200, 0.3400], nu1 = 0.391, rig time 1m20.0s, wall time 2.5s, recording runs/x/recording.csv"
         );
+    }
+
+    #[test]
+    fn plain_diagnosis_line_gives_the_verdict_and_which_values() {
+        use crate::diagnosis::ParamEstimate;
+        use crate::report::{EffectFound, RunDiagnosis, VerdictClass};
+        let b = ParamEstimate {
+            name: "b_mm",
+            unit: "mm",
+            value: 0.02,
+            ci95: [Some(0.018), Some(0.022)],
+            well_determined: true,
+        };
+        let ci95 = crate::fit::Ci95 { e1_mpa: [0.329, 0.331], nu1: [0.385, 0.395] };
+        let named = RunDiagnosis {
+            verdict: VerdictClass::Effects,
+            summary: "EFFECTS: stage_backlash.\n".into(),
+            effects: vec![EffectFound { name: "stage_backlash", params: vec![b] }],
+            e1_mpa: 0.33,
+            nu1: 0.39,
+            ci95,
+            error: None,
+            wall_time_s: 0.1,
+        };
+        let mut pl = ProgressLine::new();
+        assert_eq!(
+            pl.line(&RunEvent::Diagnosis(Box::new(named.clone()))).unwrap(),
+            "diagnosis: effects (stage_backlash); corrected E1 = 0.3300 MPa [0.3290, 0.3310], nu1 = 0.390 [0.385, 0.395]"
+        );
+        let clean = RunDiagnosis { verdict: VerdictClass::Unexplained, effects: vec![], ..named.clone() };
+        assert_eq!(
+            diagnosis_line(&clean),
+            "diagnosis: unexplained; nothing named, E1 = 0.3300 MPa [0.3290, 0.3310], nu1 = 0.390 [0.385, 0.395] as calibrated"
+        );
+        let failed = RunDiagnosis { verdict: VerdictClass::NotMade, error: Some("no torsion".into()), ..clean };
+        assert_eq!(diagnosis_line(&failed), "diagnosis: not made (no torsion); the calibration stands");
     }
 
     #[test]

@@ -9,6 +9,7 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::{Axis, Block, Chart, Clear, Dataset, Gauge, GraphType, LegendPosition, Paragraph, Wrap};
 
 use super::state::{RunStatus, State};
+use crate::report::{RunDiagnosis, VerdictClass};
 use crate::run::events::{FitUpdate, LogLevel, RunControl, RunSummary, format_duration};
 use devices::motion::AxisStatus;
 
@@ -338,7 +339,34 @@ fn draw_footer(state: &State, frame: &mut Frame, area: Rect) {
     frame.render_widget(Paragraph::new(Line::from(spans)), area);
 }
 
-fn summary_lines(s: &RunSummary, history: &[String]) -> Vec<Line<'static>> {
+/// The diagnosis' verdict and its E1, nu1 (corrected, or the calibration's when nothing is named).
+fn diagnosis_lines(d: &RunDiagnosis) -> Vec<Line<'static>> {
+    let verdict = d.verdict.as_str().replace('_', " ").to_uppercase();
+    let style = match d.verdict {
+        VerdictClass::Clean => Style::new().fg(Color::Green),
+        VerdictClass::Effects => Style::new().fg(Color::Yellow),
+        _ => Style::new().fg(Color::Red),
+    }
+    .add_modifier(Modifier::BOLD);
+    let mut head = vec!["diagnosis: ".bold(), Span::styled(verdict, style)];
+    let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+    if !names.is_empty() {
+        head.push(format!(" ({})", names.join(", ")).into());
+    }
+    let mut l = vec![Line::from(head)];
+    if let Some(e) = &d.error {
+        l.push(Line::from(format!("  {e}")));
+    } else if d.corrected() {
+        let (e1, nu1) = (d.ci95.e1_mpa, d.ci95.nu1);
+        l.push(Line::from(format!("  corrected E1  = {:.4} MPa  95% [{:.4}, {:.4}]", d.e1_mpa, e1[0], e1[1])));
+        l.push(Line::from(format!("  corrected nu1 = {:.3}  95% [{:.3}, {:.3}]", d.nu1, nu1[0], nu1[1])));
+    } else {
+        l.push(Line::from("  nothing named: E1 and nu1 as calibrated"));
+    }
+    l
+}
+
+fn summary_lines(s: &RunSummary, history: &[String], diagnosis: Option<&RunDiagnosis>) -> Vec<Line<'static>> {
     let ci = |c: Option<[f64; 2]>, d: usize| match c {
         Some([lo, hi]) => format!("  95% [{lo:.d$}, {hi:.d$}]"),
         None => String::new(),
@@ -353,6 +381,7 @@ fn summary_lines(s: &RunSummary, history: &[String]) -> Vec<Line<'static>> {
             format_duration(s.wall_time_s)
         )),
     ];
+    l.extend(diagnosis.map(diagnosis_lines).unwrap_or_default());
     if let Some(r) = &s.recording {
         l.push(Line::from(format!("recording: {r}")));
     }
@@ -384,7 +413,9 @@ fn draw_banner(state: &State, frame: &mut Frame, area: Rect) {
                 Line::from("press q or Enter to leave".italic()),
             ],
         ),
-        RunStatus::Finished(s) => (" RUN FINISHED ", Style::new().fg(Color::Cyan), summary_lines(s, state.history())),
+        RunStatus::Finished(s) => {
+            (" RUN FINISHED ", Style::new().fg(Color::Cyan), summary_lines(s, state.history(), state.diagnosis()))
+        }
         RunStatus::Idle | RunStatus::Running => return,
     };
     let height = (lines.len() as u16 + 2).min(area.height);

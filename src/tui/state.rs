@@ -80,6 +80,8 @@ pub struct State {
     force_quit: bool,
     /// What the calibration history made of the finished run.
     history: Vec<String>,
+    /// The diagnosis of the finished run's recording.
+    diagnosis: Option<crate::report::RunDiagnosis>,
 }
 
 impl Default for State {
@@ -93,6 +95,7 @@ impl State {
         Self {
             status: RunStatus::Idle,
             history: Vec::new(),
+            diagnosis: None,
             step: None,
             progress: None,
             devices: None,
@@ -151,6 +154,7 @@ impl State {
                 self.push_log(LogLevel::Error, format!("aborted: {reason}"));
             }
             RunEvent::History { lines } => self.history = lines.clone(),
+            RunEvent::Diagnosis(d) => self.diagnosis = Some((**d).clone()),
             RunEvent::Finished { summary } => {
                 self.status = RunStatus::Finished(summary.clone());
                 self.pending = None;
@@ -231,6 +235,10 @@ impl State {
     /// The history's verdict on the finished run (empty until it arrives).
     pub fn history(&self) -> &[String] {
         &self.history
+    }
+    /// The diagnosis of the finished run (none until it arrives, or when skipped).
+    pub fn diagnosis(&self) -> Option<&crate::report::RunDiagnosis> {
+        self.diagnosis.as_ref()
     }
     pub fn step(&self) -> Option<&StepInfo> {
         self.step.as_ref()

@@ -1,0 +1,145 @@
+//! The diagnosis at the end of a run (docs/run.md): what `easycalib diagnose`
+//! would say of the recording the run just wrote, reduced to what the run's
+//! report, the CLI's last lines and the TUI's final panel show. A diagnosis
+//! that fails never fails the run: the report says why it is missing.
+
+use std::time::Instant;
+
+use serde::Serialize;
+use sim::recording::Recording;
+
+use crate::diagnosis::{DiagnoseOptions, Diagnosis, ParamEstimate, diagnose, prose};
+use crate::fit::{Calibration, Ci95};
+
+/// The diagnosis' answer in one word (the `diagnosis.verdict` of report.json).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VerdictClass {
+    /// Nothing named and nothing systematic left over.
+    Clean,
+    /// One or more effects named, E1 and nu1 corrected for them.
+    Effects,
+    /// Several explanations fit equally well; none is named.
+    Ambiguous,
+    /// A systematic mismatch remains that no effect of the library explains.
+    Unexplained,
+    /// The diagnosis failed; `error` says why.
+    NotMade,
+}
+
+impl VerdictClass {
+    /// The class of a diagnosis, decided in the order the verdict's prose uses.
+    pub fn of(d: &Diagnosis) -> Self {
+        if d.unexplained {
+            Self::Unexplained
+        } else if !d.ambiguous.is_empty() {
+            Self::Ambiguous
+        } else if d.effects.is_empty() {
+            Self::Clean
+        } else {
+            Self::Effects
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Clean => "clean",
+            Self::Effects => "effects",
+            Self::Ambiguous => "ambiguous",
+            Self::Unexplained => "unexplained",
+            Self::NotMade => "not_made",
+        }
+    }
+}
+
+/// A named effect and its fitted parameters.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EffectFound {
+    pub name: &'static str,
+    pub params: Vec<ParamEstimate>,
+}
+
+/// The diagnosis as a run reports it: `diagnosis` in report.json (docs/run.md).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunDiagnosis {
+    pub verdict: VerdictClass,
+    /// The diagnosis in a few lines (the CLI prints them at the end of a run).
+    pub summary: String,
+    /// Named effects with their parameters (empty unless `verdict` is `effects`).
+    pub effects: Vec<EffectFound>,
+    /// E1 corrected for the named effects; the calibration's (the baseline)
+    /// when nothing is named.
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    pub ci95: Ci95,
+    /// Why the diagnosis could not be made (`verdict` is `not_made`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Wall time the diagnosis took, s.
+    pub wall_time_s: f64,
+}
+
+impl RunDiagnosis {
+    /// The report of diagnosis `d`; `cal` is the run's calibration, the baseline.
+    pub fn from_diagnosis(d: &Diagnosis, cal: &Calibration, wall_time_s: f64) -> Self {
+        let verdict = VerdictClass::of(d);
+        let named = verdict == VerdictClass::Effects;
+        let (e1_mpa, nu1, ci95) =
+            if named { (d.corrected.e1_mpa, d.corrected.nu1, d.corrected.ci95) } else { baseline(cal) };
+        let effects = if named {
+            d.explanation.iter().map(|e| EffectFound { name: e.effect, params: e.params.clone() }).collect()
+        } else {
+            Vec::new()
+        };
+        Self { verdict, summary: prose::brief(d), effects, e1_mpa, nu1, ci95, error: None, wall_time_s }
+    }
+
+    /// A diagnosis that failed with `why`: E1 and nu1 are the calibration's.
+    pub fn not_made(why: String, cal: &Calibration, wall_time_s: f64) -> Self {
+        let (e1_mpa, nu1, ci95) = baseline(cal);
+        Self {
+            verdict: VerdictClass::NotMade,
+            summary: prose::not_made(&why),
+            effects: Vec::new(),
+            e1_mpa,
+            nu1,
+            ci95,
+            error: Some(why),
+            wall_time_s,
+        }
+    }
+
+    /// Whether E1 and nu1 differ from the calibration's because effects were named.
+    pub fn corrected(&self) -> bool {
+        self.verdict == VerdictClass::Effects
+    }
+}
+
+/// The calibration's full-model E1, nu1 and intervals.
+fn baseline(cal: &Calibration) -> (f64, f64, Ci95) {
+    (cal.full.e1_mpa, cal.full.nu1, Ci95 { e1_mpa: cal.full.ci95.e1_mpa, nu1: cal.full.ci95.nu1 })
+}
+
+/// Diagnose the run's recording `rec`, calibrated as `cal`. Never fails: an
+/// error of the diagnosis, or a panic inside it, becomes a `not_made` report.
+/// The diagnosis refits the baseline itself: on a run's few hundred samples
+/// the full-model fit is a small share of its cost, and it needs its own
+/// noise-floor weighting (docs/diagnosis.md).
+pub fn diagnose_run(rec: &Recording, cal: &Calibration, opts: &DiagnoseOptions) -> RunDiagnosis {
+    let start = Instant::now();
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| diagnose(rec, opts)));
+    let took = start.elapsed().as_secs_f64();
+    match result {
+        Ok(Ok(d)) => RunDiagnosis::from_diagnosis(&d, cal, took),
+        Ok(Err(e)) => RunDiagnosis::not_made(e.to_string(), cal, took),
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "no message".to_string());
+            RunDiagnosis::not_made(format!("the diagnosis panicked: {what}"), cal, took)
+        }
+    }
+}
