@@ -174,9 +174,12 @@ where
             .or_else(|| contact_from_line(&pts, threshold))
             .unwrap_or(0.5 * (last_clear + pts[0].0))
             .clamp(last_clear - a.step_mm, pts[0].0);
-        let (contact, contact_sd_mm) = match self.reapproach(provisional, threshold).await? {
-            Some(found) => found,
-            None => (provisional, if line.is_some() { contact_uncertainty(&window, threshold) } else { None }),
+        let shallow = self.reapproach(provisional).await?;
+        let deep = pts.iter().copied().filter(|p| p.1 >= a.refine_from_gamma1_mm);
+        let all: Vec<(f64, f64)> = shallow.iter().copied().chain(deep).filter(|p| p.1 > threshold).collect();
+        let (contact, contact_sd_mm) = match contact_from_eq22(&all) {
+            Some((c, sd)) if shallow.len() >= 2 => (c, Some(sd)),
+            _ => (provisional, if line.is_some() { contact_uncertainty(&window, threshold) } else { None }),
         };
         self.contact_mm = Some(contact);
         let sd_text = contact_sd_mm.map(|sd| format!(" (± {:.1} um)", sd * 1e3)).unwrap_or_default();
@@ -188,15 +191,12 @@ where
         Ok(())
     }
 
-    /// Find the contact again from above, now that the sensing has learnt the
-    /// contact's shape on the deep readings (docs/sensing.md, "Small
-    /// contacts"): step in from just above `provisional`, settled readings
-    /// until gamma1 reaches `refine_from_gamma1_mm`, and a line through them
-    /// to gamma1 = 0. Near contact gamma1 is proportional to the approach
-    /// (Hertz), so the shallow readings carry the least bend: the line's error
-    /// is a few micrometres where the deep window's was tens. `None` when
-    /// fewer than three readings fall in the window (the deep line stands).
-    async fn reapproach(&mut self, provisional: f64, threshold: f64) -> Step<Option<(f64, Option<f64>)>> {
+    /// Step in again from just above `provisional`, now that the sensing has
+    /// learnt the contact's shape on the deep readings (docs/sensing.md,
+    /// "Small contacts"): the settled (stage, gamma1) readings until gamma1
+    /// reaches `refine_from_gamma1_mm`, the shallow end of the depth curve
+    /// that fixes the contact point best.
+    async fn reapproach(&mut self, provisional: f64) -> Step<Vec<(f64, f64)>> {
         let a = self.script.approach;
         let mut pos = (provisional - a.step_mm).max(self.guard.limits().stage_min_mm);
         self.move_stage(pos, "above the contact").await?;
@@ -214,11 +214,7 @@ where
             }
             pts.push((pos, g));
         }
-        let shallow: Vec<(f64, f64)> = pts.into_iter().filter(|p| p.1 > threshold).collect();
-        if shallow.len() < 3 {
-            return Ok(None);
-        }
-        Ok(contact_from_line(&shallow, threshold).map(|c| (c, contact_uncertainty(&shallow, threshold))))
+        Ok(pts)
     }
 
     /// One load/unload cycle. Returns the two load points around the target
@@ -338,6 +334,33 @@ where
 
 pub(super) fn unreachable_path<T>() -> Step<T> {
     Err(Halt { culprit: Culprit::Procedure, message: "normal sweep recorded no load point".into() })
+}
+
+/// The stage position of first contact and its standard error, mm, from
+/// settled (stage, gamma1) points in contact: the paper's depth relation
+/// (Eq. 22, docs/physics.md 1.3) with the contact point free,
+/// stage = s0 + (1 + H1) gamma1 + H2 gamma1^1.5, fitted by linear least
+/// squares. The bend of gamma1 with depth is then the model's, not a line's,
+/// and the shallow points pin s0. `None` with fewer than four points or a
+/// singular fit.
+pub(super) fn contact_from_eq22(pts: &[(f64, f64)]) -> Option<(f64, f64)> {
+    use nalgebra::{Matrix3, Vector3};
+    if pts.len() < 4 {
+        return None;
+    }
+    let row = |g: f64| Vector3::new(1.0, g, g * g.sqrt());
+    let (mut ata, mut atb) = (Matrix3::zeros(), Vector3::zeros());
+    for &(stage, g) in pts {
+        let r = row(g.max(0.0));
+        ata += r * r.transpose();
+        atb += r * stage;
+    }
+    let inv = ata.try_inverse()?;
+    let coef = inv * atb;
+    let ssr: f64 = pts.iter().map(|&(stage, g)| (stage - coef.dot(&row(g.max(0.0)))).powi(2)).sum();
+    let s2 = ssr / (pts.len() - 3) as f64;
+    let se = (s2 * inv[(0, 0)]).sqrt();
+    (coef[0].is_finite() && se.is_finite()).then_some((coef[0], se.max(1e-6)))
 }
 
 /// How far the stage position of first contact from [`contact_from_line`]
