@@ -440,15 +440,35 @@ pub fn fit_hertz(
         if round + 1 == ROUNDS || next == kept || next.iter().filter(|&&b| b).count() < 5 {
             let mut gamma1_sd = hertz_gamma1_sd(pts, &kept, params, tie, fixed_centre, rms)?;
             if let (Some(_), Curvature::Known { per_mm, sd_per_mm }) = (tie, curvature) {
-                // With the field's far part fixing gamma1 a and a = sqrt(gamma1 / c),
-                // gamma1 goes as c^(1/3): a relative error of c passes on a third.
-                gamma1_sd = gamma1_sd.hypot(g * sd_per_mm / (3.0 * per_mm));
+                // The curvature's own error, through how far gamma1 moves
+                // when the fit is redone with another c.
+                gamma1_sd = gamma1_sd.hypot(tied_gamma1_per_curvature(pts, &kept, params, per_mm) * sd_per_mm);
             }
             return Some(HertzFit { gamma1: g, centre: [cx, cy], radius: a, kept, rms, gamma1_sd });
         }
         kept = next;
     }
     None
+}
+
+/// |d gamma1 / d c| of the tied Hertz fit at `p` (a = sqrt(gamma1 / c)),
+/// mm²: the least-squares shift of gamma1 that takes up a change of the
+/// curvature, -(J_g . J_c) / (J_g . J_g) over the kept markers, with
+/// J_g = f - f' rho / 2 and J_c = gamma1 f' rho / (2 c). Markers inside the
+/// contact read gamma1 almost directly (small shift); far ones read gamma1 a
+/// (gamma1 goes as c^(1/3) there).
+fn tied_gamma1_per_curvature(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4], c: f64) -> f64 {
+    let [g, cx, cy, a] = p;
+    let (mut gg, mut gc) = (0.0, 0.0);
+    for (q, _) in pts.iter().zip(kept).filter(|(_, k)| **k) {
+        let rho = (q[0] - cx).hypot(q[1] - cy) / a;
+        let (f, fp) = (hertz_shape(rho), hertz_slope(rho));
+        let jg = f - 0.5 * fp * rho;
+        let jc = g * fp * rho / (2.0 * c);
+        gg += jg * jg;
+        gc += jg * jc;
+    }
+    if gg > 0.0 { (gc / gg).abs() } else { 0.0 }
 }
 
 /// Standard error of gamma1 from the Hertz fit's Jacobian at `p`, with the
