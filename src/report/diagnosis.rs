@@ -134,11 +134,7 @@ pub fn diagnose_run(rec: &Recording, cal: &Calibration, opts: &DiagnoseOptions) 
         Ok(Ok(d)) => RunDiagnosis::from_diagnosis(&d, cal, took),
         Ok(Err(e)) => RunDiagnosis::not_made(e.to_string(), cal, took),
         Err(panic) => {
-            let what = panic
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| panic.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "no message".to_string());
+            let what = crate::run::sequencer::panic_message(panic.as_ref());
             RunDiagnosis::not_made(format!("the diagnosis panicked: {what}"), cal, took)
         }
     }

@@ -153,6 +153,16 @@ struct Tracking {
     sweep_start: Option<(f64, usize)>,
 }
 
+/// The message a caught panic carried (`&str` or `String` payloads), or
+/// "no message".
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "no message".to_string())
+}
+
 impl<S, R, G> Sequencer<S, R, G>
 where
     S: LinearStage + Identify,
@@ -294,11 +304,7 @@ where
             Ok(Ok(())) => RunStatus::Completed,
             Ok(Err(halt)) => RunStatus::Aborted(self.abort(halt).await),
             Err(panic) => {
-                let what = panic
-                    .downcast_ref::<&str>()
-                    .map(|s| s.to_string())
-                    .or_else(|| panic.downcast_ref::<String>().cloned())
-                    .unwrap_or_else(|| "unknown panic".into());
+                let what = panic_message(panic.as_ref());
                 let halt = Halt { culprit: Culprit::Internal, message: format!("internal error (panic): {what}") };
                 RunStatus::Aborted(self.abort(halt).await)
             }
