@@ -153,8 +153,11 @@ where
         // Refine: settled readings deeper in, where the grid resolves the
         // contact, and a line through them back to gamma1 = 0.
         let mut pts = Vec::new();
+        // (stage, gamma1, its standard error) of every settled reading.
+        let mut settled = Vec::new();
         let first = self.settle().await?;
         pts.push((pos, first.gamma1_mm));
+        settled.push((pos, first.gamma1_mm, first.gamma1_sd_mm));
         for _ in 0..a.refine_steps {
             if pts.last().is_some_and(|p| p.1 >= a.refine_to_gamma1_mm) {
                 break;
@@ -165,7 +168,9 @@ where
             }
             self.move_stage(next, "contact refinement").await?;
             pos = next;
-            pts.push((pos, self.settle().await?.gamma1_mm));
+            let r = self.settle().await?;
+            pts.push((pos, r.gamma1_mm));
+            settled.push((pos, r.gamma1_mm, r.gamma1_sd_mm));
         }
         let window: Vec<(f64, f64)> =
             pts.iter().copied().filter(|p| (a.refine_from_gamma1_mm..=a.refine_to_gamma1_mm).contains(&p.1)).collect();
@@ -175,8 +180,8 @@ where
             .unwrap_or(0.5 * (last_clear + pts[0].0))
             .clamp(last_clear - a.step_mm, pts[0].0);
         let shallow = self.reapproach(provisional).await?;
-        let deep = pts.iter().copied().filter(|p| p.1 >= a.refine_from_gamma1_mm);
-        let all: Vec<(f64, f64)> = shallow.iter().copied().chain(deep).filter(|p| p.1 > threshold).collect();
+        let deep = settled.iter().copied().filter(|p| p.1 >= a.refine_from_gamma1_mm);
+        let all: Vec<_> = shallow.iter().copied().chain(deep).filter(|p| p.1 > threshold).collect();
         let (contact, contact_sd_mm) = match contact_from_eq22(&all) {
             Some((c, sd)) if shallow.len() >= 2 => (c, Some(sd)),
             _ => (provisional, if line.is_some() { contact_uncertainty(&window, threshold) } else { None }),
@@ -196,7 +201,7 @@ where
     /// "Small contacts"): the settled (stage, gamma1) readings until gamma1
     /// reaches `refine_from_gamma1_mm`, the shallow end of the depth curve
     /// that fixes the contact point best.
-    async fn reapproach(&mut self, provisional: f64) -> Step<Vec<(f64, f64)>> {
+    async fn reapproach(&mut self, provisional: f64) -> Step<Vec<(f64, f64, Option<f64>)>> {
         let a = self.script.approach;
         let mut pos = (provisional - a.step_mm).max(self.guard.limits().stage_min_mm);
         self.move_stage(pos, "above the contact").await?;
@@ -208,11 +213,11 @@ where
             }
             self.move_stage(next, "contact refinement").await?;
             pos = next;
-            let g = self.settle().await?.gamma1_mm;
-            if g >= a.refine_from_gamma1_mm {
+            let r = self.settle().await?;
+            if r.gamma1_mm >= a.refine_from_gamma1_mm {
                 break;
             }
-            pts.push((pos, g));
+            pts.push((pos, r.gamma1_mm, r.gamma1_sd_mm));
         }
         Ok(pts)
     }
@@ -337,29 +342,37 @@ pub(super) fn unreachable_path<T>() -> Step<T> {
 }
 
 /// The stage position of first contact and its standard error, mm, from
-/// settled (stage, gamma1) points in contact: the paper's depth relation
-/// (Eq. 22, docs/physics.md 1.3) with the contact point free,
-/// stage = s0 + (1 + H1) gamma1 + H2 gamma1^1.5, fitted by linear least
-/// squares. The bend of gamma1 with depth is then the model's, not a line's,
-/// and the shallow points pin s0. `None` with fewer than four points or a
-/// singular fit.
-pub(super) fn contact_from_eq22(pts: &[(f64, f64)]) -> Option<(f64, f64)> {
+/// settled (stage, gamma1, gamma1's standard error) points in contact: the
+/// paper's depth relation (Eq. 22, docs/physics.md 1.3) with the contact
+/// point free, stage = s0 + (1 + H1) gamma1 + H2 gamma1^1.5, fitted by least
+/// squares with each point weighted by its reading's error (a point without
+/// one takes the others' median). The bend of gamma1 with depth is then the
+/// model's, not a line's, and the shallow points pin s0. `None` with fewer
+/// than four points or a singular fit.
+pub(super) fn contact_from_eq22(pts: &[(f64, f64, Option<f64>)]) -> Option<(f64, f64)> {
     use nalgebra::{Matrix3, Vector3};
     if pts.len() < 4 {
         return None;
     }
+    let mut known: Vec<f64> = pts.iter().filter_map(|p| p.2).filter(|v| v.is_finite() && *v > 0.0).collect();
+    let fallback = if known.is_empty() { 1.0 } else { crate::numerics::stats::median(&mut known) };
+    let weight = |p: &(f64, f64, Option<f64>)| {
+        let sd = p.2.filter(|v| v.is_finite() && *v > 0.0).unwrap_or(fallback);
+        1.0 / (sd * sd)
+    };
     let row = |g: f64| Vector3::new(1.0, g, g * g.sqrt());
     let (mut ata, mut atb) = (Matrix3::zeros(), Vector3::zeros());
-    for &(stage, g) in pts {
-        let r = row(g.max(0.0));
-        ata += r * r.transpose();
-        atb += r * stage;
+    for p in pts {
+        let (r, w) = (row(p.1.max(0.0)), weight(p));
+        ata += w * r * r.transpose();
+        atb += w * r * p.0;
     }
     let inv = ata.try_inverse()?;
     let coef = inv * atb;
-    let ssr: f64 = pts.iter().map(|&(stage, g)| (stage - coef.dot(&row(g.max(0.0)))).powi(2)).sum();
-    let s2 = ssr / (pts.len() - 3) as f64;
-    let se = (s2 * inv[(0, 0)]).sqrt();
+    let chi2: f64 = pts.iter().map(|p| weight(p) * (p.0 - coef.dot(&row(p.1.max(0.0)))).powi(2)).sum();
+    // The readings' errors set the scale unless the points scatter more.
+    let scale = (chi2 / (pts.len() - 3) as f64).max(1.0);
+    let se = (scale * inv[(0, 0)]).sqrt();
     (coef[0].is_finite() && se.is_finite()).then_some((coef[0], se.max(1e-6)))
 }
 
