@@ -392,6 +392,9 @@ pub struct HertzFit {
     /// Standard error of gamma1: the fit's own (marker noise through the
     /// Jacobian) and, with a known curvature, that curvature's.
     pub gamma1_sd: f64,
+    /// Standard error of the curvature gamma1 / a^2 when the fit left the
+    /// radius free (`None` when it was tied).
+    pub curvature_sd: Option<f64>,
 }
 
 /// Fit the Hertz normal field w = gamma1 f(|p - c| / a) to `(x, y, w)` by
@@ -438,13 +441,19 @@ pub fn fit_hertz(
         let limit = (k * MAD_TO_SIGMA * median(&mut kr)).max(floor);
         let next: Vec<bool> = resid.iter().map(|e| e.abs() <= limit).collect();
         if round + 1 == ROUNDS || next == kept || next.iter().filter(|&&b| b).count() < 5 {
-            let mut gamma1_sd = hertz_gamma1_sd(pts, &kept, params, tie, fixed_centre, rms)?;
+            let cov = hertz_covariance(pts, &kept, params, tie, fixed_centre, rms)?;
+            let mut gamma1_sd = cov[(0, 0)].sqrt();
+            // Untied, the fit measures the curvature g / a^2 itself.
+            let curvature_sd = tie.is_none().then(|| {
+                let j = [1.0 / (a * a), -2.0 * g / (a * a * a)];
+                (j[0] * j[0] * cov[(0, 0)] + 2.0 * j[0] * j[1] * cov[(0, 3)] + j[1] * j[1] * cov[(3, 3)]).sqrt()
+            });
             if let (Some(_), Curvature::Known { per_mm, sd_per_mm }) = (tie, curvature) {
                 // The curvature's own error, through how far gamma1 moves
                 // when the fit is redone with another c.
                 gamma1_sd = gamma1_sd.hypot(tied_gamma1_per_curvature(pts, &kept, params, per_mm) * sd_per_mm);
             }
-            return Some(HertzFit { gamma1: g, centre: [cx, cy], radius: a, kept, rms, gamma1_sd });
+            return Some(HertzFit { gamma1: g, centre: [cx, cy], radius: a, kept, rms, gamma1_sd, curvature_sd });
         }
         kept = next;
     }
@@ -471,16 +480,17 @@ fn tied_gamma1_per_curvature(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4], c: f6
     if gg > 0.0 { (gc / gg).abs() } else { 0.0 }
 }
 
-/// Standard error of gamma1 from the Hertz fit's Jacobian at `p`, with the
-/// marker noise from the fit's residual `rms` over the kept markers.
-fn hertz_gamma1_sd(
+/// Covariance of the Hertz fit's parameters (gamma1, cx, cy, a) at `p`, from
+/// its Jacobian, with the marker noise from the fit's residual `rms` over the
+/// kept markers (held parameters have a unit diagonal and nothing else).
+fn hertz_covariance(
     pts: &[[f64; 3]],
     kept: &[bool],
     p: [f64; 4],
     tie: Option<f64>,
     fixed_centre: bool,
     rms: f64,
-) -> Option<f64> {
+) -> Option<Matrix4<f64>> {
     let m = kept.iter().filter(|&&b| b).count();
     let free = 4 - usize::from(tie.is_some()) - 2 * usize::from(fixed_centre);
     if m <= free {
@@ -488,9 +498,8 @@ fn hertz_gamma1_sd(
     }
     let mut field = HertzField { pts, kept, tie, fixed_centre };
     let (jtj, _) = field.normal_equations(&Vector4::from(p))?;
-    let inv = jtj.try_inverse()?;
-    let var = rms * rms * m as f64 / (m - free) as f64 * inv[(0, 0)];
-    (var.is_finite() && var >= 0.0).then(|| var.sqrt())
+    let cov = jtj.try_inverse()? * (rms * rms * m as f64 / (m - free) as f64);
+    (cov[(0, 0)].is_finite() && cov[(0, 0)] >= 0.0).then_some(cov)
 }
 
 fn hertz_cost(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4]) -> f64 {

@@ -28,6 +28,10 @@ use fit::{Curvature, fit_hertz, fit_quadratic, fit_rotation, paraboloid_errors};
 
 use crate::numerics::stats::median;
 
+/// Contacts at least this many marker pitches wide, fitted at a known centre,
+/// also measure their curvature with the radius free (docs/sensing.md).
+const MID_CONTACT_PITCHES: f64 = 1.15;
+
 /// Settings of the frame processing.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct SensingConfig {
@@ -128,8 +132,9 @@ pub struct Measurement {
     /// tie's own error too), mm.
     pub gamma1_sd_mm: f64,
     /// The field's curvature inside the contact, gamma1 / a^2 (1/mm), with its
-    /// standard error, when this frame resolved the contact (the paraboloid
-    /// lay inside it); what [`FrameEstimator`] learns from.
+    /// standard error, when this frame measured it: the paraboloid lay inside
+    /// the contact, or a contact over 1.15 pitches was fitted at a known
+    /// centre with its radius free. What [`FrameEstimator`] learns from.
     pub contact_curvature_per_mm: Option<(f64, f64)>,
     /// RMS residual of the quadratic fit, mm.
     pub gamma1_residual_mm: f64,
@@ -354,6 +359,20 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
             let score = |h: &fit::HertzFit| h.rms * (pts.len() as f64 / h.kept.iter().filter(|&&b| b).count() as f64);
             score(x).total_cmp(&score(y))
         })?;
+    // A contact over about a pitch and a sixth, at a known centre, holds
+    // enough markers inside it to measure its curvature with the radius
+    // free: that is learnt (by [`FrameEstimator`]) where it is used, below
+    // the contacts a paraboloid resolves. gamma1 stays the tied fit's.
+    let curvature = if fixed_centre && hf.radius >= MID_CONTACT_PITCHES * pitch {
+        let (k, floor) = (cfg.outlier_sigmas, cfg.outlier_floor_mm);
+        fit_hertz(&pts, (hf.gamma1, hf.centre, hf.radius), k, floor, Curvature::Free, true)
+            .filter(|f| (0.7..=1.4).contains(&(f.radius / hf.radius)))
+            .and_then(|f| {
+                f.curvature_sd.filter(|sd| sd.is_finite() && *sd > 0.0).map(|sd| (f.gamma1 / (f.radius * f.radius), sd))
+            })
+    } else {
+        None
+    };
     // The fit must stay where it started, not wander off to another bump.
     if dist2(hf.centre, start.1) > reach * reach || !(hf.gamma1 > 0.0 && hf.radius > 0.0) {
         return None;
@@ -367,7 +386,7 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
         rms: hf.rms,
         window: 0.0,
         gamma1_sd: hf.gamma1_sd,
-        curvature: None,
+        curvature,
     })
 }
 

@@ -153,11 +153,8 @@ where
         // Refine: settled readings deeper in, where the grid resolves the
         // contact, and a line through them back to gamma1 = 0.
         let mut pts = Vec::new();
-        // (stage, gamma1, its standard error) of every settled reading.
-        let mut settled = Vec::new();
         let first = self.settle().await?;
         pts.push((pos, first.gamma1_mm));
-        settled.push((pos, first.gamma1_mm, first.gamma1_sd_mm));
         for _ in 0..a.refine_steps {
             if pts.last().is_some_and(|p| p.1 >= a.refine_to_gamma1_mm) {
                 break;
@@ -168,9 +165,7 @@ where
             }
             self.move_stage(next, "contact refinement").await?;
             pos = next;
-            let r = self.settle().await?;
-            pts.push((pos, r.gamma1_mm));
-            settled.push((pos, r.gamma1_mm, r.gamma1_sd_mm));
+            pts.push((pos, self.settle().await?.gamma1_mm));
         }
         let window: Vec<(f64, f64)> =
             pts.iter().copied().filter(|p| (a.refine_from_gamma1_mm..=a.refine_to_gamma1_mm).contains(&p.1)).collect();
@@ -179,11 +174,15 @@ where
             .or_else(|| contact_from_line(&pts, threshold))
             .unwrap_or(0.5 * (last_clear + pts[0].0))
             .clamp(last_clear - a.step_mm, pts[0].0);
-        let shallow = self.reapproach(provisional).await?;
-        let deep = settled.iter().copied().filter(|p| p.1 >= a.refine_from_gamma1_mm);
-        let all: Vec<_> = shallow.iter().copied().chain(deep).filter(|p| p.1 > threshold).collect();
-        let (contact, contact_sd_mm) = match contact_from_eq22(&all) {
-            Some((c, sd)) if shallow.len() >= 2 => (c, Some(sd)),
+        // The first pass's readings were taken while the sensing was still
+        // learning the contact's shape; the second pass's stand alone when
+        // there are enough of them.
+        let second = self.reapproach(provisional).await?;
+        let second: Vec<_> = second.into_iter().filter(|p| p.1 > threshold).collect();
+        let shallow = second.iter().filter(|p| p.1 < a.refine_from_gamma1_mm).count();
+        let found = if shallow >= 2 { contact_from_eq22(&second) } else { None };
+        let (contact, contact_sd_mm) = match found {
+            Some((c, sd)) => (c, Some(sd)),
             _ => (provisional, if line.is_some() { contact_uncertainty(&window, threshold) } else { None }),
         };
         self.contact_mm = Some(contact);
@@ -197,10 +196,11 @@ where
     }
 
     /// Step in again from just above `provisional`, now that the sensing has
-    /// learnt the contact's shape on the deep readings (docs/sensing.md,
-    /// "Small contacts"): the settled (stage, gamma1) readings until gamma1
-    /// reaches `refine_from_gamma1_mm`, the shallow end of the depth curve
-    /// that fixes the contact point best.
+    /// learnt the contact's place and shape on the deep readings
+    /// (docs/sensing.md, "Small contacts"): the settled (stage, gamma1,
+    /// standard error) readings up to `refine_to_gamma1_mm`. The shallow ones
+    /// pin the contact point; on the way the sensing learns the contact's
+    /// curvature at the sizes the sweep's first samples have.
     async fn reapproach(&mut self, provisional: f64) -> Step<Vec<(f64, f64, Option<f64>)>> {
         let a = self.script.approach;
         let mut pos = (provisional - a.step_mm).max(self.guard.limits().stage_min_mm);
@@ -214,10 +214,10 @@ where
             self.move_stage(next, "contact refinement").await?;
             pos = next;
             let r = self.settle().await?;
-            if r.gamma1_mm >= a.refine_from_gamma1_mm {
+            pts.push((pos, r.gamma1_mm, r.gamma1_sd_mm));
+            if r.gamma1_mm >= a.refine_to_gamma1_mm {
                 break;
             }
-            pts.push((pos, r.gamma1_mm, r.gamma1_sd_mm));
         }
         Ok(pts)
     }
