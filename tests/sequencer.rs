@@ -363,9 +363,9 @@ async fn faulted(faults: SimFaults) -> (RunOutcome, SimRig, Recording) {
 
 #[tokio::test]
 async fn stage_cable_cut_mid_sweep_is_reported_and_recording_kept() {
-    // Move 80: inside the normal sweep (approach takes ~45 moves).
+    // Move 100: inside the normal sweep (the approach takes ~60 moves).
     let (out, rig, rec) =
-        faulted(SimFaults { stage_move: Some((80, FaultKind::Disconnected)), ..Default::default() }).await;
+        faulted(SimFaults { stage_move: Some((100, FaultKind::Disconnected)), ..Default::default() }).await;
     let RunStatus::Aborted(info) = &out.status else { panic!() };
     assert_eq!(info.culprit, Culprit::Stage);
     let msg = info.to_string();
@@ -380,7 +380,7 @@ async fn stage_cable_cut_mid_sweep_is_reported_and_recording_kept() {
 #[tokio::test]
 async fn stage_device_error_stops_and_backs_off() {
     let (out, rig, rec) =
-        faulted(SimFaults { stage_move: Some((80, FaultKind::DeviceReported)), ..Default::default() }).await;
+        faulted(SimFaults { stage_move: Some((100, FaultKind::DeviceReported)), ..Default::default() }).await;
     let RunStatus::Aborted(info) = &out.status else { panic!() };
     assert_eq!(info.culprit, Culprit::Stage);
     assert!(info.message.contains("device reported an error"), "{info}");
@@ -873,7 +873,7 @@ async fn abort_during_a_move_stops_it_then_backs_off() {
     let rig = SimRig::new(SimRigConfig::default()).unwrap();
     let (ctl_tx, ctl_rx) = unbounded_channel();
     let log = Arc::new(Mutex::new(Vec::new()));
-    let stage = StuckStage { inner: rig.stage(), moves: 0, stuck_at: 60, stuck: false, ctl: ctl_tx, log: log.clone() };
+    let stage = StuckStage { inner: rig.stage(), moves: 0, stuck_at: 80, stuck: false, ctl: ctl_tx, log: log.clone() };
     let mut seq = Sequencer::new(Script::default(), stage, rig.mount(), rig.gauge(), dir.path().join("m.csv"))
         .unwrap()
         .with_controls(ctl_rx);
