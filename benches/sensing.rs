@@ -1,5 +1,7 @@
 //! Frame processing timing: one 20 x 20 (400-marker) Tac3D-like frame to
-//! gamma1 and theta1. Target (issue 4): >= 20,000 frames/s on one core.
+//! gamma1 and theta1. Targets (issues 4 and 12): >= 20,000 frames/s on one
+//! core for torsion-size contacts, >= 10,000 at contact onset, where a run's
+//! estimator fits the contact at its learnt curvature and centre.
 
 use std::hint::black_box;
 
@@ -21,6 +23,19 @@ fn frames(c: &mut Criterion) {
     let small = ContactState::new([0.13, -0.21], 0.25, 1.2, 0.0).with_nu1(0.39);
     let f = synth_frame(&small, &grid, &NoiseConfig::gaussian(0.004), &mut rng, 1, 0.0);
     g.bench_function("small_contact_hertz_fit", |b| b.iter(|| measure(black_box(&f), &cfg)));
+    // What a run does once its estimator has learnt the contact (docs/sensing.md):
+    // onset (a 0.5 mm, between markers: gamma1 alone is fitted) and a contact of
+    // 1.3 mm (also fitted with its radius free, to learn the curvature there).
+    let learnt = SensingConfig {
+        contact_curvature_per_mm: Some((0.175, 0.0005)),
+        contact_centre_mm: Some([0.0, 0.0]),
+        ..SensingConfig::for_contact(5.0, 33.0)
+    };
+    for (name, a) in [("onset_learnt_contact", 0.5), ("mid_contact_learns_curvature", 1.3)] {
+        let state = ContactState::new([0.0, 0.0], 0.175 * a * a, a, 0.0).with_nu1(0.39);
+        let f = synth_frame(&state, &grid, &NoiseConfig::gaussian(0.004), &mut rng, 2, 0.0);
+        g.bench_function(name, |b| b.iter(|| measure(black_box(&f), &learnt)));
+    }
     g.finish();
 }
 
