@@ -380,7 +380,7 @@ pub(super) fn contact_from_eq22(pts: &[(f64, f64, Option<f64>)]) -> Option<(f64,
 /// may be off, mm: the line's own statistical error, and how far the lines
 /// through the shallower and the deeper half of the points disagree (gamma1
 /// bends away from a line as the contact deepens, so extrapolating to zero
-/// carries that bend). `None` with fewer than four points.
+/// carries that bend). `None` with fewer than three points.
 pub(super) fn contact_uncertainty(pts: &[(f64, f64)], threshold: f64) -> Option<f64> {
     let mut p: Vec<(f64, f64)> = pts.iter().copied().filter(|&(_, g)| g > threshold).collect();
     if p.len() < 3 {
