@@ -115,7 +115,8 @@ impl SensorLink for SensorDriver {
 pub fn measure_frame(estimator: &mut FrameEstimator, frame: &SensorFrame) -> Result<GaugeReading, String> {
     match estimator.measure(frame) {
         Ok(m) => Ok(GaugeReading::new(frame.t_s, m.gamma1_mm, m.theta1_deg, m.contact_radius_mm)
-            .with_errors(m.gamma1_sd_mm, m.theta1_std_deg)),
+            .with_errors(m.gamma1_sd_mm, m.theta1_std_deg)
+            .with_common_error(m.gamma1_common_sd_mm)),
         Err(SensingError::NoContact { .. }) => Ok(GaugeReading::new(frame.t_s, 0.0, 0.0, 0.0)),
         Err(e) => Err(e.to_string()),
     }

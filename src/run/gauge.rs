@@ -30,12 +30,32 @@ pub struct GaugeReading {
     pub gamma1_sd_mm: Option<f64>,
     /// Standard error of `theta1_deg`, degrees.
     pub theta1_sd_deg: Option<f64>,
+    /// The part of `gamma1_sd_mm` shared with the readings around it (the
+    /// estimator's learnt curvature), mm: a mean of readings keeps it whole.
+    pub gamma1_common_sd_mm: Option<f64>,
 }
 
 impl GaugeReading {
     /// A reading without standard errors.
     pub fn new(t_s: f64, gamma1_mm: f64, theta1_deg: f64, contact_radius_mm: f64) -> Self {
-        Self { t_s, gamma1_mm, theta1_deg, contact_radius_mm, gamma1_sd_mm: None, theta1_sd_deg: None }
+        Self {
+            t_s,
+            gamma1_mm,
+            theta1_deg,
+            contact_radius_mm,
+            gamma1_sd_mm: None,
+            theta1_sd_deg: None,
+            gamma1_common_sd_mm: None,
+        }
+    }
+
+    /// The same reading with the shared part of gamma1's error (kept only
+    /// when positive and not above the whole error).
+    pub fn with_common_error(self, gamma1_common_sd_mm: f64) -> Self {
+        let ok = gamma1_common_sd_mm.is_finite()
+            && gamma1_common_sd_mm > 0.0
+            && self.gamma1_sd_mm.is_some_and(|sd| gamma1_common_sd_mm <= sd);
+        Self { gamma1_common_sd_mm: ok.then_some(gamma1_common_sd_mm), ..self }
     }
 
     /// The same reading with standard errors.

@@ -29,6 +29,23 @@ const RADIUS_SPAN: f64 = 1.5;
 /// paraboloid over a small contact) and is left out.
 const OUTLIER_SIGMAS: f64 = 4.0;
 
+/// A contact of radius r is fitted with the curvature learnt on resolved
+/// contacts within this factor of r either way, when there are enough of them
+/// on both sides of r ([`MIN_LOCAL`]): the curvature drifts with depth
+/// (Tatara's large deformation: about 0.8 % between contacts of 0.9 and 1.6 mm
+/// on the default rig, a micrometre of gamma1 at 1.5 mm), so it is taken where
+/// it is used, from a straight line in the radius through those estimates.
+const LOCAL_SPAN: f64 = 1.5;
+
+/// Fewest estimates near a radius (and a quarter of that on each side of it)
+/// before they alone give its curvature.
+const MIN_LOCAL: usize = 24;
+
+/// Width of the radius bins the local estimates are kept in, mm, and how many
+/// each bin keeps (the first ones: a sweep revisits each size).
+const BIN_MM: f64 = 0.05;
+const PER_BIN: usize = 60;
+
 /// One resolved frame: contact radius mm, curvature 1/mm, its standard
 /// error 1/mm, centre mm.
 type Estimate = (f64, f64, f64, [f64; 2]);
@@ -40,6 +57,10 @@ pub struct CurvatureLearner {
     estimates: Vec<Estimate>,
     /// (curvature, its standard error, centre) from the estimates so far.
     learnt: Option<(f64, f64, [f64; 2])>,
+    /// Every size's estimates, by radius bin (index = radius / [`BIN_MM`]).
+    bins: std::collections::BTreeMap<i64, Vec<Estimate>>,
+    /// How many estimates the bins hold (they only grow).
+    binned: usize,
 }
 
 impl CurvatureLearner {
@@ -49,10 +70,56 @@ impl CurvatureLearner {
     pub fn add(&mut self, radius_mm: f64, per_mm: f64, sd_per_mm: f64, centre_mm: [f64; 2]) {
         let ok = [radius_mm, per_mm, sd_per_mm].iter().all(|v| v.is_finite() && *v > 0.0)
             && centre_mm.iter().all(|v| v.is_finite());
-        if ok && self.estimates.len() < MAX_ESTIMATES {
-            self.estimates.push((radius_mm, per_mm, sd_per_mm, centre_mm));
+        if !ok {
+            return;
+        }
+        let e = (radius_mm, per_mm, sd_per_mm, centre_mm);
+        if self.estimates.len() < MAX_ESTIMATES {
+            self.estimates.push(e);
             self.learnt = learn(&self.estimates);
         }
+        let bin = self.bins.entry((radius_mm / BIN_MM).floor() as i64).or_default();
+        if bin.len() < PER_BIN {
+            bin.push(e);
+            self.binned += 1;
+        }
+    }
+
+    /// The curvature for a contact of about `radius_mm`: from the resolved
+    /// contacts of about that size when there are enough ([`LOCAL_SPAN`]),
+    /// else [`CurvatureLearner::estimate`] (the smallest resolved ones, for
+    /// contacts smaller than any resolved).
+    pub fn estimate_near(&self, radius_mm: f64) -> Option<(f64, f64)> {
+        // Below (above) every resolved size, the curvature at the edge of
+        // what was resolved: a line is not extrapolated.
+        let radius_mm = match self.resolved_span() {
+            Some((lo, hi)) => radius_mm.clamp(lo, hi),
+            None => radius_mm,
+        };
+        let local = (radius_mm.is_finite() && radius_mm > 0.0)
+            .then(|| {
+                let (lo, hi) = (radius_mm / LOCAL_SPAN, radius_mm * LOCAL_SPAN);
+                let range = (lo / BIN_MM).floor() as i64..=(hi / BIN_MM).floor() as i64;
+                let near: Vec<(f64, &Estimate)> = self
+                    .bins
+                    .range(range)
+                    .flat_map(|(_, v)| {
+                        // Weights from the bin's typical error, not each
+                        // estimate's own: a frame's error grows with its
+                        // curvature, and weighting by it would pull the mean low.
+                        let mut sds: Vec<f64> = v.iter().map(|e| e.2).collect();
+                        let typical = quantile(&mut sds, 0.5).unwrap_or(f64::NAN);
+                        v.iter().map(move |e| (typical, e))
+                    })
+                    .filter(|(_, e)| (lo..=hi).contains(&e.0))
+                    .collect();
+                let (below, above) =
+                    near.iter().fold((0, 0), |(b, a), (_, e)| if e.0 < radius_mm { (b + 1, a) } else { (b, a + 1) });
+                let enough = near.len() >= MIN_LOCAL && below.min(above) >= MIN_LOCAL / 4;
+                enough.then(|| local_line(&near, radius_mm)).flatten()
+            })
+            .flatten();
+        local.or_else(|| self.estimate())
     }
 
     /// The curvature and its standard error (see [`learn`]); `None` before
@@ -76,6 +143,13 @@ fn learn(estimates: &[Estimate]) -> Option<(f64, f64, [f64; 2])> {
     let mut radii: Vec<f64> = estimates.iter().map(|e| e.0).collect();
     let smallest = quantile(&mut radii, 0.2)?;
     let near: Vec<&Estimate> = estimates.iter().filter(|e| e.0 <= RADIUS_SPAN * smallest).collect();
+    weighted(&robust_subset(&near)?)
+}
+
+/// The estimates within [`OUTLIER_SIGMAS`] robust sigmas of the others'
+/// median in curvature and in centre; `None` when fewer than
+/// [`MIN_ESTIMATES`] are left.
+fn robust_subset<'e>(near: &[&'e Estimate]) -> Option<Vec<&'e Estimate>> {
     let robust = |v: Vec<f64>| -> Option<(f64, f64)> {
         let mut v = v;
         let med = quantile(&mut v, 0.5)?;
@@ -88,15 +162,22 @@ fn learn(estimates: &[Estimate]) -> Option<(f64, f64, [f64; 2])> {
     // A hundredth of a millimetre of centre, a percent of curvature: below
     // that, agreement is not worth a test.
     let within = |x: f64, med: f64, sigma: f64, floor: f64| (x - med).abs() <= OUTLIER_SIGMAS * sigma.max(floor);
-    let kept: Vec<&&Estimate> = near
+    let kept: Vec<&Estimate> = near
         .iter()
+        .copied()
         .filter(|e| {
             within(e.1, c_med, c_sigma, 0.01 * c_med)
                 && within(e.3[0], x_med, x_sigma, 0.01)
                 && within(e.3[1], y_med, y_sigma, 0.01)
         })
         .collect();
-    if kept.len() < MIN_ESTIMATES {
+    (kept.len() >= MIN_ESTIMATES).then_some(kept)
+}
+
+/// The inverse-variance weighted curvature of `kept`, its standard error
+/// widened by the Birge ratio, and their mean centre.
+fn weighted(kept: &[&Estimate]) -> Option<(f64, f64, [f64; 2])> {
+    if kept.len() < 2 {
         return None;
     }
     let w: f64 = kept.iter().map(|e| 1.0 / (e.2 * e.2)).sum();
@@ -106,6 +187,63 @@ fn learn(estimates: &[Estimate]) -> Option<(f64, f64, [f64; 2])> {
     let n = kept.len() as f64;
     let centre = [kept.iter().map(|e| e.3[0]).sum::<f64>() / n, kept.iter().map(|e| e.3[1]).sum::<f64>() / n];
     Some((mean, birge / w.sqrt(), centre))
+}
+
+impl CurvatureLearner {
+    /// The radii between which a local line has [`MIN_LOCAL`] / 4 estimates
+    /// on each side: the (MIN_LOCAL / 4)-th smallest and largest radius.
+    fn resolved_span(&self) -> Option<(f64, f64)> {
+        if self.binned < MIN_LOCAL {
+            return None;
+        }
+        // The k-th radius from one end: walk the bins from that end to the one
+        // holding it, and sort that bin alone.
+        let kth = |bins: &mut dyn Iterator<Item = &Vec<Estimate>>, from_top: bool| -> Option<f64> {
+            let mut k = MIN_LOCAL / 4;
+            for v in bins {
+                if k < v.len() {
+                    let mut r: Vec<f64> = v.iter().map(|e| e.0).collect();
+                    r.sort_by(f64::total_cmp);
+                    return Some(if from_top { r[r.len() - 1 - k] } else { r[k] });
+                }
+                k -= v.len();
+            }
+            None
+        };
+        Some((kth(&mut self.bins.values(), false)?, kth(&mut self.bins.values().rev(), true)?))
+    }
+}
+
+/// The curvature at `radius_mm` and its standard error from a weighted
+/// straight line c = b0 + b1 (r - radius_mm) through `near` ((typical error,
+/// estimate) pairs), after leaving out estimates far from the others' median;
+/// the error is widened by the Birge ratio. `None` when degenerate.
+fn local_line(near: &[(f64, &Estimate)], radius_mm: f64) -> Option<(f64, f64)> {
+    let mut cs: Vec<f64> = near.iter().map(|(_, e)| e.1).collect();
+    let med = quantile(&mut cs, 0.5)?;
+    let mut dev: Vec<f64> = cs.iter().map(|c| (c - med).abs()).collect();
+    let sigma = (MAD_TO_SIGMA * quantile(&mut dev, 0.5)?).max(0.01 * med);
+    let kept: Vec<(f64, f64, f64)> = near
+        .iter()
+        .filter(|(sd, e)| sd.is_finite() && *sd > 0.0 && (e.1 - med).abs() <= OUTLIER_SIGMAS * sigma)
+        .map(|(sd, e)| (e.0 - radius_mm, e.1, 1.0 / (sd * sd)))
+        .collect();
+    if kept.len() < MIN_LOCAL {
+        return None;
+    }
+    let (mut sw, mut sx, mut sxx, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for &(x, y, w) in &kept {
+        (sw, sx, sxx, sy, sxy) = (sw + w, sx + w * x, sxx + w * x * x, sy + w * y, sxy + w * x * y);
+    }
+    let det = sw * sxx - sx * sx;
+    if !(det.is_finite() && det > 0.0) {
+        return None;
+    }
+    let (b0, b1) = ((sxx * sy - sx * sxy) / det, (sw * sxy - sx * sy) / det);
+    let chi2: f64 = kept.iter().map(|&(x, y, w)| w * (y - b0 - b1 * x).powi(2)).sum();
+    let birge = (chi2 / (kept.len() - 2) as f64).sqrt().max(1.0);
+    let se = birge * (sxx / det).sqrt();
+    (b0.is_finite() && b0 > 0.0 && se.is_finite()).then_some((b0, se))
 }
 
 /// The `p` quantile (nearest rank) of `v`, reordering it; `None` when empty.
@@ -124,16 +262,76 @@ fn quantile(v: &mut [f64], p: f64) -> Option<f64> {
 pub struct FrameEstimator {
     cfg: SensingConfig,
     learner: CurvatureLearner,
+    /// The marker noise of the recent frames: normal and tangential.
+    normal_noise: NoisePool,
+    tangential_noise: NoisePool,
+    /// The last frame's contact radius, mm: the next frame's contact is about
+    /// as large (a sample reads several frames at one stage position), so its
+    /// curvature is the one learnt at that size.
+    last_radius_mm: Option<f64>,
+    /// The curvature at the last radius, with the radius bin and the count of
+    /// binned estimates it was computed for: kept while neither moves much.
+    near: Option<NearCurvature>,
 }
+
+/// A curvature computed at a radius bin with so many binned estimates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct NearCurvature {
+    bin: i64,
+    binned: usize,
+    curvature: Option<(f64, f64)>,
+}
+
+/// New estimates a cached curvature outlives (a few percent of a full window).
+const NEAR_STALE: usize = 8;
 
 impl FrameEstimator {
     pub fn new(cfg: SensingConfig) -> Self {
-        Self { cfg, learner: CurvatureLearner::default() }
+        Self {
+            cfg,
+            learner: CurvatureLearner::default(),
+            normal_noise: NoisePool::default(),
+            tangential_noise: NoisePool::default(),
+            last_radius_mm: None,
+            near: None,
+        }
     }
 
-    /// The curvature small contacts are fitted with now, if any.
+    /// [`FrameEstimator::curvature`], computed again only when the radius
+    /// moved to another bin or enough estimates came in since.
+    fn current_curvature(&mut self) -> Option<(f64, f64)> {
+        if self.cfg.contact_curvature_per_mm.is_some() {
+            return self.cfg.contact_curvature_per_mm;
+        }
+        let Some(r) = self.last_radius_mm else {
+            return self.learner.estimate();
+        };
+        let (bin, binned) = ((r / BIN_MM).floor() as i64, self.learner.binned);
+        match self.near {
+            Some(n) if n.bin == bin && binned < n.binned + NEAR_STALE => n.curvature,
+            _ => {
+                let curvature = self.learner.estimate_near(r);
+                self.near = Some(NearCurvature { bin, binned, curvature });
+                curvature
+            }
+        }
+    }
+
+    /// The marker noise pooled over the recent frames (normal, tangential),
+    /// mm, once enough degrees of freedom are in (unless the configuration
+    /// fixes it).
+    pub fn marker_noise(&self) -> Option<(f64, f64)> {
+        self.cfg.marker_noise_mm.or_else(|| Some((self.normal_noise.sd()?, self.tangential_noise.sd()?)))
+    }
+
+    /// The curvature small contacts are fitted with now, if any: learnt at
+    /// about the last contact's size when the run has resolved contacts of
+    /// that size, else at the smallest ones it resolved.
     pub fn curvature(&self) -> Option<(f64, f64)> {
-        self.cfg.contact_curvature_per_mm.or_else(|| self.learner.estimate())
+        self.cfg.contact_curvature_per_mm.or_else(|| match self.last_radius_mm {
+            Some(r) => self.learner.estimate_near(r),
+            None => self.learner.estimate(),
+        })
     }
 
     /// Where small contacts are fitted now, if known.
@@ -143,13 +341,55 @@ impl FrameEstimator {
 
     /// Measure one frame, and learn from it when it resolves its contact.
     pub fn measure(&mut self, frame: &SensorFrame) -> Result<Measurement, SensingError> {
-        let cfg =
-            SensingConfig { contact_curvature_per_mm: self.curvature(), contact_centre_mm: self.centre(), ..self.cfg };
-        let m = measure(frame, &cfg)?;
+        let cfg = SensingConfig {
+            contact_curvature_per_mm: self.current_curvature(),
+            contact_centre_mm: self.centre(),
+            marker_noise_mm: self.marker_noise(),
+            ..self.cfg
+        };
+        let m = match measure(frame, &cfg) {
+            Ok(m) => m,
+            Err(e) => {
+                self.last_radius_mm = None;
+                return Err(e);
+            }
+        };
+        self.last_radius_mm = Some(m.contact_radius_mm);
+        self.normal_noise.add(m.depth_noise_mm, m.depth_dof);
+        self.tangential_noise.add(m.rotation_noise_mm, m.rotation_dof);
         if let Some((c, sd)) = m.contact_curvature_per_mm {
             self.learner.add(m.contact_radius_mm, c, sd, m.contact_centre_mm);
         }
         Ok(m)
+    }
+}
+
+/// Frames whose residuals are pooled into the marker noise (the latest).
+const NOISE_FRAMES: usize = 300;
+
+/// Degrees of freedom before the pooled noise is used (a 5 % error).
+const NOISE_MIN_DOF: usize = 200;
+
+/// The marker noise from many frames' fit residuals: each frame's variance
+/// weighted by its degrees of freedom, over the latest [`NOISE_FRAMES`].
+#[derive(Debug, Clone, Default, PartialEq)]
+struct NoisePool {
+    frames: std::collections::VecDeque<(f64, usize)>,
+}
+
+impl NoisePool {
+    fn add(&mut self, sd_mm: f64, dof: usize) {
+        if sd_mm.is_finite() && sd_mm > 0.0 && dof > 0 {
+            if self.frames.len() == NOISE_FRAMES {
+                self.frames.pop_front();
+            }
+            self.frames.push_back((sd_mm * sd_mm, dof));
+        }
+    }
+
+    fn sd(&self) -> Option<f64> {
+        let dof: usize = self.frames.iter().map(|f| f.1).sum();
+        (dof >= NOISE_MIN_DOF).then(|| (self.frames.iter().map(|f| f.0 * f.1 as f64).sum::<f64>() / dof as f64).sqrt())
     }
 }
 
@@ -184,5 +424,62 @@ mod tests {
         l.add(1.6, -0.2, 0.01, [0.0, 0.0]);
         l.add(1.6, 0.2, 0.01, [f64::NAN, 0.0]);
         assert_eq!(l.estimates.len(), before);
+    }
+
+    #[test]
+    fn a_contact_takes_the_curvature_learnt_at_its_own_size() {
+        // A curvature that falls with the radius, as in a contact at large
+        // strain: 0.176 per mm at 1 mm, 0.002 less per mm of radius.
+        let truth = |r: f64| 0.176 - 0.002 * (r - 1.0);
+        let jitter = [-0.004, 0.002, 0.0, 0.003, -0.002, 0.001];
+        let mut l = CurvatureLearner::default();
+        for k in 0..150 {
+            let r = 1.0 + 1.5 * k as f64 / 150.0;
+            l.add(r, truth(r) * (1.0 + jitter[k % 6]), 0.004, [0.0, 0.0]);
+        }
+        // Inside the resolved sizes: the line through the estimates near it.
+        for r in [1.3, 1.8, 2.2] {
+            let (c, sd) = l.estimate_near(r).unwrap();
+            assert!((c - truth(r)).abs() < 3.0 * sd + 1e-5, "r {r}: {c} vs {} (sd {sd})", truth(r));
+        }
+        // The smallest contacts' average is the curvature around 1.0-1.5 mm:
+        // at 2.2 mm it would be off by twice the local error.
+        let (global, _) = l.estimate().unwrap();
+        let (at_22, sd_22) = l.estimate_near(2.2).unwrap();
+        assert!((global - at_22).abs() > 2.0 * sd_22, "{global} {at_22} {sd_22}");
+        // Below every resolved size, the value at the edge: never extrapolated.
+        let (edge, _) = l.estimate_near(1.05).unwrap();
+        assert_eq!(l.estimate_near(0.3).unwrap().0, edge);
+        // Too few estimates near a size: the smallest contacts' value.
+        let mut few = CurvatureLearner::default();
+        for k in 0..10 {
+            few.add(1.6 + 0.01 * k as f64, 0.18 + 0.001 * jitter[k % 6], 0.004, [0.0, 0.0]);
+        }
+        assert_eq!(few.estimate_near(1.65), few.estimate());
+    }
+
+    #[test]
+    fn the_marker_noise_is_pooled_by_degrees_of_freedom() {
+        let mut p = NoisePool::default();
+        // 20 frames of 8 degrees of freedom are not enough to trust.
+        for _ in 0..20 {
+            p.add(0.004, 8);
+        }
+        assert_eq!(p.sd(), None);
+        // Variances weighted by their degrees of freedom: (100 * 16 + 100 * 36) / 200.
+        let mut p = NoisePool::default();
+        for _ in 0..10 {
+            p.add(0.004, 10);
+            p.add(0.006, 10);
+        }
+        assert!((p.sd().unwrap() - 26e-6f64.sqrt()).abs() < 1e-12, "{:?}", p.sd());
+        // Nothing non-physical gets in; only the latest frames count.
+        p.add(f64::NAN, 10);
+        p.add(0.004, 0);
+        assert_eq!(p.frames.len(), 20);
+        for _ in 0..NOISE_FRAMES {
+            p.add(0.003, 10);
+        }
+        assert!((p.sd().unwrap() - 0.003).abs() < 1e-12);
     }
 }

@@ -395,6 +395,14 @@ pub struct HertzFit {
     /// Standard error of the curvature gamma1 / a^2 when the fit left the
     /// radius free (`None` when it was tied).
     pub curvature_sd: Option<f64>,
+    /// The marker noise the errors were computed with: the residual rms
+    /// corrected for the free parameters, mm; and those degrees of freedom.
+    pub noise_sd: f64,
+    pub dof: usize,
+    /// The part of `gamma1_sd` that the known curvature's error makes, mm:
+    /// common to every frame fitted with that curvature, so averaging frames
+    /// does not shrink it (0 when the fit did not use one).
+    pub gamma1_common_sd: f64,
 }
 
 /// Fit the Hertz normal field w = gamma1 f(|p - c| / a) to `(x, y, w)` by
@@ -443,6 +451,7 @@ pub fn fit_hertz(
         if round + 1 == ROUNDS || next == kept || next.iter().filter(|&&b| b).count() < 5 {
             let cov = hertz_covariance(pts, &kept, params, tie, fixed_centre, rms)?;
             let mut gamma1_sd = cov[(0, 0)].sqrt();
+            let mut gamma1_common_sd = 0.0;
             // Untied, the fit measures the curvature g / a^2 itself.
             let curvature_sd = tie.is_none().then(|| {
                 let j = [1.0 / (a * a), -2.0 * g / (a * a * a)];
@@ -451,9 +460,24 @@ pub fn fit_hertz(
             if let (Some(_), Curvature::Known { per_mm, sd_per_mm }) = (tie, curvature) {
                 // The curvature's own error, through how far gamma1 moves
                 // when the fit is redone with another c.
-                gamma1_sd = gamma1_sd.hypot(tied_gamma1_per_curvature(pts, &kept, params, per_mm) * sd_per_mm);
+                gamma1_common_sd = tied_gamma1_per_curvature(pts, &kept, params, per_mm) * sd_per_mm;
+                gamma1_sd = gamma1_sd.hypot(gamma1_common_sd);
             }
-            return Some(HertzFit { gamma1: g, centre: [cx, cy], radius: a, kept, rms, gamma1_sd, curvature_sd });
+            let m = kept.iter().filter(|&&b| b).count();
+            let free = 4 - usize::from(tie.is_some()) - 2 * usize::from(fixed_centre);
+            let dof = m.saturating_sub(free);
+            return Some(HertzFit {
+                noise_sd: if dof > 0 { rms * (m as f64 / dof as f64).sqrt() } else { f64::NAN },
+                dof,
+                gamma1: g,
+                centre: [cx, cy],
+                radius: a,
+                kept,
+                rms,
+                gamma1_sd,
+                curvature_sd,
+                gamma1_common_sd,
+            });
         }
         kept = next;
     }

@@ -81,6 +81,27 @@ pub struct SensingConfig {
     /// there with gamma1 its only unknown: no search for the deepest spot,
     /// which in a frame of pure noise finds a few µm of "contact" anywhere.
     pub contact_centre_mm: Option<[f64; 2]>,
+    /// The marker noise pooled over many frames, mm: normal (dz) and
+    /// in-plane (tangential). A frame's own residuals hold a handful of
+    /// degrees of freedom when its contact is small, so its errors come from
+    /// these instead, unless its residuals are clearly larger (a field the
+    /// model does not follow). [`FrameEstimator`] learns them.
+    pub marker_noise_mm: Option<(f64, f64)>,
+}
+
+/// A frame whose own noise estimate exceeds the pooled one by more than this
+/// factor keeps its own (about 2 % of frames with 8 degrees of freedom do by
+/// chance).
+const OWN_NOISE_FACTOR: f64 = 1.5;
+
+/// The noise a frame's errors are computed with: the pooled one unless the
+/// frame's own is clearly larger.
+fn noise_for_errors(own: f64, pooled: Option<f64>) -> f64 {
+    match pooled {
+        // A frame without a usable noise of its own (NaN) takes the pooled one too.
+        Some(p) if p > 0.0 && (own.is_nan() || own <= OWN_NOISE_FACTOR * p) => p,
+        _ => own,
+    }
 }
 
 impl SensingConfig {
@@ -107,6 +128,7 @@ impl Default for SensingConfig {
             max_curvature_per_mm: None,
             contact_curvature_per_mm: None,
             contact_centre_mm: None,
+            marker_noise_mm: None,
         }
     }
 }
@@ -131,6 +153,18 @@ pub struct Measurement {
     /// noise seen in its residuals, through the fit; with a tied radius, the
     /// tie's own error too), mm.
     pub gamma1_sd_mm: f64,
+    /// The part of `gamma1_sd_mm` that a known curvature's error makes, mm
+    /// (0 without one): shared by every frame fitted with that curvature, so
+    /// it stays whole in a mean of frames.
+    pub gamma1_common_sd_mm: f64,
+    /// This frame's own marker noise: the depth fit's residual rms corrected
+    /// for its free parameters (mm) with its degrees of freedom, and the same
+    /// for the rotation fit's tangential residuals. [`FrameEstimator`] pools
+    /// them into [`SensingConfig::marker_noise_mm`].
+    pub depth_noise_mm: f64,
+    pub depth_dof: usize,
+    pub rotation_noise_mm: f64,
+    pub rotation_dof: usize,
     /// The field's curvature inside the contact, gamma1 / a^2 (1/mm), with its
     /// standard error, when this frame measured it: the paraboloid lay inside
     /// the contact, or a contact over 1.15 pitches was fitted at a known
@@ -256,6 +290,12 @@ struct Depth {
     window: f64,
     /// Standard error of gamma1, mm.
     gamma1_sd: f64,
+    /// The part of `gamma1_sd` common to frames fitted with the same known curvature.
+    gamma1_common_sd: f64,
+    /// The marker noise `gamma1_sd` was computed with (residual rms corrected
+    /// for the free parameters), mm, and its degrees of freedom.
+    noise_sd: f64,
+    dof: usize,
     /// The paraboloid's curvature -2 c3 = gamma1 / a^2 and its standard error.
     curvature: Option<(f64, f64)>,
 }
@@ -302,6 +342,10 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
         let used_window = sel.iter().map(|&i| dist2(xy(&frame.positions[i]), centre)).fold(0.0, f64::max).sqrt();
         window = (cfg.window_fraction * radius).max(min_window);
         let errors = if cfg.isotropic { paraboloid_errors(&pts, &qf.kept, peak, qf.rms) } else { None };
+        // paraboloid_errors' noise: the rms over the kept markers, less its 4 parameters.
+        let m_kept = qf.kept.iter().filter(|&&b| b).count();
+        let qf_dof = m_kept.saturating_sub(4);
+        let qf_noise = if qf_dof > 0 { qf.rms * (m_kept as f64 / qf_dof as f64).sqrt() } else { f64::NAN };
         let gamma1_sd = errors.map_or(f64::NAN, |e| e.0);
         // Only a window inside the contact sees the contact's own curvature.
         let curvature = errors.filter(|_| used_window <= radius).map(|e| (-qf.surface.mean_curvature(), e.1));
@@ -314,6 +358,9 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
             rms: qf.rms,
             window: used_window,
             gamma1_sd,
+            gamma1_common_sd: 0.0,
+            noise_sd: qf_noise,
+            dof: qf_dof,
             curvature,
         });
     }
@@ -386,6 +433,9 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
         rms: hf.rms,
         window: 0.0,
         gamma1_sd: hf.gamma1_sd,
+        gamma1_common_sd: hf.gamma1_common_sd,
+        noise_sd: hf.noise_sd,
+        dof: hf.dof,
         curvature,
     })
 }
@@ -439,7 +489,29 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
     } else {
         quad?
     };
-    let Depth { gamma1, centre, radius, selected, kept: depth_kept, rms: depth_rms, gamma1_sd, curvature, .. } = depth;
+    let Depth {
+        gamma1,
+        centre,
+        radius,
+        selected,
+        kept: depth_kept,
+        rms: depth_rms,
+        gamma1_sd,
+        gamma1_common_sd,
+        curvature,
+        noise_sd,
+        dof,
+        ..
+    } = depth;
+    // The errors with the pooled marker noise (the tie's part is not noise).
+    let noise_scale = {
+        let own = noise_sd;
+        let used = noise_for_errors(own, cfg.marker_noise_mm.map(|n| n.0));
+        if own.is_finite() && own > 0.0 && used.is_finite() { used / own } else { 1.0 }
+    };
+    let gamma1_sd = (gamma1_sd * gamma1_sd - gamma1_common_sd * gamma1_common_sd).max(0.0).sqrt() * noise_scale;
+    let gamma1_sd = gamma1_sd.hypot(gamma1_common_sd);
+    let curvature = curvature.map(|(c, sd)| (c, sd * noise_scale));
     if gamma1.is_nan() || gamma1 < cfg.min_depth_mm {
         return Err(SensingError::NoContact { index, depth_mm: gamma1.max(0.0) });
     }
@@ -490,13 +562,22 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
         }
     }
     let stick_markers = rf.kept.iter().filter(|&&b| b).count();
-    let theta_std = rf.rms / rf.sum_r2.sqrt();
+    // The tangential noise: the residual rms less the one parameter (theta).
+    let rotation_dof = stick_markers.saturating_sub(1);
+    let rotation_noise =
+        if rotation_dof > 0 { rf.rms * (stick_markers as f64 / rotation_dof as f64).sqrt() } else { f64::NAN };
+    let theta_std = noise_for_errors(rotation_noise, cfg.marker_noise_mm.map(|n| n.1)) / rf.sum_r2.sqrt();
     Ok(Measurement {
         index,
         t_s: frame.t_s,
         gamma1_mm: gamma1,
         theta1_deg: rf.theta.to_degrees(),
         gamma1_sd_mm: gamma1_sd,
+        gamma1_common_sd_mm: gamma1_common_sd,
+        depth_noise_mm: noise_sd,
+        depth_dof: dof,
+        rotation_noise_mm: rotation_noise,
+        rotation_dof,
         contact_curvature_per_mm: curvature,
         contact_centre_mm: centre,
         contact_radius_mm: radius,

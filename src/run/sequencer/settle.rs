@@ -161,12 +161,26 @@ pub(super) fn mean(xs: &[GaugeReading]) -> GaugeReading {
         m.theta1_deg += r.theta1_deg / n;
         m.contact_radius_mm += r.contact_radius_mm / n;
     }
+    // A reading without an error among readings with one (the sensor's dead
+    // band reads a contact of a few micrometres as none in some frames) is
+    // as uncertain as they are: it takes their RMS error.
     let of_mean = |sd: fn(&GaugeReading) -> Option<f64>| -> Option<f64> {
-        let squares: Option<Vec<f64>> = xs.iter().map(|r| sd(r).map(|v| v * v)).collect();
-        squares.filter(|v| !v.is_empty()).map(|v| v.iter().sum::<f64>().sqrt() / n)
+        let known: Vec<f64> = xs.iter().filter_map(|r| sd(r).map(|v| v * v)).collect();
+        if known.is_empty() {
+            return None;
+        }
+        let typical = known.iter().sum::<f64>() / known.len() as f64;
+        Some((known.iter().sum::<f64>() + typical * (xs.len() - known.len()) as f64).sqrt() / n)
     };
-    m.gamma1_sd_mm = of_mean(|r| r.gamma1_sd_mm);
+    // gamma1: the independent parts average down, the shared part does not
+    // (sd^2 = independent^2 + shared^2 for each reading).
+    let shared = xs.iter().map(|r| r.gamma1_common_sd_mm.unwrap_or(0.0)).sum::<f64>() / n;
+    m.gamma1_sd_mm =
+        of_mean(|r| r.gamma1_sd_mm.map(|sd| (sd * sd - r.gamma1_common_sd_mm.map_or(0.0, |c| c * c)).max(0.0).sqrt()))
+            .map(|independent| independent.hypot(shared))
+            .filter(|sd| *sd > 0.0);
     m.theta1_sd_deg = of_mean(|r| r.theta1_sd_deg);
+    m.gamma1_common_sd_mm = (shared > 0.0).then_some(shared);
     m
 }
 

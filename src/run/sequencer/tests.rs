@@ -1,4 +1,4 @@
-use super::settle::remaining_relaxation;
+use super::settle::{mean, remaining_relaxation};
 use super::steps::contact_from_line;
 use super::*;
 
@@ -34,4 +34,31 @@ fn abort_message_says_what_and_where_the_stage_went() {
     );
     let b = AbortInfo { backoff: Backoff::Failed("gone".into()), ..a };
     assert!(b.to_string().contains("COULD NOT back the stage off: gone"));
+}
+
+#[test]
+fn a_mean_of_readings_averages_their_own_errors_down_but_not_the_shared_part() {
+    // Four readings, each 2 um of its own noise and 1 um shared (the learnt
+    // curvature's): the mean's error is sqrt(2^2 / 4 + 1^2) = sqrt(2) um.
+    let r = |g: f64| GaugeReading::new(0.0, g, 0.0, 1.0).with_errors(5f64.sqrt() * 1e-3, 0.01).with_common_error(1e-3);
+    let m = mean(&[r(0.100), r(0.102), r(0.101), r(0.103)]);
+    assert!((m.gamma1_mm - 0.1015).abs() < 1e-12);
+    let sd = m.gamma1_sd_mm.unwrap();
+    assert!((sd - 2f64.sqrt() * 1e-3).abs() < 1e-12, "{sd}");
+    assert_eq!(m.gamma1_common_sd_mm, Some(1e-3));
+    // theta1 has no shared part: 0.01 / sqrt(4).
+    assert!((m.theta1_sd_deg.unwrap() - 0.005).abs() < 1e-12);
+}
+
+#[test]
+fn a_dead_band_zero_among_measured_readings_is_as_uncertain_as_they_are() {
+    // The sensor reads a contact of a few um as none in some frames: the
+    // zero takes the others' error instead of leaving the mean without one.
+    let seen = GaugeReading::new(0.0, 0.008, 0.0, 0.2).with_errors(0.006, 0.05);
+    let zero = GaugeReading::new(0.0, 0.0, 0.0, 0.0);
+    let m = mean(&[seen, zero, seen, zero]);
+    assert!((m.gamma1_mm - 0.004).abs() < 1e-12);
+    assert!((m.gamma1_sd_mm.unwrap() - 0.003).abs() < 1e-12, "{:?}", m.gamma1_sd_mm);
+    // No reading with an error: none for the mean either.
+    assert_eq!(mean(&[zero, zero]).gamma1_sd_mm, None);
 }
