@@ -31,8 +31,15 @@ pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Resu
     } else {
         (last.cands.iter().map(|c| c.name()).collect(), explained(final_fit))
     };
-    // contact_offset is every fit's z0: named when it is significant at the same guard.
-    if !unexplained && let Some(e) = contact_offset(final_fit, rec.meta.contact_sd_mm()) {
+    // contact_offset is every fit's z0: named when it is significant at the same
+    // guard. A recording whose stage zero the run already moved to the clean
+    // model's z0 (docs/run.md, "Stage zero") has no recorded zero left to
+    // judge: what z0 the effects' fit finds is that model's own correction.
+    let zero_moved = rec.meta.extra.iter().any(|(k, _)| k == crate::fit::zero::ZERO_MOVED_KEY);
+    if !unexplained
+        && !zero_moved
+        && let Some(e) = contact_offset(final_fit, rec.meta.contact_sd_mm())
+    {
         effects.insert(0, e.effect);
         explanation.insert(0, e);
     }

@@ -368,7 +368,11 @@ fn weighted_residuals(
     };
     out.clear();
     for ((s, q), sg) in rec.samples.iter().zip(&pred).zip(&sig.gamma1_mm) {
-        out.push((s.gamma1_mm - q.gamma1_mm) / sg);
+        // A reading of exactly zero is the sensor's dead band ("no contact
+        // seen"), not a measured depth: with recorded errors it carries none
+        // and is not counted as an observation (see `fit_full`).
+        let dead_band = sig.recorded && s.gamma1_mm == 0.0;
+        out.push(if dead_band { 0.0 } else { (s.gamma1_mm - q.gamma1_mm) / sg });
     }
     for ((s, q), st) in rec.samples.iter().zip(&pred).zip(&sig.theta1_deg) {
         if s.phase == Phase::Torsion {

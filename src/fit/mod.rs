@@ -6,6 +6,7 @@ pub mod plausible;
 pub mod regression;
 pub mod start_points;
 pub mod weights;
+pub mod zero;
 
 use serde::Serialize;
 use sim::recording::Recording;

@@ -51,6 +51,14 @@ fn write_header(s: &mut String, out: &CalibrationOutput, rec: &Recording) {
     );
     let r1 = if meta.elastomer_r_mm.is_infinite() { "flat".to_string() } else { format!("{} mm", meta.elastomer_r_mm) };
     let _ = writeln!(s, "| elastomer radius R1 | {r1} |");
+    if let Some((_, moved)) = meta.extra.iter().find(|(k, _)| k == crate::fit::zero::ZERO_MOVED_KEY) {
+        let moved_um =
+            moved.trim().parse::<f64>().map(|m| format!("{:+.2} um", m * 1e3)).unwrap_or_else(|_| moved.clone());
+        let _ = writeln!(
+            s,
+            "| stage zero | moved {moved_um} after the sweep, to the contact the full fit places (docs/run.md, \"Stage zero\") |"
+        );
+    }
     if let Some(t) = &out.run {
         let phases: Vec<String> = t.phases.iter().map(|p| format!("{} {:.1} s", p.phase, p.rig_time_s)).collect();
         let _ = writeln!(

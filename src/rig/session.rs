@@ -8,6 +8,7 @@ use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
 use super::connect::{ConnectError, RigSpec, open_rig};
 use crate::diagnosis::DiagnoseOptions;
+use crate::fit::zero::{StageZero, ZeroKept, refine_stage_zero};
 use crate::fit::{Calibration, FitOptions, calibrate};
 use crate::report::{ReportFiles, RunDiagnosis, RunExtras, RunTimings, Truth, diagnose_run, write_report_for};
 use crate::run::events::{LogLevel, RunControl, RunEvent};
@@ -64,6 +65,8 @@ pub struct Reported {
     pub calibration: Calibration,
     pub files: ReportFiles,
     pub diagnosis: Option<RunDiagnosis>,
+    /// The stage zero the full fit placed, or why the recorded one was kept.
+    pub stage_zero: Result<StageZero, ZeroKept>,
 }
 
 /// Fit a finished recording, diagnose it when `diagnose` is set (a failed
@@ -78,11 +81,52 @@ pub fn fit_and_report(
     let rec = sim::recording::Recording::read_path(recording)
         .map_err(|e| format!("cannot read the recording {}: {e}", recording.display()))?;
     let cal = calibrate(&rec, &FitOptions::default()).map_err(|e| format!("cannot fit the recording: {e}"))?;
+    let (rec, cal, stage_zero) = match refine_stage_zero(&rec, &cal.full) {
+        Ok((zeroed, zero)) => {
+            rewrite_with_raw_kept(recording, &zeroed)?;
+            // As written (stage_mm to 0.1 um): `easycalib fit` on the file
+            // gives the same numbers as the report.
+            let zeroed = sim::recording::Recording::read_path(recording)
+                .map_err(|e| format!("cannot read the recording {} back: {e}", recording.display()))?;
+            let cal =
+                calibrate(&zeroed, &FitOptions::default()).map_err(|e| format!("cannot fit the recording: {e}"))?;
+            (zeroed, cal, Ok(zero))
+        }
+        Err(kept) => (rec, cal, Err(kept)),
+    };
     let diagnosis = diagnose.then(|| diagnose_run(&rec, &cal, &DiagnoseOptions::default()));
     let extras = RunExtras { timings: Some(timings), diagnosis: diagnosis.clone() };
     let files = write_report_for(out_dir, &rec, Some(recording), &cal, truth, extras)
         .map_err(|e| format!("cannot write the report: {e}"))?;
-    Ok(Reported { calibration: cal, files, diagnosis })
+    Ok(Reported { calibration: cal, files, diagnosis, stage_zero })
+}
+
+/// Where the recording as the run streamed it is kept when its stage zero is
+/// refined (docs/run.md, "Stage zero").
+pub const RAW_RECORDING_FILE: &str = "recording.raw.csv";
+
+/// Replace the recording at `path` by `rec`, keeping the streamed one beside it
+/// as [`RAW_RECORDING_FILE`]. The new file is written whole before anything is
+/// renamed, so a failure leaves the streamed recording where it was.
+fn rewrite_with_raw_kept(path: &Path, rec: &sim::recording::Recording) -> Result<(), String> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let (tmp, raw) = (dir.join(".recording.zeroed.tmp"), dir.join(RAW_RECORDING_FILE));
+    let fail = |what: &str, p: &Path, e: std::io::Error| format!("cannot {what} {}: {e}", p.display());
+    // Never through a link planted at the temporary name (docs/run.md, "Outputs").
+    let write = |p: &Path| -> std::io::Result<()> {
+        use std::io::Write;
+        let mut f = crate::run::outdir::create_nofollow(p)?;
+        f.write_all(rec.to_csv_string().as_bytes())?;
+        f.sync_all()
+    };
+    write(&tmp).map_err(|e| fail("write", &tmp, e))?;
+    std::fs::rename(path, &raw).map_err(|e| fail("keep the streamed recording as", &raw, e))?;
+    if let Err(e) = std::fs::rename(&tmp, path) {
+        // Put the streamed recording back where the run said it is.
+        let _ = std::fs::rename(&raw, path);
+        return Err(fail("write", path, e));
+    }
+    Ok(())
 }
 
 /// Test facility (docs/hardening.md): `EASYCALIB_TEST_PANIC_AFTER_SAMPLES=N`
@@ -135,7 +179,17 @@ pub async fn run_calibration(
         let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
     }
     match fit_and_report(&outcome.recording, &req.out_dir, req.truth, timings, req.diagnose) {
-        Ok(Reported { calibration: cal, files, diagnosis }) => {
+        Ok(Reported { calibration: cal, files, diagnosis, stage_zero }) => {
+            let message = match stage_zero {
+                Ok(z) => format!(
+                    "stage zero moved {:+.2} um (± {:.2} um) to the contact the whole normal sweep places (the approach's: ± {:.2} um); the streamed recording is kept as {RAW_RECORDING_FILE}",
+                    z.moved_mm * 1e3,
+                    z.moved_se_mm * 1e3,
+                    z.approach_sd_mm * 1e3
+                ),
+                Err(kept) => format!("stage zero kept as recorded: {kept}"),
+            };
+            let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
             if let Some(d) = &diagnosis {
                 let _ = events.send(RunEvent::Diagnosis(Box::new(d.clone())));
             }

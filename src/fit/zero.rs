@@ -1,0 +1,128 @@
+//! The stage zero refined by the whole normal sweep (docs/run.md, "Stage
+//! zero"). A rig's approach places the first contact from a few shallow
+//! readings, to a micrometre or two; the full fit holds the contact point free
+//! and places it, from every normal sample, to a fraction of a micrometre. The
+//! paper's closed form has no such freedom: a micrometre of stage zero moves
+//! its E1 by about 1.5 % and its nu1 by about 6 %. A run therefore moves its
+//! recording's zero to the full fit's, when the move is one the approach's own
+//! uncertainty allows; a larger one is left for the diagnosis to name.
+
+use serde::Serialize;
+use sim::recording::Recording;
+
+use super::FullFit;
+
+/// Metadata key: how far the recording's stage zero was moved after the sweep,
+/// mm (every `stage_mm` is the recorded one minus this).
+pub const ZERO_MOVED_KEY: &str = "stage_zero_moved_mm";
+
+/// A move beyond this many of the combined standard uncertainties (the
+/// approach's declared one and the fit's) is not the approach's scatter: it is
+/// left for the diagnosis to judge (`contact_offset`, or an effect the clean
+/// model reads as an offset).
+pub const PLAUSIBLE_SIGMAS: f64 = 5.0;
+
+/// A refined stage zero.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StageZero {
+    /// How far the zero moved, mm (the full fit's contact offset).
+    pub moved_mm: f64,
+    /// The standard error of that offset, mm.
+    pub moved_se_mm: f64,
+    /// How well the approach said it had found the contact, mm.
+    pub approach_sd_mm: f64,
+}
+
+/// Why the recording's zero was kept as recorded.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ZeroKept {
+    #[error("the recording does not say how well its contact was found (`contact_sd_mm`)")]
+    NoDeclaredUncertainty,
+    #[error("the stage zero was already refined")]
+    AlreadyRefined,
+    #[error("the full fit did not converge")]
+    NotConverged,
+    #[error("the full fit's contact offset is not a finite number with a positive error")]
+    NotDetermined,
+    #[error(
+        "the full fit puts the contact {moved_um:+.2} um from the approach's, beyond {sigmas} times the uncertainty ({limit_um:.2} um): left for the diagnosis"
+    )]
+    Implausible { moved_um: f64, limit_um: f64, sigmas: f64 },
+}
+
+/// The recording with its stage zero moved to the full fit's contact point,
+/// and the move; or why the zero stays as recorded.
+pub fn refine_stage_zero(rec: &Recording, full: &FullFit) -> Result<(Recording, StageZero), ZeroKept> {
+    let approach_sd_mm = rec.meta.contact_sd_mm().ok_or(ZeroKept::NoDeclaredUncertainty)?;
+    if rec.meta.extra.iter().any(|(k, _)| k == ZERO_MOVED_KEY) {
+        return Err(ZeroKept::AlreadyRefined);
+    }
+    if !full.converged {
+        return Err(ZeroKept::NotConverged);
+    }
+    let (moved_mm, moved_se_mm) = (full.contact_offset_mm, full.contact_offset_se_mm);
+    if !(moved_mm.is_finite() && moved_se_mm.is_finite() && moved_se_mm > 0.0) {
+        return Err(ZeroKept::NotDetermined);
+    }
+    let limit = PLAUSIBLE_SIGMAS * approach_sd_mm.hypot(moved_se_mm);
+    if moved_mm.abs() > limit {
+        return Err(ZeroKept::Implausible {
+            moved_um: moved_mm * 1e3,
+            limit_um: limit * 1e3,
+            sigmas: PLAUSIBLE_SIGMAS,
+        });
+    }
+    let mut out = rec.clone();
+    for s in &mut out.samples {
+        s.stage_mm -= moved_mm;
+    }
+    out.meta.extra.push((ZERO_MOVED_KEY.to_string(), format!("{moved_mm:.6}")));
+    Ok((out, StageZero { moved_mm, moved_se_mm, approach_sd_mm }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::{FitOptions, calibrate};
+    use sim::generator::{GeneratorConfig, generate};
+
+    /// An ideal recording whose zero sits `z0_mm` before the true contact,
+    /// declaring `sd_mm` as the approach's uncertainty.
+    fn shifted(z0_mm: f64, sd_mm: f64) -> Recording {
+        let mut rec = generate(&GeneratorConfig::default()).expect("default generator");
+        for s in &mut rec.samples {
+            s.stage_mm += z0_mm;
+        }
+        rec.meta.extra.push((sim::recording::CONTACT_SD_KEY.into(), format!("{sd_mm}")));
+        rec
+    }
+
+    #[test]
+    fn a_zero_off_within_the_approach_error_is_moved_to_the_true_contact() {
+        let rec = shifted(0.002, 0.0015);
+        let fit = calibrate(&rec, &FitOptions::default()).unwrap().full;
+        let (zeroed, z) = refine_stage_zero(&rec, &fit).unwrap();
+        // The fit finds the 2 um to within its own error, and the moved zero
+        // leaves the full fit's offset at zero.
+        assert!((z.moved_mm - 0.002).abs() < 3.0 * z.moved_se_mm + 1e-4, "{z:?}");
+        let refit = calibrate(&zeroed, &FitOptions::default()).unwrap().full;
+        assert!(refit.contact_offset_mm.abs() < 0.2 * refit.contact_offset_se_mm + 1e-5, "{}", refit.contact_offset_mm);
+        assert!((refit.e1_mpa / fit.e1_mpa - 1.0).abs() < 1e-4 && (refit.nu1 - fit.nu1).abs() < 1e-4);
+        // Recorded once: a second pass keeps it.
+        assert_eq!(refine_stage_zero(&zeroed, &refit).unwrap_err(), ZeroKept::AlreadyRefined);
+    }
+
+    #[test]
+    fn a_zero_off_far_beyond_the_approach_error_is_left_for_the_diagnosis() {
+        let rec = shifted(0.03, 0.0015);
+        let fit = calibrate(&rec, &FitOptions::default()).unwrap().full;
+        assert!(matches!(refine_stage_zero(&rec, &fit), Err(ZeroKept::Implausible { .. })));
+    }
+
+    #[test]
+    fn a_recording_that_declares_no_uncertainty_keeps_its_zero() {
+        let rec = generate(&GeneratorConfig::default()).unwrap();
+        let fit = calibrate(&rec, &FitOptions::default()).unwrap().full;
+        assert_eq!(refine_stage_zero(&rec, &fit).unwrap_err(), ZeroKept::NoDeclaredUncertainty);
+    }
+}
