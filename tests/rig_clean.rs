@@ -6,116 +6,77 @@
 //! diagnosis finds nothing to name and nothing unexplained, and the paper's
 //! closed form is as close to the truth as on ideal data.
 
-use std::sync::Mutex;
+#[path = "support/emulated.rs"]
+mod emulated;
 
-use easycalib::rig::emulated::{EmulatedRig, ServeOptions};
-use easycalib::rig::{RunRequest, run_calibration};
-use easycalib::run::{RunStatus, Script};
-use sim::recording::Recording;
-use sim::setup::SimSetupInput;
-use tokio::sync::mpsc::unbounded_channel;
-
-/// One rig at a time: two cores, real timeouts.
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
-
-/// What one clean run came to.
-struct Outcome {
-    seed: u64,
-    chi2_dof: f64,
-    /// The run's diagnosis: `clean`, `effects`, `ambiguous`, `unexplained`.
-    verdict: &'static str,
-    summary: String,
-    /// Relative errors, %: full fit (E1, nu1) and paper's method (E1, nu1).
-    full: (f64, f64),
-    paper: (f64, f64),
-}
-
-fn run_seed(seed: u64) -> Outcome {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
-    rt.block_on(async {
-        let setup = SimSetupInput { speedup: 40.0, seed, ..SimSetupInput::default() }.resolve().unwrap();
-        let rig = EmulatedRig::start(setup, ServeOptions::default()).await.unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let truth = rig.truth();
-        let req = RunRequest {
-            spec: rig.spec(),
-            script: Script::default(),
-            out_dir: dir.path().to_path_buf(),
-            truth: Some(truth),
-            metadata: vec![],
-            diagnose: true,
-        };
-        let (ev_tx, mut ev_rx) = unbounded_channel();
-        let (_ctl_tx, ctl_rx) = unbounded_channel();
-        let task = tokio::spawn(run_calibration(req, ev_tx, ctl_rx));
-        while ev_rx.recv().await.is_some() {}
-        let r = task.await.unwrap().expect("devices open");
-        assert_eq!(r.outcome.status, RunStatus::Completed, "seed {seed}: {:?}", r.outcome.status);
-        let cal = r.calibration.as_ref().unwrap_or_else(|| panic!("seed {seed}: no fit: {:?}", r.fit_error));
-        let rec = Recording::read_path(&r.outcome.recording).unwrap();
-        // The diagnosis the run made of its own recording (on by default).
-        let d = r.diagnosis.as_ref().expect("the run diagnoses by default");
-        // The recording carries the estimator's errors (docs/recording-format.md).
-        let live: Vec<_> = rec.samples.iter().filter(|s| s.gamma1_mm != 0.0).collect();
-        let with_sd = live.iter().filter(|s| s.gamma1_sd_mm.is_some()).count();
-        assert!(
-            with_sd * 100 >= 95 * live.len(),
-            "seed {seed}: {with_sd} of {} samples carry gamma1_sd_mm",
-            live.len()
-        );
-        let pct = |x: f64, t: f64| 100.0 * (x / t - 1.0);
-        Outcome {
-            seed,
-            chi2_dof: cal.full.chi2_dof.expect("a rig-made recording carries standard errors"),
-            verdict: d.verdict.as_str(),
-            summary: d.summary.lines().next().unwrap_or("").to_string(),
-            full: (pct(cal.full.e1_mpa, truth.e1_mpa), pct(cal.full.nu1, truth.nu1)),
-            paper: (pct(cal.paper.e1_mpa, truth.e1_mpa), pct(cal.paper.nu1, truth.nu1)),
-        }
-    })
-}
+use easycalib::fit::{FitOptions, calibrate};
+use emulated::{Outcome, run_seed};
+use sim::defaults::{ELASTOMER_E_MPA, ELASTOMER_NU};
+use sim::effects::SimProfile;
+use sim::generator::{GeneratorConfig, generate};
 
 #[test]
 fn clean_runs_on_the_emulated_rig_fit_near_their_errors_and_mostly_name_nothing() {
-    let runs: Vec<Outcome> = (1..=20).map(run_seed).collect();
+    let runs: Vec<Outcome> = (1..=20).map(|seed| run_seed(seed, SimProfile::default())).collect();
     println!("seed  chi2/dof  full E1 %  full nu1 %  paper E1 %  paper nu1 %  diagnosis");
     for o in &runs {
+        // The recording carries the estimator's errors (docs/recording-format.md).
+        assert!(o.with_sd.0 * 100 >= 95 * o.with_sd.1, "seed {}: {:?} samples carry gamma1_sd_mm", o.seed, o.with_sd);
         let verdict = if o.verdict == "clean" { "clean".to_string() } else { format!("{}: {}", o.verdict, o.summary) };
         println!(
             "{:4}  {:8.2}  {:+9.2}  {:+10.2}  {:+10.2}  {:+11.2}  {verdict}",
             o.seed, o.chi2_dof, o.full.0, o.full.1, o.paper.0, o.paper.1
         );
     }
-    // Issue 12 asks: chi2/dof <= 1.3, nothing named and not unexplained, in
-    // 19 of 20. Where the runs stand (a guard against sliding back, not that
-    // bar): chi2/dof has a median of 1.2 but reaches 1.8 in a run or two, and
-    // 15 or 16 of 20 runs name nothing and are not unexplained (ambiguous
-    // among degenerate effects names nothing); a contact offset of 2-3 um,
-    // beyond what the approach declares, is named in a few (docs/sensing.md).
+    // Issue 12's bars: chi2/dof <= 1.3, and a diagnosis that names nothing and
+    // leaves nothing unexplained (ambiguous among degenerate effects names
+    // nothing), in 19 of 20 runs.
     let quiet = runs.iter().filter(|o| o.verdict == "clean" || o.verdict == "ambiguous").count();
-    let fitted = runs.iter().filter(|o| o.chi2_dof <= 2.0).count();
+    let fitted = runs.iter().filter(|o| o.chi2_dof <= 1.3).count();
     let mut chi2: Vec<f64> = runs.iter().map(|o| o.chi2_dof).collect();
     chi2.sort_by(f64::total_cmp);
-    println!("nothing named, not unexplained: {quiet} of 20; chi2/dof <= 2: {fitted} of 20, median {:.2}", chi2[10]);
-    assert!(quiet >= 13, "{quiet} of 20 clean runs name nothing and leave nothing unexplained");
-    assert!(fitted >= 19 && chi2[10] <= 1.35, "{fitted} of 20 clean runs fit to chi2/dof <= 2, median {:.2}", chi2[10]);
+    println!("nothing named, not unexplained: {quiet} of 20; chi2/dof <= 1.3: {fitted} of 20, median {:.2}", chi2[10]);
+    assert!(quiet >= 19, "{quiet} of 20 clean runs name nothing and leave nothing unexplained");
+    assert!(fitted >= 19, "{fitted} of 20 clean runs fit to chi2/dof <= 1.3 (median {:.2})", chi2[10]);
     // The full fit recovers the truth in every run.
     for o in &runs {
         assert!(o.full.0.abs() <= 1.0 && o.full.1.abs() <= 2.0, "seed {}: full {:?}", o.seed, o.full);
     }
-    // The paper's method hangs on micrometres: a micrometre of stage zero
-    // moves its E1 by about 1.5 % and its nu1 by about 6 %, and so does a
-    // micrometre of gamma1 bias across its 0.2-0.8 mm window. The approach
-    // finds the contact to 1-3 um, so it comes out within -1.5..+4.5 % in E1
-    // (issue 12 asks 2 % and 6 % in every run; not met). This guards the
-    // median against sliding back towards the -7 % / -27 % the issue found.
-    let median_abs = |f: fn(&Outcome) -> f64| {
-        let mut v: Vec<f64> = runs.iter().map(|o| f(o).abs()).collect();
-        v.sort_by(f64::total_cmp);
-        v[10]
+    // The paper's closed form hangs on micrometres: a micrometre of stage
+    // zero moves its E1 by about 1.5 % and its nu1 by about 6 %. The run moves
+    // its zero to the full fit's (docs/run.md, "Stage zero"), and the readings
+    // are unbiased across its 0.2-0.8 mm window, so it must do as well as on
+    // the generator's ideal recordings of the same script, seeds 1..20: no
+    // larger an rms error (a fifth of margin for the rms of 20), and within 2 %
+    // (E1) and 6 % (nu1) as often (ideal recordings stray beyond 6 % in nu1
+    // about once in ten: 3 of 30 seeds, rms 3.1 %).
+    let rms = |v: &[(f64, f64)], f: fn(&(f64, f64)) -> f64| {
+        (v.iter().map(|x| f(x).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
     };
-    let (e1, nu1) = (median_abs(|o| o.paper.0), median_abs(|o| o.paper.1));
-    println!("paper's method: median |error| E1 {e1:.2} %, nu1 {nu1:.2} %");
-    assert!(e1 <= 4.0 && nu1 <= 16.0, "paper's method median error E1 {e1:.2} %, nu1 {nu1:.2} %");
+    let within = |v: &[(f64, f64)]| v.iter().filter(|x| x.0.abs() <= 2.0 && x.1.abs() <= 6.0).count();
+    let rig: Vec<(f64, f64)> = runs.iter().map(|o| o.paper).collect();
+    let ideal: Vec<(f64, f64)> = (1..=20)
+        .map(|seed| {
+            let rec = generate(&GeneratorConfig { seed, ..GeneratorConfig::default() }).unwrap();
+            let p = calibrate(&rec, &FitOptions::default()).unwrap().paper;
+            (100.0 * (p.e1_mpa / ELASTOMER_E_MPA - 1.0), 100.0 * (p.nu1 / ELASTOMER_NU - 1.0))
+        })
+        .collect();
+    let (rig_e1, rig_nu1, ideal_e1, ideal_nu1) =
+        (rms(&rig, |x| x.0), rms(&rig, |x| x.1), rms(&ideal, |x| x.0), rms(&ideal, |x| x.1));
+    println!(
+        "paper's method, rms error E1 / nu1: rig {rig_e1:.2} / {rig_nu1:.2} %, ideal {ideal_e1:.2} / {ideal_nu1:.2} %; within 2 % / 6 %: rig {}, ideal {} of 20",
+        within(&rig),
+        within(&ideal)
+    );
+    assert!(
+        rig_e1 <= 1.2 * ideal_e1 && rig_nu1 <= 1.2 * ideal_nu1,
+        "the paper's method is further off on the rig than on ideal recordings"
+    );
+    assert!(
+        within(&rig) >= 18.min(within(&ideal)),
+        "{} of 20 rig runs within 2 % / 6 %, {} ideal",
+        within(&rig),
+        within(&ideal)
+    );
 }

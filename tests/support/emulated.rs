@@ -1,0 +1,85 @@
+//! One calibration on the built-in emulated rig (real APT drivers over
+//! pseudo-terminals, the simulated Tac3D-class marker field through the
+//! sensor link, time-accelerated), as `easycalib run` makes it, and what it
+//! came to against the rig's truth. Included with
+//! `#[path = "support/emulated.rs"] mod emulated;` by the rig tests.
+
+#![allow(dead_code)] // each rig test reads the fields it checks
+use std::sync::Mutex;
+
+use easycalib::rig::emulated::{EmulatedRig, ServeOptions};
+use easycalib::rig::{RunRequest, run_calibration};
+use easycalib::run::{RunStatus, Script};
+use sim::effects::SimProfile;
+use sim::recording::Recording;
+use sim::setup::SimSetupInput;
+use tokio::sync::mpsc::unbounded_channel;
+
+/// One rig at a time: two cores, real timeouts.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+/// What one run came to. Errors are relative to the rig's truth, %.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub seed: u64,
+    pub chi2_dof: f64,
+    /// The run's diagnosis: `clean`, `effects`, `ambiguous`, `unexplained`.
+    pub verdict: &'static str,
+    /// Its first line.
+    pub summary: String,
+    /// The effects it named.
+    pub named: Vec<&'static str>,
+    /// (E1, nu1): the full fit (the calibration), the paper's method, and the
+    /// diagnosis's values (corrected for what it named; the calibration's
+    /// when it named nothing).
+    pub full: (f64, f64),
+    pub paper: (f64, f64),
+    pub corrected: (f64, f64),
+    /// Samples that carry their standard error, of the samples in contact.
+    pub with_sd: (usize, usize),
+}
+
+/// Run the default script on the emulated rig with noise seed `seed` and the
+/// left-out physics of `profile`.
+pub fn run_seed(seed: u64, profile: SimProfile) -> Outcome {
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    rt.block_on(async {
+        let setup = SimSetupInput { speedup: 40.0, seed, profile, ..SimSetupInput::default() }.resolve().unwrap();
+        let rig = EmulatedRig::start(setup, ServeOptions::default()).await.unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let truth = rig.truth();
+        let req = RunRequest {
+            spec: rig.spec(),
+            script: Script::default(),
+            out_dir: dir.path().to_path_buf(),
+            truth: Some(truth),
+            metadata: vec![],
+            diagnose: true,
+        };
+        let (ev_tx, mut ev_rx) = unbounded_channel();
+        let (_ctl_tx, ctl_rx) = unbounded_channel();
+        let task = tokio::spawn(run_calibration(req, ev_tx, ctl_rx));
+        while ev_rx.recv().await.is_some() {}
+        let r = task.await.unwrap().expect("devices open");
+        assert_eq!(r.outcome.status, RunStatus::Completed, "seed {seed}: {:?}", r.outcome.status);
+        let cal = r.calibration.as_ref().unwrap_or_else(|| panic!("seed {seed}: no fit: {:?}", r.fit_error));
+        let rec = Recording::read_path(&r.outcome.recording).unwrap();
+        // The diagnosis the run made of its own recording (on by default).
+        let d = r.diagnosis.as_ref().expect("the run diagnoses by default");
+        let live: Vec<_> = rec.samples.iter().filter(|s| s.gamma1_mm != 0.0).collect();
+        let with_sd = live.iter().filter(|s| s.gamma1_sd_mm.is_some()).count();
+        let pct = |x: f64, t: f64| 100.0 * (x / t - 1.0);
+        Outcome {
+            seed,
+            chi2_dof: cal.full.chi2_dof.expect("a rig-made recording carries standard errors"),
+            verdict: d.verdict.as_str(),
+            summary: d.summary.lines().next().unwrap_or("").to_string(),
+            named: d.effects.iter().map(|e| e.name).collect(),
+            full: (pct(cal.full.e1_mpa, truth.e1_mpa), pct(cal.full.nu1, truth.nu1)),
+            paper: (pct(cal.paper.e1_mpa, truth.e1_mpa), pct(cal.paper.nu1, truth.nu1)),
+            corrected: (pct(d.e1_mpa, truth.e1_mpa), pct(d.nu1, truth.nu1)),
+            with_sd: (with_sd, live.len()),
+        }
+    })
+}
