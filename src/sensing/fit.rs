@@ -283,6 +283,19 @@ pub struct RotationFit {
     pub rms: f64,
     /// Sum of squared distances of the kept markers from the centre, mm^2.
     pub sum_r2: f64,
+    /// How far the kept markers moved out (> 1) or in (< 1) from the centre
+    /// besides turning: |(sum p.q, sum p x q)| / sum |p|^2. A Hertz contact
+    /// draws its markers in (nu1 < 0.5), and the angle's noise grows as
+    /// 1 / scale: theta = atan2(sum p x q, sum p.q).
+    pub scale: f64,
+}
+
+impl RotationFit {
+    /// The standard error of `theta` (rad) for a tangential marker noise
+    /// `noise_mm`: noise / (sqrt(sum r^2) scale).
+    pub fn theta_sd(&self, noise_mm: f64) -> f64 {
+        noise_mm / (self.sum_r2.sqrt() * self.scale)
+    }
 }
 
 /// The rotation about `centre` that best maps the reference points `p` onto
@@ -342,7 +355,8 @@ pub fn fit_rotation(p: &[[f64; 2]], q: &[[f64; 2]], centre: [f64; 2], k: f64, fl
         // in an early, pulled fit comes back).
         let next: Vec<bool> = resid.iter().map(|&e| e <= limit).collect();
         if round + 1 == ROUNDS || next.iter().filter(|&&b| b).count() < 2 || next == kept {
-            return Some(RotationFit { theta, kept, rms, sum_r2 });
+            let scale = (h[(0, 0)] + h[(1, 1)]).hypot(h[(0, 1)] - h[(1, 0)]) / sum_r2;
+            return Some(RotationFit { theta, kept, rms, sum_r2, scale });
         }
         kept = next;
     }

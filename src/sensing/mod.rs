@@ -566,7 +566,7 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
     let rotation_dof = stick_markers.saturating_sub(1);
     let rotation_noise =
         if rotation_dof > 0 { rf.rms * (stick_markers as f64 / rotation_dof as f64).sqrt() } else { f64::NAN };
-    let theta_std = noise_for_errors(rotation_noise, cfg.marker_noise_mm.map(|n| n.1)) / rf.sum_r2.sqrt();
+    let theta_std = rf.theta_sd(noise_for_errors(rotation_noise, cfg.marker_noise_mm.map(|n| n.1)));
     Ok(Measurement {
         index,
         t_s: frame.t_s,
