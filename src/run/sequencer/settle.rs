@@ -33,11 +33,7 @@ where
             match self.gauge.read(timeout).await {
                 Ok(r) => {
                     self.consecutive_timeouts = 0;
-                    let t0 = *self.clock.t0.get_or_insert(r.t_s);
-                    self.clock.t_last = (r.t_s - t0).max(self.clock.t_last);
-                    self.gamma1_mm = r.gamma1_mm;
-                    self.gamma1_bound_mm =
-                        self.gamma1_bound_mm.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
+                    self.note_reading(&r);
                     return Ok(r);
                 }
                 Err(GaugeError::Timeout { .. }) => {
@@ -68,6 +64,15 @@ where
                 Err(e) => return Err(self.sensor_fault("read", e)),
             }
         }
+    }
+
+    /// What a reading tells the run: the rig's time, the latest gamma1 and
+    /// the bound on the true one.
+    pub(super) fn note_reading(&mut self, r: &GaugeReading) {
+        let t0 = *self.clock.t0.get_or_insert(r.t_s);
+        self.clock.t_last = (r.t_s - t0).max(self.clock.t_last);
+        self.gamma1_mm = r.gamma1_mm;
+        self.gamma1_bound_mm = self.gamma1_bound_mm.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
     }
 
     /// Read until the reading is stable, never a fixed wait. The readings
