@@ -116,15 +116,114 @@ fn main() {
         ("normal load only", Box::new(|r| if !r.torsion && r.unload { 0.0 } else { 1.0 })),
         ("normal x2 frames", Box::new(|r| if r.torsion { 1.0 } else { 2.0 })),
         ("torsion x2 frames", Box::new(|r| if r.torsion { 2.0 } else { 1.0 })),
-        ("normal deeper half x2, shallow half x0", Box::new(move |r| if r.torsion { 1.0 } else if r.x > xmax / 2.0 { 2.0 } else { 0.0 })),
-        ("torsion |twist| > half x2, rest x0", Box::new(move |r| if !r.torsion { 1.0 } else if r.x.abs() > tmax / 2.0 { 2.0 } else { 0.0 })),
-        ("normal every 3rd x3", Box::new(|r| if r.torsion { 1.0 } else if r.k % 3 == 0 { 3.0 } else { 0.0 })),
-        ("normal every 4th x2", Box::new(|r| if r.torsion { 1.0 } else if r.k % 4 == 0 { 2.0 } else { 0.0 })),
-        ("normal every 4th x1", Box::new(|r| if r.torsion { 1.0 } else if r.k % 4 == 0 { 1.0 } else { 0.0 })),
-        ("torsion every 5th x5", Box::new(|r| if !r.torsion { 1.0 } else if r.k % 5 == 0 { 5.0 } else { 0.0 })),
-        ("torsion every 5th x3", Box::new(|r| if !r.torsion { 1.0 } else if r.k % 5 == 0 { 3.0 } else { 0.0 })),
-        ("N every 4th x2, T every 5th x5", Box::new(|r| if r.torsion { if r.k % 5 == 0 { 5.0 } else { 0.0 } } else if r.k % 4 == 0 { 2.0 } else { 0.0 })),
-        ("N every 4th x1, T every 5th x4", Box::new(|r| if r.torsion { if r.k % 5 == 0 { 4.0 } else { 0.0 } } else if r.k % 4 == 0 { 1.0 } else { 0.0 })),
+        (
+            "normal deeper half x2, shallow half x0",
+            Box::new(move |r| {
+                if r.torsion {
+                    1.0
+                } else if r.x > xmax / 2.0 {
+                    2.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
+        (
+            "torsion |twist| > half x2, rest x0",
+            Box::new(move |r| {
+                if !r.torsion {
+                    1.0
+                } else if r.x.abs() > tmax / 2.0 {
+                    2.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
+        (
+            "normal every 3rd x3",
+            Box::new(|r| {
+                if r.torsion {
+                    1.0
+                } else if r.k % 3 == 0 {
+                    3.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
+        (
+            "normal every 4th x2",
+            Box::new(|r| {
+                if r.torsion {
+                    1.0
+                } else if r.k % 4 == 0 {
+                    2.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
+        (
+            "normal every 4th x1",
+            Box::new(|r| {
+                if r.torsion {
+                    1.0
+                } else if r.k % 4 == 0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
+        (
+            "torsion every 5th x5",
+            Box::new(|r| {
+                if !r.torsion {
+                    1.0
+                } else if r.k % 5 == 0 {
+                    5.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
+        (
+            "torsion every 5th x3",
+            Box::new(|r| {
+                if !r.torsion {
+                    1.0
+                } else if r.k % 5 == 0 {
+                    3.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
+        (
+            "N every 4th x2, T every 5th x5",
+            Box::new(|r| {
+                if r.torsion {
+                    if r.k % 5 == 0 { 5.0 } else { 0.0 }
+                } else if r.k % 4 == 0 {
+                    2.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
+        (
+            "N every 4th x1, T every 5th x4",
+            Box::new(|r| {
+                if r.torsion {
+                    if r.k % 5 == 0 { 4.0 } else { 0.0 }
+                } else if r.k % 4 == 0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }),
+        ),
     ];
     println!("{:45} {:>9} {:>9}", "design (weights = frames relative to now)", "E1 %", "nu1 %");
     for (name, wf) in &designs {
@@ -134,7 +233,10 @@ fn main() {
     // A grid: every k-th normal sample at a frames multiple, torsion at another
     // (all of it, or only its outer half of twist), with the frames it takes
     // (4 a sample as recorded).
-    println!("{:>3} {:>4} {:>4} {:>6} {:>7} {:>7} {:>9} {:>9}", "k", "N x", "T x", "outer", "N fr", "T fr", "E1 %", "nu1 %");
+    println!(
+        "{:>3} {:>4} {:>4} {:>6} {:>7} {:>7} {:>9} {:>9}",
+        "k", "N x", "T x", "outer", "N fr", "T fr", "E1 %", "nu1 %"
+    );
     for k in [1usize, 2, 4, 6] {
         for nx in [1.0, 2.0, 3.0] {
             for tx in [1.0, 2.0, 3.0] {
@@ -148,9 +250,8 @@ fn main() {
                             0.0
                         }
                     };
-                    let frames = |t: bool| {
-                        4.0 * rs.iter().filter(|r| r.torsion == t && !r.theta).map(|r| wf(r)).sum::<f64>()
-                    };
+                    let frames =
+                        |t: bool| 4.0 * rs.iter().filter(|r| r.torsion == t && !r.theta).map(|r| wf(r)).sum::<f64>();
                     let (e, n) = half_widths(&rs, nu1, wf);
                     println!(
                         "{k:>3} {nx:>4} {tx:>4} {outer:>6} {:>7.0} {:>7.0} {e:>9.4} {n:>9.4}",

@@ -22,7 +22,7 @@ use easycalib::rig::{RunRequest, RunResult, run_calibration};
 use easycalib::run::events::RunEvent;
 use easycalib::run::{Backoff, Culprit, RunStatus, Script};
 use sim::emulator::apt::InjectedError;
-use sim::recording::{Phase, Recording};
+use sim::recording::{Direction, Phase, Recording};
 use sim::setup::{SimSetup, SimSetupInput};
 use tokio::sync::mpsc::unbounded_channel;
 
@@ -166,7 +166,11 @@ fn default_run_through_the_real_drivers_recovers_the_truth() {
         // The recording, read back and fitted on its own, gives the same result.
         let rec = Recording::read_path(&r.outcome.recording).unwrap();
         assert_eq!(rec.samples.len(), sample_events(&events));
-        assert!(rec.phase(Phase::Normal).count() > 100);
+        // Both branches of the normal sweep, and the paper's method's window
+        // (at least 4 samples with gamma1 in 0.2-0.8 mm) covered.
+        let branch = |d: Direction| rec.phase(Phase::Normal).filter(|s| s.dir == Some(d)).count();
+        assert!(branch(Direction::Load) >= 10 && branch(Direction::Unload) >= 10);
+        assert!(rec.phase(Phase::Normal).filter(|s| (0.2..=0.8).contains(&s.gamma1_mm)).count() >= 4);
         assert_eq!(rec.phase(Phase::Torsion).count(), Script::default().twist_angles().len());
         let again = calibrate(&rec, &FitOptions::default()).unwrap();
         assert_eq!((again.full.e1_mpa, again.full.nu1), (e1, nu1));

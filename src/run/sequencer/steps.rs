@@ -99,7 +99,7 @@ where
         let mut pos = a.start_mm;
         let mut last_clear = pos;
         loop {
-            let next = pos + a.step_mm;
+            let next = pos + a.search_step_mm;
             if !self.guard.stage_in_travel(next) {
                 return Err(Halt {
                     culprit: Culprit::Procedure,
@@ -217,7 +217,7 @@ where
                 ));
             }
             self.move_stage(pos, "normal sweep").await?;
-            let r = self.settle().await?;
+            let r = self.settle_frames(n.frames).await?;
             let beta = ((pos - contact) - r.gamma1_mm) / r2;
             self.track.cursor = Cursor::Load { rep, k, beta };
             self.record(Phase::Normal, pos, r, Some(rep), Some(Direction::Load))?;
@@ -248,7 +248,7 @@ where
         for (i, pos) in back.iter().enumerate() {
             self.track.cursor = Cursor::Unload { rep, left: back.len() - i };
             self.move_stage(*pos, "normal unload").await?;
-            let r = self.settle().await?;
+            let r = self.settle_frames(n.frames).await?;
             self.record(Phase::Normal, *pos, r, Some(rep), Some(Direction::Unload))?;
         }
         Ok(crossing)
@@ -289,7 +289,7 @@ where
             self.track.cursor = Cursor::Twist { left: angles.len() - i };
             let target = self.twist_zero + angle;
             self.move_mount(target, "torsion sweep").await?;
-            let r = self.settle().await?;
+            let r = self.settle_frames(self.script.torsion.frames).await?;
             let dir = if i <= half { Direction::Load } else { Direction::Unload };
             self.record(Phase::Torsion, hold, r, None, Some(dir))?;
         }
