@@ -57,6 +57,9 @@ fn rows(rec: &Recording, p: &ModelParams) -> Result<Vec<Row>, String> {
     Ok(out)
 }
 
+/// A named design: the frames weight of each row relative to the recording.
+type Design = (&'static str, Box<dyn Fn(&Row) -> f64>);
+
 /// 95 % half-widths, % of E1 and of nu1, from rows weighted by `w`.
 fn half_widths(rows: &[Row], nu1: f64, w: impl Fn(&Row) -> f64) -> (f64, f64) {
     let mut f = Matrix3::zeros();
@@ -108,7 +111,7 @@ fn main() {
     let xmax = rs.iter().filter(|r| !r.torsion).map(|r| r.x).fold(0.0, f64::max);
     let tmax = rs.iter().filter(|r| r.torsion).map(|r| r.x.abs()).fold(0.0, f64::max);
     println!("normal depth up to {xmax:.3} mm, twist up to {tmax:.2} deg");
-    let designs: Vec<(&str, Box<dyn Fn(&Row) -> f64>)> = vec![
+    let designs: Vec<Design> = vec![
         ("all, as recorded", Box::new(|_| 1.0)),
         ("normal only", Box::new(|r| if r.torsion { 0.0 } else { 1.0 })),
         ("torsion only", Box::new(|r| if r.torsion { 1.0 } else { 0.0 })),
@@ -164,18 +167,7 @@ fn main() {
                 }
             }),
         ),
-        (
-            "normal every 4th x1",
-            Box::new(|r| {
-                if r.torsion {
-                    1.0
-                } else if r.k % 4 == 0 {
-                    1.0
-                } else {
-                    0.0
-                }
-            }),
-        ),
+        ("normal every 4th x1", Box::new(|r| if r.torsion || r.k % 4 == 0 { 1.0 } else { 0.0 })),
         (
             "torsion every 5th x5",
             Box::new(|r| {
@@ -250,8 +242,7 @@ fn main() {
                             0.0
                         }
                     };
-                    let frames =
-                        |t: bool| 4.0 * rs.iter().filter(|r| r.torsion == t && !r.theta).map(|r| wf(r)).sum::<f64>();
+                    let frames = |t: bool| 4.0 * rs.iter().filter(|r| r.torsion == t && !r.theta).map(&wf).sum::<f64>();
                     let (e, n) = half_widths(&rs, nu1, wf);
                     println!(
                         "{k:>3} {nx:>4} {tx:>4} {outer:>6} {:>7.0} {:>7.0} {e:>9.4} {n:>9.4}",
