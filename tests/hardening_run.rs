@@ -38,7 +38,8 @@ fn one_trial(signal: libc::c_int, after: Duration, out: &Path) -> (Option<i32>, 
     let mut cmd = easycalib();
     // Signal 0 stands for the fourth kind of fault: a panic inside the run.
     if signal == 0 {
-        cmd.env("EASYCALIB_TEST_PANIC_AFTER_SAMPLES", format!("{}", 2 + after.as_millis() % 280));
+        // A default run records ~60 samples (issue 15's design).
+        cmd.env("EASYCALIB_TEST_PANIC_AFTER_SAMPLES", format!("{}", 2 + after.as_millis() % 56));
     }
     let mut child = cmd
         .args(["run", "--speedup", SPEEDUP, "--json", "--out", out.to_str().unwrap()])
@@ -76,8 +77,8 @@ fn signals_at_random_points_all_end_in_the_safe_path() {
     let t0 = Instant::now();
     for trial in 0..24 {
         let (sig, name) = kinds[trial % kinds.len()];
-        // A whole run takes ~1.5 s of wall time at this speed-up: fault inside it.
-        let after = Duration::from_secs_f64(0.15 + 1.2 * lcg(&mut seed));
+        // A whole run takes ~1 s of wall time at this speed-up: fault inside it.
+        let after = Duration::from_secs_f64(0.15 + 0.7 * lcg(&mut seed));
         let out = tmp.path().join(format!("t{trial}"));
         let (code, report, rows) = one_trial(sig, after, &out);
         if code == Some(0) && sig != 0 {
@@ -122,7 +123,8 @@ fn an_existing_output_folder_is_refused_and_planted_links_are_not_followed() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(std::fs::read_to_string(&target).unwrap(), "keep me");
     assert!(!std::fs::symlink_metadata(out.join("recording.csv")).unwrap().file_type().is_symlink());
-    assert!(recorded_rows(&out.join("recording.csv")) > 100);
+    // (A default run records ~60 samples since issue 15's design.)
+    assert!(recorded_rows(&out.join("recording.csv")) > 40);
 }
 
 mod in_process {
@@ -219,8 +221,8 @@ mod in_process {
         let mut lines = Vec::new();
         for n in 0..27 {
             let kind = ["sensor-lost", "datagrams", "rotation-cut"][n % 3];
-            // The default run records ~300 samples: anywhere in the sweeps.
-            let at = 2 + (lcg(&mut seed) * 280.0) as usize;
+            // The default run records ~60 samples: anywhere in the sweeps.
+            let at = 2 + (lcg(&mut seed) * 56.0) as usize;
             let dir = tmp.path().join(format!("f{n}"));
             let (rows, announced, status, stage) = rt.block_on(trial(kind, at, &dir));
             lines.push(format!("{kind:11} at sample {at:3}: {rows} rows, stage {stage:.3} mm, {status:?}"));
@@ -230,7 +232,7 @@ mod in_process {
                 ("sensor-lost", RunStatus::Aborted(info)) => {
                     assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{info:?}")
                 }
-                ("sensor-lost", RunStatus::Completed) if at > 260 => {}
+                ("sensor-lost", RunStatus::Completed) if at > 52 => {}
                 ("rotation-cut", RunStatus::Aborted(info)) => {
                     assert_eq!(info.culprit, Culprit::Mount, "{info:?}");
                     assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{info:?}")

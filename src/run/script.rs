@@ -28,7 +28,7 @@ elastomer_r_mm = 33.0
 
 # Approach: travel fast to start_mm (known to be clear of the sensor), estimate
 # the gamma1 noise from noise_readings untouched readings, then step in by
-# step_mm until gamma1 rises above contact_sigmas x noise (at least
+# search_step_mm until gamma1 rises above contact_sigmas x noise (at least
 # contact_min_mm). The contact point is then refined: the stage steps on (at
 # most refine_steps steps of step_mm) until gamma1 reaches
 # refine_to_gamma1_mm, and a line through the settled readings with gamma1 in
@@ -41,6 +41,7 @@ elastomer_r_mm = 33.0
 # the contact.
 [approach]
 start_mm = 10.0
+search_step_mm = 0.25
 step_mm = 0.05
 noise_readings = 20
 contact_sigmas = 6.0
@@ -52,16 +53,23 @@ pre_contact_mm = 0.15
 
 # Normal sweep: step in by step_mm until the live depth
 # beta = gamma2 / R2 = (approach - gamma1) / R2 reaches target_beta, then step
-# back out through the same positions; repeated `repeats` times.
+# back out through the same positions; repeated `repeats` times. Each sample
+# averages `frames` settled frames (0: the settling's last two windows, see
+# [settle]): a move costs more rig time than frames at the same place, and the
+# information is in the frames (docs/run.md, "The sweeps' design").
 [normal]
-step_mm = 0.05
+step_mm = 0.25
 target_beta = 0.2
 repeats = 1
+frames = 12
 
-# Torsion sweep at target_beta: twist out to amplitude_deg in step_deg steps and back to 0.
+# Torsion sweep at target_beta: twist out to amplitude_deg in step_deg steps
+# and back to 0, each sample averaging `frames` settled frames. The torsion
+# samples carry most of what the fit knows of E1, and much of nu1.
 [torsion]
 amplitude_deg = 8.0
-step_deg = 0.2
+step_deg = 1.0
+frames = 32
 
 # Soft limits, checked before every move. Inside [stage_min_mm, start_mm] the
 # indenter is clear of the sensor; deeper, a move is refused if gamma1 could
@@ -79,7 +87,7 @@ retract_mm = 0.0
 # tol_gamma1_mm / tol_theta1_deg (each raised to 3 noise standard errors when
 # the measured noise is larger), or until timeout_s of sensor time has passed.
 [settle]
-readings = 2
+readings = 3
 tol_gamma1_mm = 0.001
 tol_theta1_deg = 0.01
 timeout_s = 5.0
@@ -119,6 +127,8 @@ pub struct SensorSection {
 #[serde(default, deny_unknown_fields)]
 pub struct ApproachSection {
     pub start_mm: f64,
+    /// Step of the search for first contact, mm (the refinement steps by `step_mm`).
+    pub search_step_mm: f64,
     pub step_mm: f64,
     pub noise_readings: usize,
     pub contact_sigmas: f64,
@@ -135,6 +145,8 @@ pub struct NormalSection {
     pub step_mm: f64,
     pub target_beta: f64,
     pub repeats: u32,
+    /// Settled frames averaged into each sample (0: the settling's last two windows).
+    pub frames: usize,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -142,6 +154,8 @@ pub struct NormalSection {
 pub struct TorsionSection {
     pub amplitude_deg: f64,
     pub step_deg: f64,
+    /// Settled frames averaged into each sample (0: the settling's last two windows).
+    pub frames: usize,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -207,6 +221,7 @@ impl Default for ApproachSection {
     fn default() -> Self {
         Self {
             start_mm: 10.0,
+            search_step_mm: 0.25,
             step_mm: 0.05,
             noise_readings: 20,
             contact_sigmas: 6.0,
@@ -220,12 +235,12 @@ impl Default for ApproachSection {
 }
 impl Default for NormalSection {
     fn default() -> Self {
-        Self { step_mm: 0.05, target_beta: 0.2, repeats: 1 }
+        Self { step_mm: 0.25, target_beta: 0.2, repeats: 1, frames: 12 }
     }
 }
 impl Default for TorsionSection {
     fn default() -> Self {
-        Self { amplitude_deg: 8.0, step_deg: 0.2 }
+        Self { amplitude_deg: 8.0, step_deg: 1.0, frames: 32 }
     }
 }
 impl Default for LimitsSection {
@@ -235,7 +250,7 @@ impl Default for LimitsSection {
 }
 impl Default for SettleSection {
     fn default() -> Self {
-        Self { readings: 2, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0 }
+        Self { readings: 3, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0 }
     }
 }
 impl Default for TimeoutsSection {
@@ -327,6 +342,13 @@ impl Script {
         let a = &self.approach;
         finite("approach.start_mm", a.start_mm)?;
         positive("approach.step_mm", a.step_mm)?;
+        positive("approach.search_step_mm", a.search_step_mm)?;
+        if a.search_step_mm < a.step_mm {
+            return Err(invalid(
+                "approach.search_step_mm",
+                format!("{} mm is finer than approach.step_mm {} mm", a.search_step_mm, a.step_mm),
+            ));
+        }
         positive("approach.contact_sigmas", a.contact_sigmas)?;
         positive("approach.contact_min_mm", a.contact_min_mm)?;
         if !(3..=MAX_READINGS).contains(&a.noise_readings) {
@@ -390,6 +412,9 @@ impl Script {
         if n.repeats == 0 || n.repeats > 100 {
             return Err(invalid("normal.repeats", format!("must be 1..=100, got {}", n.repeats)));
         }
+        if n.frames > MAX_READINGS {
+            return Err(invalid("normal.frames", format!("must be <= {MAX_READINGS}, got {}", n.frames)));
+        }
         Ok(())
     }
 
@@ -400,6 +425,9 @@ impl Script {
         positive("torsion.step_deg", t.step_deg)?;
         if t.amplitude_deg / t.step_deg > 10_000.0 {
             return Err(invalid("torsion.step_deg", "more than 10000 steps per half sweep"));
+        }
+        if t.frames > MAX_READINGS {
+            return Err(invalid("torsion.frames", format!("must be <= {MAX_READINGS}, got {}", t.frames)));
         }
         Ok(())
     }
@@ -529,6 +557,9 @@ mod tests {
             ("[approach]\nstep_mm = 1e-7\n", "approach.step_mm"),
             ("[normal]\nstep_mm = 1e-6\n", "normal.step_mm"),
             ("[approach]\nrefine_steps = 100000000\n", "approach.refine_steps"),
+            ("[approach]\nsearch_step_mm = 0.01\n", "approach.search_step_mm"),
+            ("[normal]\nframes = 100000000\n", "normal.frames"),
+            ("[torsion]\nframes = 100000000\n", "torsion.frames"),
         ];
         for (text, field) in cases {
             match Script::from_toml(text) {
@@ -540,7 +571,8 @@ mod tests {
 
     #[test]
     fn twist_angles_go_out_and_back() {
-        let s = Script { torsion: TorsionSection { amplitude_deg: 1.0, step_deg: 0.25 }, ..Default::default() };
+        let s =
+            Script { torsion: TorsionSection { amplitude_deg: 1.0, step_deg: 0.25, frames: 0 }, ..Default::default() };
         assert_eq!(s.twist_angles(), vec![0.0, 0.25, 0.5, 0.75, 1.0, 0.75, 0.5, 0.25, 0.0]);
         assert_eq!(Script::default().dropout_reads(), 4);
     }

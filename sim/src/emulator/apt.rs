@@ -72,8 +72,9 @@ pub struct AptEmulatorConfig {
     pub update_period: Duration,
     /// Pushed updates pause after this many without an ACK (`None` = never).
     pub keepalive_limit: Option<u32>,
-    /// Put the counter zero after homing at the middle of the mechanical
-    /// travel instead of at the home switch (a rotation mount turns both ways).
+    /// The home switch sits at the middle of the mechanical travel, not at
+    /// the reverse limit: a rotation mount turns both ways from its zero and
+    /// finds its switch within one turn.
     pub home_at_center: bool,
 }
 
@@ -125,18 +126,31 @@ pub fn z8_axis(travel_mm: f64) -> AxisConfig {
     }
 }
 
+/// The emulated K10CR1 turns one turn either way of its home switch.
+const K10CR1_HALF_TRAVEL_DEG: f64 = 360.0;
+
 /// Axis preset for a K10CR1 (A.7): 10 °/s, 20 °/s², homing at 5 °/s. The
-/// mount turns freely; ±360° around the counter zero stands in for that.
+/// mount turns freely; ±360° around the counter zero (its home switch, at
+/// the middle of the travel) stands in for that. It powers on 5° past the
+/// switch ([`k10cr1_axis_at`] for another angle).
 pub fn k10cr1_axis() -> AxisConfig {
+    k10cr1_axis_at(5.0)
+}
+
+/// [`k10cr1_axis`] powered on `deg_past_switch` (taken modulo one turn,
+/// into [0, 360)) past its home switch in the homing direction: homing
+/// turns that far back at 5 °/s, never more than one turn.
+pub fn k10cr1_axis_at(deg_past_switch: f64) -> AxisConfig {
+    let past = if deg_past_switch.is_finite() { deg_past_switch.rem_euclid(360.0) } else { 0.0 };
     AxisConfig {
         max_velocity: 10.0,
         acceleration: 20.0,
         min_position: 0.0,
-        max_position: 720.0,
+        max_position: 2.0 * K10CR1_HALF_TRAVEL_DEG,
         resolution: 1.0 / Scale::k10cr1().counts_per_unit,
         backlash: 0.0,
         home_velocity: 5.0,
-        power_on_position: 365.0,
+        power_on_position: K10CR1_HALF_TRAVEL_DEG + past,
     }
 }
 
@@ -302,7 +316,7 @@ impl Unit {
         };
         if unit.cfg.home_at_center {
             let half = (ax_cfg.max_position - ax_cfg.min_position) / 2.0;
-            unit.with_axis(|ax, _| ax.set_home_offset(half));
+            unit.with_axis(|ax, _| ax.set_home_switch(ax_cfg.min_position + half));
         }
         unit
     }

@@ -62,6 +62,10 @@ pub struct Axis {
     home_offset: f64,
     /// The move from the switch to the home offset is under way.
     home_offset_move: bool,
+    /// Mechanical position of a home switch the axis passes on its way to
+    /// the reverse limit (a continuous-rotation mount's once-a-turn switch);
+    /// `None`: homing ends at the reverse limit.
+    home_switch: Option<f64>,
 }
 
 impl Axis {
@@ -82,6 +86,7 @@ impl Axis {
             homes_completed: 0,
             home_offset: 0.0,
             home_offset_move: false,
+            home_switch: None,
         }
     }
 
@@ -123,7 +128,7 @@ impl Axis {
             }
             Mode::Moving | Mode::Homing => {
                 let (goal, vmax) = if self.mode == Mode::Homing {
-                    (self.cfg.min_position, self.cfg.home_velocity)
+                    (self.home_switch.unwrap_or(self.cfg.min_position), self.cfg.home_velocity)
                 } else {
                     (self.target, self.cfg.max_velocity)
                 };
@@ -289,6 +294,17 @@ impl Axis {
         }
     }
 
+    /// A home switch at mechanical position `at`: homing drives to it (not
+    /// to the reverse limit) and zeroes the counter there. A continuous-
+    /// rotation mount passes its switch within one turn; with the travel
+    /// standing for +-1 turn around the switch, a power-on position in
+    /// [switch, switch + 1 turn) is a physical one.
+    pub fn set_home_switch(&mut self, at: f64) {
+        if at.is_finite() {
+            self.home_switch = Some(at.clamp(self.cfg.min_position, self.cfg.max_position));
+        }
+    }
+
     /// Load the position counter with `value` at the current position
     /// (a controller's SET_POSCOUNTER); the mechanics do not move.
     pub fn set_position_counter(&mut self, value: f64) {
@@ -426,5 +442,33 @@ mod tests {
         ax.advance_to(20.0);
         assert!((ax.load_position() - 4.01).abs() < 1e-9, "{}", ax.load_position());
         assert!((ax.position() - 4.0).abs() < 1e-9);
+    }
+
+    /// A continuous-rotation mount powered on anywhere in a turn past its
+    /// switch turns back to it at the home velocity (never more than a turn,
+    /// 72 s at 5 deg/s) and zeroes its counter there; the seeded power-on
+    /// angle is a draw in [0, 360) that differs between seeds.
+    #[test]
+    fn rotation_mount_finds_its_switch_within_one_turn() {
+        use crate::emulator::apt::k10cr1_axis_at;
+        for past in [0.0, 1.0, 179.5, 359.0, 725.0] {
+            let mut ax = Axis::new(k10cr1_axis_at(past));
+            ax.set_home_switch(360.0);
+            let turn = past % 360.0;
+            assert!((ax.position() - 360.0 - turn).abs() < 1e-4, "{past}: {}", ax.position());
+            ax.command_home(0.0);
+            // 5 deg/s after a 0.25 s ramp at 20 deg/s^2.
+            let expected_s = turn / 5.0 + 0.25;
+            ax.advance_to(expected_s - 0.5);
+            assert!(turn < 2.0 || !ax.is_homed(), "{past}: homed before the switch");
+            ax.advance_to(expected_s + 0.5);
+            assert!(ax.is_homed() && !ax.is_moving(), "{past}: not homed after {expected_s} s");
+            assert!(ax.position().abs() < 1e-4, "{past}: counter {} at the switch", ax.position());
+            assert_eq!(ax.travel(), (-360.0, 360.0));
+        }
+        let draws: Vec<f64> = (1..=10).map(crate::emulator::served::mount_power_on_deg).collect();
+        assert!(draws.iter().all(|d| (0.0..360.0).contains(d)), "{draws:?}");
+        let spread = draws.iter().cloned().fold(f64::MIN, f64::max) - draws.iter().cloned().fold(f64::MAX, f64::min);
+        assert!(spread > 90.0, "{draws:?}");
     }
 }

@@ -19,12 +19,25 @@ pub struct RigPose {
     pub rot_deg: f64,
 }
 
+/// One entry of the rig's motion log: the pose and what each axis was doing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionSample {
+    pub pose: RigPose,
+    pub stage_homed: bool,
+    pub stage_moving: bool,
+    pub rot_moving: bool,
+    pub rot_homing: bool,
+}
+
 /// Shared handle to the emulated rig; cheap to clone.
 #[derive(Debug, Clone)]
 pub struct Rig {
     clock: VirtualClock,
     stage: Arc<Mutex<Axis>>,
     rotation: Arc<Mutex<Axis>>,
+    /// Every pose taken (the simulated sensor takes one a frame), once
+    /// [`Rig::log_motion`] switched it on.
+    motion_log: Arc<Mutex<Option<Vec<MotionSample>>>>,
 }
 
 fn lock(axis: &Mutex<Axis>) -> MutexGuard<'_, Axis> {
@@ -38,6 +51,7 @@ impl Rig {
             clock,
             stage: Arc::new(Mutex::new(Axis::new(stage))),
             rotation: Arc::new(Mutex::new(Axis::new(rotation))),
+            motion_log: Arc::new(Mutex::new(None)),
         }
     }
 
@@ -64,16 +78,34 @@ impl Rig {
     /// The indenter's pose now.
     pub fn pose(&self) -> RigPose {
         let t_s = self.clock.now_s();
-        let stage_mm = {
+        let (stage_mm, stage_homed, stage_moving) = {
             let mut ax = lock(&self.stage);
             ax.advance_to(t_s);
-            ax.load_position()
+            (ax.load_position(), ax.is_homed(), ax.is_moving())
         };
-        let rot_deg = {
+        let (rot_deg, rot_moving, rot_homing) = {
             let mut ax = lock(&self.rotation);
             ax.advance_to(t_s);
-            ax.load_position()
+            (ax.load_position(), ax.is_moving(), ax.is_homing())
         };
-        RigPose { t_s, stage_mm, rot_deg }
+        let pose = RigPose { t_s, stage_mm, rot_deg };
+        let mut log = self.motion_log.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(log) = log.as_mut() {
+            log.push(MotionSample { pose, stage_homed, stage_moving, rot_moving, rot_homing });
+        }
+        pose
+    }
+
+    /// Start (or stop) logging every pose taken, with what the axes were
+    /// doing: a test's view of the rig's motion (the sensor takes a pose
+    /// every frame, so the log holds one entry a frame at least).
+    pub fn log_motion(&self, on: bool) {
+        let mut log = self.motion_log.lock().unwrap_or_else(|p| p.into_inner());
+        *log = on.then(|| log.take().unwrap_or_default());
+    }
+
+    /// The motion logged so far.
+    pub fn motion_log(&self) -> Vec<MotionSample> {
+        self.motion_log.lock().unwrap_or_else(|p| p.into_inner()).clone().unwrap_or_default()
     }
 }

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use super::tac3d::{Tac3dSender, Tac3dSenderConfig};
 
-use super::apt::{EmulatorHandle, InjectedError, k10cr1_axis, spawn_apt_rotation, spawn_apt_stage, z8_axis};
+use super::apt::{EmulatorHandle, InjectedError, k10cr1_axis_at, spawn_apt_rotation, spawn_apt_stage, z8_axis};
 use super::grbl::{GrblEmulatorConfig, GrblPort, serve_grbl_stage, stepper_stage_axis};
 use super::pty::PtyMaster;
 use super::rig::{Rig, RigPose};
@@ -95,6 +95,16 @@ pub enum SensorEndpoint {
     Udp(SocketAddr),
 }
 
+/// How far the emulated K10CR1 powers on past its home switch, degrees in
+/// [0, 360): a draw from the rig's seed (its own stream, so the sensor's noise
+/// is the same as without it). A continuous-rotation mount stops anywhere in
+/// a turn; homing turns it back to the switch at 5 deg/s (docs/run.md).
+pub fn mount_power_on_deg(seed: u64) -> f64 {
+    /// Separates this draw's stream from the sensor noise's (same seed).
+    const STREAM: u64 = 0x6b31_3063_7231_0001;
+    360.0 * crate::rng::Rng::seed_from(seed ^ STREAM).uniform()
+}
+
 /// A running emulated rig. Dropping it stops every emulator.
 #[derive(Debug)]
 pub struct ServedRig {
@@ -112,7 +122,7 @@ impl ServedRig {
     pub async fn start(setup: SimSetup, opts: ServeOptions) -> Result<ServedRig, ServeError> {
         let clock = VirtualClock::new(setup.speedup());
         let stage_axis = if opts.grbl { stepper_stage_axis(STAGE_TRAVEL_MM) } else { z8_axis(STAGE_TRAVEL_MM) };
-        let rig = Rig::new(clock, stage_axis, k10cr1_axis());
+        let rig = Rig::new(clock, stage_axis, k10cr1_axis_at(mount_power_on_deg(setup.seed())));
         let stage = if opts.grbl {
             StageEmulator::Grbl(serve_grbl_stage(rig.clone(), GrblEmulatorConfig::default()).await?)
         } else {

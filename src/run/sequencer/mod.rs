@@ -9,6 +9,7 @@
 //! Any failure ends in [`Sequencer::abort`]: stop both axes, back the stage
 //! off to the retract position, say which device did what.
 
+mod homing;
 mod motion;
 mod outcome;
 mod progress;
@@ -327,10 +328,10 @@ where
         self.connect().await?;
         self.step(1, "home", RunPhase::Setup);
         self.mark_phase("homing").await?;
-        self.home().await?;
+        let rest = self.home_and_start().await?;
         self.step(2, "approach and find contact", RunPhase::Approach);
         self.mark_phase("approach").await?;
-        self.approach().await?;
+        self.approach(rest).await?;
         let reps = self.script.normal.repeats;
         let mut crossing = None;
         for rep in 0..reps {

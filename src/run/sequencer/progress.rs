@@ -41,16 +41,28 @@ where
         }
     }
 
-    /// Rig time left: samples left times the mean time per sample so far.
+    /// Rig time of a torsion sample in normal samples': each costs the frames
+    /// it averages, the settling's first window and a move (about ten frame
+    /// periods on a stage or mount of the usual speed).
+    pub(super) fn torsion_weight(&self) -> f64 {
+        let n = self.script.settle.readings;
+        let cost = |frames: usize| (frames.max(2 * n) + n) as f64 + 10.0;
+        cost(self.script.torsion.frames) / cost(self.script.normal.frames)
+    }
+
+    /// Rig time left: samples left (a torsion sample counting
+    /// [`Self::torsion_weight`] normal ones) times the time per sample so far.
     pub(super) fn eta(&self) -> Option<f64> {
         let (t_start, n_start) = self.track.sweep_start?;
-        let done = self.samples.len().checked_sub(n_start)?;
-        if done < 3 {
+        let since = self.samples.get(n_start..)?;
+        if since.len() < 3 {
             return None;
         }
-        let per = (self.clock.t_last - t_start) / done as f64;
+        let w = self.torsion_weight();
+        let done: f64 = since.iter().map(|s| if s.phase == Phase::Torsion { w } else { 1.0 }).sum();
+        let per = (self.clock.t_last - t_start) / done;
         let reps = self.script.normal.repeats as f64;
-        let twist = self.script.twist_angles().len() as f64;
+        let twist = self.script.twist_angles().len() as f64 * w;
         let left = match self.track.cursor {
             Cursor::Setup => return None,
             Cursor::Load { rep, k, .. } => {
@@ -62,7 +74,7 @@ where
                 left as f64 - 1.0 + (reps - rep as f64 - 1.0) * (2.0 * n - 1.0) + twist + 2.0
             }
             Cursor::Depth => twist + 2.0,
-            Cursor::Twist { left } => left as f64,
+            Cursor::Twist { left } => left as f64 * w,
             Cursor::Done => 0.0,
         };
         Some(left.max(0.0) * per)

@@ -33,11 +33,7 @@ where
             match self.gauge.read(timeout).await {
                 Ok(r) => {
                     self.consecutive_timeouts = 0;
-                    let t0 = *self.clock.t0.get_or_insert(r.t_s);
-                    self.clock.t_last = (r.t_s - t0).max(self.clock.t_last);
-                    self.gamma1_mm = r.gamma1_mm;
-                    self.gamma1_bound_mm =
-                        self.gamma1_bound_mm.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
+                    self.note_reading(&r);
                     return Ok(r);
                 }
                 Err(GaugeError::Timeout { .. }) => {
@@ -70,6 +66,15 @@ where
         }
     }
 
+    /// What a reading tells the run: the rig's time, the latest gamma1 and
+    /// the bound on the true one.
+    pub(super) fn note_reading(&mut self, r: &GaugeReading) {
+        let t0 = *self.clock.t0.get_or_insert(r.t_s);
+        self.clock.t_last = (r.t_s - t0).max(self.clock.t_last);
+        self.gamma1_mm = r.gamma1_mm;
+        self.gamma1_bound_mm = self.gamma1_bound_mm.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
+    }
+
     /// Read until the reading is stable, never a fixed wait. The readings
     /// are taken in windows of n; with three consecutive window means
     /// m1, m2, m3 the reading is settled when the last drift |m3 - m2| is
@@ -77,6 +82,14 @@ where
     /// direction (an elastomer relaxing), the relaxation still to come,
     /// |d2| r / (1 - r) with r = d2 / d1, is within tolerance too.
     pub(super) async fn settle(&mut self) -> Step<GaugeReading> {
+        self.settle_frames(0).await
+    }
+
+    /// [`Self::settle`], then read on until the sample averages `frames`
+    /// settled frames (the last two windows count; fewer than those: just
+    /// them). A move costs rig time that more frames at the same place do
+    /// not: where the information per second is worth it, a sample takes more.
+    pub(super) async fn settle_frames(&mut self, frames: usize) -> Step<GaugeReading> {
         let s = self.script.settle;
         let n = s.readings;
         // Two means of n noisy readings differ by ~sigma sqrt(2/n): never demand less than 3 of that.
@@ -104,10 +117,16 @@ where
                     self.gamma1_bound_mm = self.gamma1_bound_mm.min(upper);
                     self.guard.note_gamma1(self.stage_mm, upper);
                     self.last_inward_mm = 0.0;
-                    self.learn_noise(&buf[k - 2 * n..]);
                     // The last two windows agree within the tolerance: the
-                    // sample is their mean, twice the frames of one window.
-                    return Ok(mean(&buf[k - 2 * n..]));
+                    // sample is their mean, twice the frames of one window,
+                    // and the frames read on at rest.
+                    let mut settled = buf.split_off(k - 2 * n);
+                    while settled.len() < frames {
+                        self.checkpoint().await?;
+                        settled.push(self.read().await?);
+                    }
+                    self.learn_noise(&settled);
+                    return Ok(mean(&settled));
                 }
                 // Sensor time bounds the wait; the read count guards against a sensor whose clock stands still.
                 if r.t_s - t_first >= s.timeout_s || buf.len() >= MAX_SETTLE_READINGS {

@@ -78,41 +78,10 @@ where
         Ok(())
     }
 
-    pub(super) async fn home(&mut self) -> Step<()> {
-        self.checkpoint().await?;
-        // Devices that report homed have kept their position since they were
-        // homed (the controller's own flag, cleared at power loss): trusted,
-        // and homing again would only cost time (the K10CR1 homes at 5 deg/s).
-        let stage = Axis::status(&mut self.stage).await.map_err(|e| self.stage_fault("status", e))?;
-        let mount = Axis::status(&mut self.mount).await.map_err(|e| self.mount_fault("status", e))?;
-        let trusted = stage.homed && mount.homed;
-        let t = self.script.home_timeout();
-        if !trusted {
-            Axis::home(&mut self.stage, t).await.map_err(|e| self.stage_fault("homing", e))?;
-        }
-        self.stage_homed = true;
-        self.stage_mm = self.stage.position().map_ok(f64::from).await.map_err(|e| self.stage_fault("position", e))?;
-        // Inside the declared clear zone nothing touches the sensor.
-        self.gamma1_bound_mm = if self.stage_mm <= self.guard.limits().clear_until_mm { 0.0 } else { f64::NAN };
-        if !trusted {
-            Axis::home(&mut self.mount, t).await.map_err(|e| self.mount_fault("homing", e))?;
-        }
-        self.mount_homed = true;
-        self.mount_deg = self.mount.position().map_ok(f64::from).await.map_err(|e| self.mount_fault("position", e))?;
-        let what = if trusted { "already homed, homing skipped" } else { "homed" };
-        self.log(LogLevel::Info, format!("{what}: stage {:.3} mm, mount {:.3} deg", self.stage_mm, self.mount_deg));
-        self.device_status().await
-    }
-
-    pub(super) async fn approach(&mut self) -> Step<()> {
+    /// Find the contact from `rest`, the readings taken at the approach's
+    /// start with the sensor tared (the elastomer untouched there).
+    pub(super) async fn approach(&mut self, rest: Vec<GaugeReading>) -> Step<()> {
         let a = self.script.approach;
-        self.move_stage(a.start_mm, "approach start").await?;
-        // The elastomer is untouched here: zero the gauge and measure its noise.
-        self.gauge.tare().await.map_err(|e| self.sensor_fault("tare", e))?;
-        let mut rest = Vec::with_capacity(a.noise_readings);
-        for _ in 0..a.noise_readings {
-            rest.push(self.read().await?);
-        }
         self.noise.gamma1_mm = std_dev(rest.iter().map(|r| r.gamma1_mm));
         self.noise.theta1_deg = std_dev(rest.iter().map(|r| r.theta1_deg));
         let offset = mean(&rest).gamma1_mm;
@@ -130,7 +99,7 @@ where
         let mut pos = a.start_mm;
         let mut last_clear = pos;
         loop {
-            let next = pos + a.step_mm;
+            let next = pos + a.search_step_mm;
             if !self.guard.stage_in_travel(next) {
                 return Err(Halt {
                     culprit: Culprit::Procedure,
@@ -248,7 +217,7 @@ where
                 ));
             }
             self.move_stage(pos, "normal sweep").await?;
-            let r = self.settle().await?;
+            let r = self.settle_frames(n.frames).await?;
             let beta = ((pos - contact) - r.gamma1_mm) / r2;
             self.track.cursor = Cursor::Load { rep, k, beta };
             self.record(Phase::Normal, pos, r, Some(rep), Some(Direction::Load))?;
@@ -279,7 +248,7 @@ where
         for (i, pos) in back.iter().enumerate() {
             self.track.cursor = Cursor::Unload { rep, left: back.len() - i };
             self.move_stage(*pos, "normal unload").await?;
-            let r = self.settle().await?;
+            let r = self.settle_frames(n.frames).await?;
             self.record(Phase::Normal, *pos, r, Some(rep), Some(Direction::Unload))?;
         }
         Ok(crossing)
@@ -320,7 +289,7 @@ where
             self.track.cursor = Cursor::Twist { left: angles.len() - i };
             let target = self.twist_zero + angle;
             self.move_mount(target, "torsion sweep").await?;
-            let r = self.settle().await?;
+            let r = self.settle_frames(self.script.torsion.frames).await?;
             let dir = if i <= half { Direction::Load } else { Direction::Unload };
             self.record(Phase::Torsion, hold, r, None, Some(dir))?;
         }
