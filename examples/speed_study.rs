@@ -12,10 +12,8 @@
 use std::path::PathBuf;
 
 use easycalib::rig::emulated::{EmulatedRig, ServeOptions};
-use easycalib::rig::{RunRequest, run_calibration};
 use easycalib::run::{RunStatus, Script};
 use sim::setup::SimSetupInput;
-use tokio::sync::mpsc::unbounded_channel;
 
 struct Row {
     seed: u64,
@@ -67,19 +65,7 @@ async fn run_seed(seed: u64, script: &Script, speedup: f64) -> Result<Row, Strin
     let rig = EmulatedRig::start(setup, ServeOptions::default()).await.map_err(|e| e.to_string())?;
     let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
     let truth = rig.truth();
-    let req = RunRequest {
-        spec: rig.spec(),
-        script: script.clone(),
-        out_dir: dir.path().to_path_buf(),
-        truth: Some(truth),
-        metadata: vec![],
-        diagnose: true,
-    };
-    let (ev_tx, mut ev_rx) = unbounded_channel();
-    let (_ctl_tx, ctl_rx) = unbounded_channel();
-    let task = tokio::spawn(run_calibration(req, ev_tx, ctl_rx));
-    while ev_rx.recv().await.is_some() {}
-    let r = task.await.map_err(|e| e.to_string())?.map_err(|e| e.to_string())?;
+    let r = rig.calibrate(script.clone(), dir.path()).await.map_err(|e| e.to_string())?;
     if r.outcome.status != RunStatus::Completed {
         return Err(format!("seed {seed}: {:?}", r.outcome.status));
     }

@@ -65,6 +65,30 @@ impl EmulatedRig {
         RigSpec { stage, rotation, sensor, sensor_name: "sim-sensor".into() }
     }
 
+    /// One calibration on this rig with `script`, its files in `out_dir`,
+    /// diagnosed at the end, the truth in its report; the run's events are
+    /// read and dropped. What the CLI's `run` does, for tests and studies.
+    pub async fn calibrate(
+        &self,
+        script: crate::run::Script,
+        out_dir: &std::path::Path,
+    ) -> Result<super::RunResult, super::StartError> {
+        let req = super::RunRequest {
+            spec: self.spec(),
+            script,
+            out_dir: out_dir.to_path_buf(),
+            truth: Some(self.truth()),
+            metadata: vec![],
+            diagnose: true,
+        };
+        let (ev_tx, mut ev_rx) = tokio::sync::mpsc::unbounded_channel();
+        let (_ctl_tx, ctl_rx) = tokio::sync::mpsc::unbounded_channel();
+        let drain = tokio::spawn(async move { while ev_rx.recv().await.is_some() {} });
+        let result = super::run_calibration(req, ev_tx, ctl_rx).await;
+        let _ = drain.await;
+        result
+    }
+
     /// The simulated elastomer's true E1 and nu1: the set-up's, as it was given.
     pub fn truth(&self) -> Truth {
         let t = self.setup().truth();

@@ -8,12 +8,10 @@
 use std::sync::Mutex;
 
 use easycalib::rig::emulated::{EmulatedRig, ServeOptions};
-use easycalib::rig::{RunRequest, run_calibration};
 use easycalib::run::{RunStatus, Script};
 use sim::effects::SimProfile;
 use sim::recording::Recording;
 use sim::setup::SimSetupInput;
-use tokio::sync::mpsc::unbounded_channel;
 
 /// One rig at a time: two cores, real timeouts.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -49,19 +47,7 @@ pub fn run_seed(seed: u64, profile: SimProfile) -> Outcome {
         let rig = EmulatedRig::start(setup, ServeOptions::default()).await.unwrap();
         let dir = tempfile::tempdir().unwrap();
         let truth = rig.truth();
-        let req = RunRequest {
-            spec: rig.spec(),
-            script: Script::default(),
-            out_dir: dir.path().to_path_buf(),
-            truth: Some(truth),
-            metadata: vec![],
-            diagnose: true,
-        };
-        let (ev_tx, mut ev_rx) = unbounded_channel();
-        let (_ctl_tx, ctl_rx) = unbounded_channel();
-        let task = tokio::spawn(run_calibration(req, ev_tx, ctl_rx));
-        while ev_rx.recv().await.is_some() {}
-        let r = task.await.unwrap().expect("devices open");
+        let r = rig.calibrate(Script::default(), dir.path()).await.expect("devices open");
         assert_eq!(r.outcome.status, RunStatus::Completed, "seed {seed}: {:?}", r.outcome.status);
         let cal = r.calibration.as_ref().unwrap_or_else(|| panic!("seed {seed}: no fit: {:?}", r.fit_error));
         let rec = Recording::read_path(&r.outcome.recording).unwrap();
