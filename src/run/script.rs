@@ -55,21 +55,26 @@ pre_contact_mm = 0.15
 # beta = gamma2 / R2 = (approach - gamma1) / R2 reaches target_beta, then step
 # back out through the same positions; repeated `repeats` times. Each sample
 # averages `frames` settled frames (0: the settling's last two windows, see
-# [settle]): a move costs more rig time than frames at the same place, and the
-# information is in the frames (docs/run.md, "The sweeps' design").
+# [settle]). Fewer, longer samples save rig time at the same intervals, but
+# leave the fit's chi2 and the diagnosis fewer samples to judge by
+# (docs/run.md, "The sweeps' design"; examples/fast-script.toml). Where gamma1
+# lies in the paper's window (0.2-0.8 mm), the steps are window_step_mm
+# instead when that is finer: the paper's method fits only those samples
+# (0: the same steps everywhere).
 [normal]
-step_mm = 0.25
+step_mm = 0.05
+window_step_mm = 0.1
 target_beta = 0.2
 repeats = 1
-frames = 12
+frames = 0
 
 # Torsion sweep at target_beta: twist out to amplitude_deg in step_deg steps
 # and back to 0, each sample averaging `frames` settled frames. The torsion
 # samples carry most of what the fit knows of E1, and much of nu1.
 [torsion]
 amplitude_deg = 8.0
-step_deg = 1.0
-frames = 32
+step_deg = 0.2
+frames = 0
 
 # Soft limits, checked before every move. Inside [stage_min_mm, start_mm] the
 # indenter is clear of the sensor; deeper, a move is refused if gamma1 could
@@ -87,7 +92,7 @@ retract_mm = 0.0
 # tol_gamma1_mm / tol_theta1_deg (each raised to 3 noise standard errors when
 # the measured noise is larger), or until timeout_s of sensor time has passed.
 [settle]
-readings = 3
+readings = 2
 tol_gamma1_mm = 0.001
 tol_theta1_deg = 0.01
 timeout_s = 5.0
@@ -143,6 +148,9 @@ pub struct ApproachSection {
 #[serde(default, deny_unknown_fields)]
 pub struct NormalSection {
     pub step_mm: f64,
+    /// Step while gamma1 is in the paper's window (fit::regression::PAPER_WINDOW_MM),
+    /// mm, when finer than `step_mm`; 0: `step_mm` everywhere.
+    pub window_step_mm: f64,
     pub target_beta: f64,
     pub repeats: u32,
     /// Settled frames averaged into each sample (0: the settling's last two windows).
@@ -235,12 +243,12 @@ impl Default for ApproachSection {
 }
 impl Default for NormalSection {
     fn default() -> Self {
-        Self { step_mm: 0.25, target_beta: 0.2, repeats: 1, frames: 12 }
+        Self { step_mm: 0.05, window_step_mm: 0.1, target_beta: 0.2, repeats: 1, frames: 0 }
     }
 }
 impl Default for TorsionSection {
     fn default() -> Self {
-        Self { amplitude_deg: 8.0, step_deg: 1.0, frames: 32 }
+        Self { amplitude_deg: 8.0, step_deg: 0.2, frames: 0 }
     }
 }
 impl Default for LimitsSection {
@@ -250,7 +258,7 @@ impl Default for LimitsSection {
 }
 impl Default for SettleSection {
     fn default() -> Self {
-        Self { readings: 3, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0 }
+        Self { readings: 2, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0 }
     }
 }
 impl Default for TimeoutsSection {
@@ -408,6 +416,12 @@ impl Script {
         }
         if !(n.target_beta > 0.0 && n.target_beta <= 0.3) {
             return Err(invalid("normal.target_beta", format!("must lie in (0, 0.3], got {}", n.target_beta)));
+        }
+        if !(n.window_step_mm == 0.0 || (n.window_step_mm.is_finite() && n.window_step_mm >= MIN_STEP_MM)) {
+            return Err(invalid(
+                "normal.window_step_mm",
+                format!("must be 0 (off) or at least {MIN_STEP_MM} mm, got {}", n.window_step_mm),
+            ));
         }
         if n.repeats == 0 || n.repeats > 100 {
             return Err(invalid("normal.repeats", format!("must be 1..=100, got {}", n.repeats)));

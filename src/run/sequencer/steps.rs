@@ -200,11 +200,11 @@ where
         let start = (contact - self.script.approach.pre_contact_mm).max(self.guard.limits().stage_min_mm);
         let mut path: Vec<(f64, f64)> = Vec::new();
         let mut k = 0usize;
+        let mut pos = start;
         if self.track.sweep_start.is_none() {
             self.track.sweep_start = Some((self.clock.t_last, self.samples.len()));
         }
         loop {
-            let pos = start + k as f64 * n.step_mm;
             let beta_now = path.last().map(|p| p.1).unwrap_or(0.0);
             if let Err(v) = self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos) {
                 return Err(self.safety(
@@ -225,6 +225,7 @@ where
             if beta >= n.target_beta {
                 break;
             }
+            pos += next_load_step(&n, pos - contact, r.gamma1_mm);
             k += 1;
         }
         if rep == 0 {
@@ -304,6 +305,19 @@ where
         }
         self.device_status().await
     }
+}
+
+/// The loading step after a sample at `approach_mm` past the contact that read
+/// `gamma1_mm`: `window_step_mm` (when finer) if the next sample's gamma1 (at
+/// this sample's ratio of gamma1 to approach) would lie in the paper's window,
+/// and this one is not past it; else `step_mm`.
+pub(super) fn next_load_step(n: &crate::run::script::NormalSection, approach_mm: f64, gamma1_mm: f64) -> f64 {
+    let [lo, hi] = crate::fit::regression::PAPER_WINDOW_MM;
+    if n.window_step_mm <= 0.0 || approach_mm <= 0.0 || gamma1_mm <= 0.0 {
+        return n.step_mm;
+    }
+    let next = gamma1_mm * (1.0 + n.step_mm / approach_mm);
+    if next >= lo && gamma1_mm < hi { n.window_step_mm.min(n.step_mm) } else { n.step_mm }
 }
 
 pub(super) fn unreachable_path<T>() -> Step<T> {

@@ -1,5 +1,5 @@
 use super::settle::{mean, remaining_relaxation};
-use super::steps::contact_from_line;
+use super::steps::{contact_from_line, next_load_step};
 use super::*;
 
 #[test]
@@ -61,4 +61,24 @@ fn a_dead_band_zero_among_measured_readings_is_as_uncertain_as_they_are() {
     assert!((m.gamma1_sd_mm.unwrap() - 0.003).abs() < 1e-12, "{:?}", m.gamma1_sd_mm);
     // No reading with an error: none for the mean either.
     assert_eq!(mean(&[zero, zero]).gamma1_sd_mm, None);
+}
+
+#[test]
+fn loading_steps_finely_where_the_papers_window_is() {
+    // The coarse design of examples/fast-script.toml.
+    let n = crate::run::script::NormalSection { step_mm: 0.25, window_step_mm: 0.1, ..Default::default() };
+    // Out of contact, and short of the window by more than a coarse step: coarse.
+    assert_eq!(next_load_step(&n, -0.1, 0.0), n.step_mm);
+    assert_eq!(next_load_step(&n, 0.01, 0.0075), n.step_mm);
+    // The next coarse step would land in the window (0.2-0.8 mm of gamma1): fine.
+    assert_eq!(next_load_step(&n, 0.1, 0.075), n.window_step_mm);
+    assert_eq!(next_load_step(&n, 1.0, 0.75), n.window_step_mm);
+    // Past the window: coarse again.
+    assert_eq!(next_load_step(&n, 1.2, 0.85), n.step_mm);
+    // Switched off.
+    let off = crate::run::script::NormalSection { window_step_mm: 0.0, ..n };
+    assert_eq!(next_load_step(&off, 1.0, 0.75), off.step_mm);
+    // A script whose steps are finer everywhere keeps them.
+    let fine = crate::run::script::NormalSection { step_mm: 0.05, ..n };
+    assert_eq!(next_load_step(&fine, 1.0, 0.75), 0.05);
 }
