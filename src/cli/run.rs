@@ -314,3 +314,37 @@ fn report(args: &RunArgs, result: &RunResult, truth: Option<Truth>) -> Result<()
     );
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::Ci95;
+    use crate::report::{RunDiagnosis, VerdictClass};
+
+    fn diagnosis(verdict: VerdictClass, summary: &str) -> RunDiagnosis {
+        RunDiagnosis {
+            verdict,
+            summary: summary.into(),
+            effects: vec![],
+            e1_mpa: 0.33,
+            nu1: 0.39,
+            ci95: Ci95 { e1_mpa: [0.32, 0.34], nu1: [0.38, 0.40] },
+            error: None,
+            wall_time_s: 0.1,
+        }
+    }
+
+    #[test]
+    fn a_verdict_that_is_not_clean_goes_to_the_history_as_a_warning() {
+        assert_eq!(diagnosis_note(&diagnosis(VerdictClass::Clean, "CLEAN: nothing named.\n")), None);
+        for (verdict, code) in [
+            (VerdictClass::Effects, "diagnosis_effects"),
+            (VerdictClass::Ambiguous, "diagnosis_ambiguous"),
+            (VerdictClass::Unexplained, "diagnosis_unexplained"),
+            (VerdictClass::NotMade, "diagnosis_not_made"),
+        ] {
+            let w = diagnosis_note(&diagnosis(verdict, "EFFECTS: stage_backlash.\n")).expect("a warning");
+            assert_eq!((w.code.as_str(), w.message.as_str()), (code, "EFFECTS: stage_backlash."));
+        }
+    }
+}
