@@ -48,6 +48,10 @@ pub enum ZeroKept {
         "the full fit puts the contact {moved_um:+.2} um from the approach's, beyond {sigmas} times the uncertainty ({limit_um:.2} um): left for the diagnosis"
     )]
     Implausible { moved_um: f64, limit_um: f64, sigmas: f64 },
+    /// The moved recording could not be written or read back (the streamed
+    /// one is left where it was).
+    #[error("the moved recording could not be written: {0}")]
+    NotWritten(String),
 }
 
 /// The recording with its stage zero moved to the full fit's contact point,

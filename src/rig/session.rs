@@ -82,16 +82,11 @@ pub fn fit_and_report(
         .map_err(|e| format!("cannot read the recording {}: {e}", recording.display()))?;
     let cal = calibrate(&rec, &FitOptions::default()).map_err(|e| format!("cannot fit the recording: {e}"))?;
     let (rec, cal, stage_zero) = match refine_stage_zero(&rec, &cal.full) {
-        Ok((zeroed, zero)) => {
-            rewrite_with_raw_kept(recording, &zeroed)?;
-            // As written (stage_mm to 0.1 um): `easycalib fit` on the file
-            // gives the same numbers as the report.
-            let zeroed = sim::recording::Recording::read_path(recording)
-                .map_err(|e| format!("cannot read the recording {} back: {e}", recording.display()))?;
-            let cal =
-                calibrate(&zeroed, &FitOptions::default()).map_err(|e| format!("cannot fit the recording: {e}"))?;
-            (zeroed, cal, Ok(zero))
-        }
+        Ok((zeroed, zero)) => match rezero_on_disk(recording, &zeroed) {
+            Ok((zeroed, cal)) => (zeroed, cal, Ok(zero)),
+            // The calibration stands on the zero as recorded; the run says why.
+            Err(why) => (rec, cal, Err(ZeroKept::NotWritten(why))),
+        },
         Err(kept) => (rec, cal, Err(kept)),
     };
     let diagnosis = diagnose.then(|| diagnose_run(&rec, &cal, &DiagnoseOptions::default()));
@@ -99,6 +94,25 @@ pub fn fit_and_report(
     let files = write_report_for(out_dir, &rec, Some(recording), &cal, truth, extras)
         .map_err(|e| format!("cannot write the report: {e}"))?;
     Ok(Reported { calibration: cal, files, diagnosis, stage_zero })
+}
+
+/// Write `zeroed` over the recording at `path` (the streamed one kept beside
+/// it), read it back as written (stage_mm to 0.1 um: `easycalib fit` on the
+/// file gives the report's numbers) and fit it. On any failure the streamed
+/// recording is where it was.
+fn rezero_on_disk(
+    path: &Path,
+    zeroed: &sim::recording::Recording,
+) -> Result<(sim::recording::Recording, Calibration), String> {
+    rewrite_with_raw_kept(path, zeroed)?;
+    let restore = |why: String| {
+        let _ = std::fs::rename(path.with_file_name(RAW_RECORDING_FILE), path);
+        why
+    };
+    let back = sim::recording::Recording::read_path(path)
+        .map_err(|e| restore(format!("cannot read {} back: {e}", path.display())))?;
+    let cal = calibrate(&back, &FitOptions::default()).map_err(|e| restore(format!("cannot fit it: {e}")))?;
+    Ok((back, cal))
 }
 
 /// Where the recording as the run streamed it is kept when its stage zero is
@@ -203,5 +217,55 @@ pub async fn run_calibration(
             let _ = events.send(RunEvent::Finished { summary: outcome.summary(None) });
             Ok(RunResult { outcome, calibration: None, report: None, fit_error: Some(e), diagnosis: None })
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A rig-made recording whose stage zero sits 2 um before the contact.
+    fn streamed(dir: &Path) -> PathBuf {
+        let mut rec = sim::generator::generate(&Default::default()).unwrap();
+        for s in &mut rec.samples {
+            s.stage_mm += 0.002;
+        }
+        rec.meta.extra.push((sim::recording::CONTACT_SD_KEY.into(), "0.0015".into()));
+        let path = dir.join(RECORDING_FILE);
+        rec.write_path(&path).unwrap();
+        path
+    }
+
+    fn timings() -> RunTimings {
+        RunTimings { rig_time_s: 1.0, wall_time_s: 1.0, phases: vec![] }
+    }
+
+    #[test]
+    fn the_stage_zero_is_moved_and_the_streamed_recording_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = streamed(dir.path());
+        let before = std::fs::read_to_string(&path).unwrap();
+        let r = fit_and_report(&path, dir.path(), None, timings(), false).unwrap();
+        let z = r.stage_zero.unwrap();
+        assert!((z.moved_mm - 0.002).abs() < 3.0 * z.moved_se_mm + 1e-4, "{z:?}");
+        assert_eq!(std::fs::read_to_string(dir.path().join(RAW_RECORDING_FILE)).unwrap(), before);
+        // The report is the fit of the file as written.
+        let again = calibrate(&sim::recording::Recording::read_path(&path).unwrap(), &FitOptions::default()).unwrap();
+        assert_eq!((again.full.e1_mpa, again.full.nu1), (r.calibration.full.e1_mpa, r.calibration.full.nu1));
+    }
+
+    #[test]
+    fn a_zero_that_cannot_be_written_leaves_the_recording_and_the_calibration_standing() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = streamed(dir.path());
+        let before = std::fs::read_to_string(&path).unwrap();
+        // A link planted at the temporary name: never followed, so the move is not made.
+        let target = dir.path().join("elsewhere");
+        std::os::unix::fs::symlink(&target, dir.path().join(".recording.zeroed.tmp")).unwrap();
+        let r = fit_and_report(&path, dir.path(), None, timings(), false).unwrap();
+        assert!(matches!(r.stage_zero, Err(ZeroKept::NotWritten(_))), "{:?}", r.stage_zero);
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), before);
+        assert!(!target.exists() && !dir.path().join(RAW_RECORDING_FILE).exists());
+        assert!(r.calibration.full.converged);
     }
 }
