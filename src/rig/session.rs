@@ -194,16 +194,28 @@ pub async fn run_calibration(
     }
     match fit_and_report(&outcome.recording, &req.out_dir, req.truth, timings, req.diagnose) {
         Ok(Reported { calibration: cal, files, diagnosis, stage_zero }) => {
-            let message = match stage_zero {
-                Ok(z) => format!(
-                    "stage zero moved {:+.2} um (± {:.2} um) to the contact the whole normal sweep places (the approach's: ± {:.2} um); the streamed recording is kept as {RAW_RECORDING_FILE}",
-                    z.moved_mm * 1e3,
-                    z.moved_se_mm * 1e3,
-                    z.approach_sd_mm * 1e3
+            let (level, message) = match stage_zero {
+                Ok(z) if z.beyond_declared() => (
+                    LogLevel::Warn,
+                    format!(
+                        "stage zero moved {:+.2} um (± {:.2} um) to the contact the whole normal sweep places: the approach misplaced the contact beyond its declared ± {:.2} um; the streamed recording is kept as {RAW_RECORDING_FILE}",
+                        z.moved_mm * 1e3,
+                        z.moved_se_mm * 1e3,
+                        z.approach_sd_mm * 1e3
+                    ),
                 ),
-                Err(kept) => format!("stage zero kept as recorded: {kept}"),
+                Ok(z) => (
+                    LogLevel::Info,
+                    format!(
+                        "stage zero moved {:+.2} um (± {:.2} um) to the contact the whole normal sweep places (the approach's: ± {:.2} um); the streamed recording is kept as {RAW_RECORDING_FILE}",
+                        z.moved_mm * 1e3,
+                        z.moved_se_mm * 1e3,
+                        z.approach_sd_mm * 1e3
+                    ),
+                ),
+                Err(kept) => (LogLevel::Info, format!("stage zero kept as recorded: {kept}")),
             };
-            let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
+            let _ = events.send(RunEvent::Log { level, message });
             if let Some(d) = &diagnosis {
                 let _ = events.send(RunEvent::Diagnosis(Box::new(d.clone())));
             }
