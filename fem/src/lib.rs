@@ -17,6 +17,7 @@ pub mod banded;
 pub mod contact;
 pub mod elastic;
 pub mod forward;
+pub mod hyper;
 pub mod mesh;
 pub mod torsion;
 

@@ -1,0 +1,129 @@
+//! The large-strain (neo-Hookean) reference checked against what it did not
+//! make: the linear reference in the small-strain limit (which is itself checked
+//! against the analytical layer solver and Hertz in tests/reference.rs), and the
+//! independent finite-element recordings of the dev set's nonlinear folder.
+
+use std::path::PathBuf;
+
+use fem::hyper::LargeStrainContact;
+use fem::torsion::{TorsionBody, stick_ratio};
+use fem::{Body, Material, Mesh, TwoBodyContact};
+use sim::recording::{Phase, Recording};
+
+fn meshes(fine_mm: f64, fine_radius_mm: f64, r2: f64) -> (Mesh, Mesh, Vec<f64>) {
+    let gel = Mesh::gel(15.0, 5.0, fine_mm, fine_radius_mm, 0.3 * fine_radius_mm).unwrap();
+    let rs: Vec<f64> = gel.surface_radii().into_iter().filter(|&r| r < 0.97 * r2).collect();
+    let hemi = Mesh::hemisphere(r2, &rs, 30).unwrap();
+    (gel, hemi, rs)
+}
+
+/// At shallow depth the neo-Hookean bodies with exact contact geometry are the
+/// linear bodies with vertical gaps: the difference in force and in the stuck
+/// torsion ratio is a few tenths of a percent at the shallowest depth and grows
+/// with the contact's size (large strain is an O(a/R) effect).
+#[test]
+fn large_strain_reduces_to_the_linear_reference_at_small_depth() {
+    let r2 = 5.0;
+    let (gel_mesh, hemi_mesh, rs) = meshes(0.02, 1.0, r2);
+    let (gel_m, ind_m) = (Material { e_mpa: 1.0, nu: 0.45 }, Material { e_mpa: 2.0, nu: 0.4 });
+    let gel = Body::new(gel_mesh.clone(), gel_m).unwrap();
+    let hemi = Body::new(hemi_mesh.clone(), ind_m).unwrap();
+    let lin = TwoBodyContact::new(&gel, Some(&hemi), r2).unwrap();
+    let g_of = |m: &Material| m.e_mpa / (2.0 * (1.0 + m.nu));
+    let tg: Vec<Vec<f64>> = TorsionBody::new(&gel_mesh)
+        .unwrap()
+        .surface_compliance(&gel_mesh.surface[..rs.len()])
+        .into_iter()
+        .map(|c| c.into_iter().map(|v| v / g_of(&gel_m)).collect())
+        .collect();
+    let ti: Vec<Vec<f64>> = TorsionBody::new(&hemi_mesh)
+        .unwrap()
+        .surface_compliance(&hemi_mesh.surface)
+        .into_iter()
+        .map(|c| c.into_iter().map(|v| v / g_of(&ind_m)).collect())
+        .collect();
+    let mut large = LargeStrainContact::new(gel_mesh, gel_m, hemi_mesh, ind_m, r2).unwrap();
+    let mut last_err = [f64::INFINITY; 3];
+    for delta in [0.005, 0.02, 0.08] {
+        let nl = large.solve_path(&[delta], 0.005).unwrap().remove(0);
+        let li = lin.solve(delta).unwrap();
+        let last = li.nodal_force.iter().rposition(|&p| p > 0.0).unwrap();
+        let ratio_lin = stick_ratio(&tg, &ti, &rs, last).unwrap();
+        let ratio_nl = large.theta1_rad(&nl, &[1e-3], f64::INFINITY).unwrap()[0] / 1e-3;
+        let err = [nl.gamma1_mm / li.gamma1_mm - 1.0, nl.force_n / li.force_n - 1.0, ratio_nl / ratio_lin - 1.0];
+        println!(
+            "delta {delta}: a {:.3} mm; large/linear - 1: gamma1 {:+.2e}, force {:+.2e}, theta1 ratio {:+.2e}",
+            nl.contact_radius_mm, err[0], err[1], err[2]
+        );
+        // Force and twist agree to a few tenths of a percent at the shallowest
+        // depth. The axis deflection does not (+3 % here): it is the one output
+        // that depends on how the pressure near the axis is discretised, and the
+        // two contact treatments (node to node with vertical gaps, node to
+        // segment with true normals) differ there while a/mesh is small (the
+        // difference shrinks as the contact spans more elements: 3.3 %, 1.5 %,
+        // 0.7 % at the three depths).
+        if delta == 0.005 {
+            assert!(err[1].abs() < 3e-3 && err[2].abs() < 2e-3, "{err:?}");
+        }
+        // The force's departure from linear elasticity grows with depth.
+        assert!(err[1].abs() > last_err[1].abs() || delta == 0.005, "{err:?} after {last_err:?}");
+        last_err = err;
+    }
+}
+
+fn dev_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/data/fem-dev/nonlinear")
+}
+
+/// Our own neo-Hookean reference at the dev set's truth reproduces its nonlinear
+/// recordings (an independent code: P2 elements, penalty contact) to within a
+/// few times their noise, where the linear reference misses by several times
+/// more. This test uses a 0.1 mm mesh at the contact (about 10 s a recording);
+/// the example `large_dev` runs the 0.06 mm mesh of the tables in the notes.
+#[test]
+fn the_dev_sets_nonlinear_recordings_are_reproduced_at_their_truth() {
+    let truth = std::fs::read_to_string(dev_dir().join("truth.csv")).unwrap();
+    for line in truth.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let rec = Recording::read_path(&dev_dir().join(f[0])).unwrap();
+        let (e1, nu1): (f64, f64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
+        let ind = rec.meta.indenter;
+        let (gel_m, ind_m) = (Material { e_mpa: e1, nu: nu1 }, Material { e_mpa: ind.e_mpa, nu: ind.nu });
+        let (gel_mesh, hemi_mesh, _) = meshes(0.1, 5.0, ind.r_mm);
+        let lin = TwoBodyContact::new(
+            &Body::new(gel_mesh.clone(), gel_m).unwrap(),
+            Some(&Body::new(hemi_mesh.clone(), ind_m).unwrap()),
+            ind.r_mm,
+        )
+        .unwrap();
+        let mut large = LargeStrainContact::new(gel_mesh, gel_m, hemi_mesh, ind_m, ind.r_mm).unwrap();
+        let normal: Vec<_> = rec.samples.iter().filter(|s| s.phase == Phase::Normal && s.stage_mm > 0.0).collect();
+        let stages: Vec<f64> = normal.iter().map(|s| s.stage_mm).collect();
+        let path = large.solve_path(&stages, 0.05).unwrap();
+        let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+        let res_nl: Vec<f64> = normal.iter().zip(&path).map(|(s, st)| (s.gamma1_mm - st.gamma1_mm) * 1e3).collect();
+        let res_lin: Vec<f64> =
+            normal.iter().map(|s| (s.gamma1_mm - lin.solve(s.stage_mm).unwrap().gamma1_mm) * 1e3).collect();
+        let tors: Vec<_> = rec.samples.iter().filter(|s| s.phase == Phase::Torsion && s.rot_deg > 0.0).collect();
+        let twists: Vec<f64> = tors.iter().map(|s| s.rot_deg.to_radians()).collect();
+        let last = path.last().unwrap();
+        let theta = large.theta1_rad(last, &twists, 0.4).unwrap();
+        let res_t: Vec<f64> = tors.iter().zip(&theta).map(|(s, t)| s.theta1_deg - t.to_degrees()).collect();
+        println!(
+            "{:32} gamma1 - FE: large strain rms {:.2} µm (deepest {:+.2}), linear rms {:.2} µm (deepest {:+.2}); \
+             theta1 - FE rms {:.3}° (noise 2 µm, 0.02°)",
+            f[0],
+            rms(&res_nl),
+            res_nl[res_nl.len() - 1],
+            rms(&res_lin),
+            res_lin[res_lin.len() - 1],
+            rms(&res_t)
+        );
+        for (s, r) in tors.iter().zip(&res_t) {
+            println!("    rot {:5.2}°: theta1 recorded {:.4}°, FE {:+.4}°", s.rot_deg, s.theta1_deg, -r);
+        }
+        assert!(rms(&res_nl) < 6.0, "{}: normal rms {}", f[0], rms(&res_nl));
+        assert!(rms(&res_nl) < 0.5 * rms(&res_lin), "{}: large strain must explain the linear misfit", f[0]);
+        assert!(rms(&res_t) < 0.1, "{}: torsion rms {}", f[0], rms(&res_t));
+    }
+}
