@@ -9,6 +9,7 @@
 //! Any failure ends in [`Sequencer::abort`]: stop both axes, back the stage
 //! off to the retract position, say which device did what.
 
+mod experiments;
 mod homing;
 mod motion;
 mod outcome;
@@ -28,6 +29,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
 use devices::motion::{Axis, AxisStatus, DeviceFault, FaultKind, Identify, LinearStage, Mm, RotationMount};
+use sim::experiment::{Experiment, ExperimentSpec};
 use sim::recording::{CONTACT_SD_KEY, Direction, Metadata, Phase, RecordingWriter, Sample};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
@@ -65,10 +67,23 @@ fn kind_str(k: FaultKind) -> &'static str {
 #[derive(Debug, Clone, Copy)]
 enum Cursor {
     Setup,
-    Load { rep: u32, k: usize, beta: f64 },
-    Unload { rep: u32, left: usize },
+    Load {
+        rep: u32,
+        k: usize,
+        beta: f64,
+    },
+    Unload {
+        rep: u32,
+        left: usize,
+    },
     Depth,
-    Twist { left: usize },
+    Twist {
+        left: usize,
+    },
+    /// Samples left in the experiment steps.
+    Experiment {
+        left: usize,
+    },
     Done,
 }
 
@@ -256,7 +271,7 @@ where
     }
 
     fn total_steps(&self) -> usize {
-        6 + self.script.normal.repeats as usize
+        6 + self.script.normal.repeats as usize + self.script.experiment.len()
     }
 
     fn emit(&self, ev: RunEvent) {
@@ -351,7 +366,17 @@ where
         self.step(base + 1, "torsion sweep", RunPhase::Torsion);
         self.device_status().await?;
         self.torsion_sweep().await?;
-        self.step(base + 2, "retract", RunPhase::Retract);
+        let experiments = self.script.experiment.clone();
+        if !experiments.is_empty() {
+            self.mark_phase("experiments").await?;
+        }
+        for (i, spec) in experiments.iter().enumerate() {
+            let phase = if spec.phase().kind() == Phase::Torsion { RunPhase::Torsion } else { RunPhase::Normal };
+            self.step(base + 2 + i, format!("experiment {}/{}: {}", i + 1, experiments.len(), spec.name()), phase);
+            self.device_status().await?;
+            self.experiment(&experiments[i..]).await?;
+        }
+        self.step(base + 2 + experiments.len(), "retract", RunPhase::Retract);
         self.mark_phase("retract").await?;
         self.retract().await?;
         self.mark_end().await;

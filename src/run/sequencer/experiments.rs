@@ -1,0 +1,95 @@
+//! The experiment steps after the torsion sweep (docs/experiments.md): a dwell,
+//! unload-reload cycles, a twist reversal, a torsion sweep at a second depth.
+//! Every move goes through `move_stage` / `move_mount` (the guard), every
+//! sample through `record`, with the experiment as its phase.
+
+use super::*;
+use sim::experiment::{dwell_count, reload_path, reversal_angles, sweep_angles};
+
+impl<S, R, G> Sequencer<S, R, G>
+where
+    S: LinearStage + Identify,
+    R: RotationMount + Identify,
+    G: Gauge,
+{
+    /// Run the first step of `left` (the steps still to run, for progress).
+    pub(super) async fn experiment(&mut self, left: &[ExperimentSpec]) -> Step<()> {
+        let Some(&spec) = left.first() else { return Ok(()) };
+        let mut to_go: usize = left.iter().map(ExperimentSpec::samples).sum();
+        let label = spec.phase();
+        let hold = self.stage_mm;
+        match spec {
+            ExperimentSpec::Dwell { hold_s, every_s } => {
+                let frames = self.script.normal.frames;
+                let t_start = self.clock.t_last;
+                for i in 0..dwell_count(hold_s, every_s) {
+                    self.track.cursor = Cursor::Experiment { left: to_go };
+                    // Wait on the sensor's clock (the rig's time), reading as it streams.
+                    let due = t_start + i as f64 * every_s;
+                    while self.clock.t_last < due {
+                        self.checkpoint().await?;
+                        self.read().await?;
+                    }
+                    let r = self.settle_frames(frames).await?;
+                    self.record(Phase::Normal, hold, r, None, None, Some(label))?;
+                    to_go = to_go.saturating_sub(1);
+                }
+            }
+            ExperimentSpec::Reload { fraction, steps, cycles } => {
+                let contact = self.contact_mm.unwrap_or(hold);
+                for (pos, dir) in reload_path(hold, contact, fraction, steps, cycles) {
+                    self.track.cursor = Cursor::Experiment { left: to_go };
+                    self.move_stage(pos, "reload experiment").await?;
+                    let r = self.settle_frames(self.script.normal.frames).await?;
+                    self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
+                    to_go = to_go.saturating_sub(1);
+                }
+            }
+            ExperimentSpec::TwistReversal { amplitude_deg, step_deg } => {
+                self.twist_path(&reversal_angles(amplitude_deg, step_deg), label, &mut to_go).await?;
+            }
+            ExperimentSpec::TorsionAtDepth { beta, amplitude_deg, step_deg } => {
+                let crossing = self.load_crossing(beta).ok_or_else(|| Halt {
+                    culprit: Culprit::Procedure,
+                    message: "torsion at depth: the normal sweep recorded fewer than two load points".into(),
+                })?;
+                let reached = self.seek_depth(crossing, beta).await?;
+                self.log(
+                    LogLevel::Info,
+                    format!("holding beta {reached:.4} at stage {:.4} mm for the second torsion sweep", self.stage_mm),
+                );
+                self.twist_path(&sweep_angles(amplitude_deg, step_deg), label, &mut to_go).await?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Twist through `angles` (from the torsion sweep's zero) at the stage where it stands.
+    async fn twist_path(&mut self, angles: &[(f64, Direction)], label: Experiment, to_go: &mut usize) -> Step<()> {
+        let hold = self.stage_mm;
+        for &(angle, dir) in angles {
+            self.track.cursor = Cursor::Experiment { left: *to_go };
+            self.move_mount(self.twist_zero + angle, "twist experiment").await?;
+            let r = self.settle_frames(self.script.torsion.frames).await?;
+            self.record(Phase::Torsion, hold, r, None, Some(dir), Some(label))?;
+            *to_go = to_go.saturating_sub(1);
+        }
+        Ok(())
+    }
+
+    /// The two load points of the first normal sweep around depth `beta`
+    /// ((absolute stage mm, measured beta) each), or its last two when it
+    /// never went that deep; `None` with fewer than two load points.
+    fn load_crossing(&self, beta: f64) -> Option<((f64, f64), (f64, f64))> {
+        let contact = self.contact_mm.unwrap_or(0.0);
+        let r2 = self.script.indenter.r_mm;
+        let path: Vec<(f64, f64)> = self
+            .samples
+            .iter()
+            .filter(|s| s.in_sweep() && s.phase == Phase::Normal && s.rep == Some(0) && s.dir == Some(Direction::Load))
+            .map(|s| (s.stage_mm + contact, (s.stage_mm - s.gamma1_mm) / r2))
+            .collect();
+        let i = path.iter().position(|p| p.1 >= beta).unwrap_or(path.len().saturating_sub(1)).max(1);
+        Some((*path.get(i - 1)?, *path.get(i)?))
+    }
+}
