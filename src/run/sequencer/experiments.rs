@@ -49,11 +49,11 @@ where
                 self.twist_path(&reversal_angles(amplitude_deg, step_deg), label, &mut to_go).await?;
             }
             ExperimentSpec::TorsionAtDepth { beta, amplitude_deg, step_deg } => {
-                let crossing = self.load_crossing(beta).ok_or_else(|| Halt {
-                    culprit: Culprit::Procedure,
-                    message: "torsion at depth: the normal sweep recorded fewer than two load points".into(),
-                })?;
-                let reached = self.seek_depth(crossing, beta).await?;
+                let crossing = match self.load_crossing(beta) {
+                    Some(c) => c,
+                    None => self.step_in_to(beta).await?,
+                };
+                let reached = self.seek_depth(crossing, beta, 4).await?;
                 self.log(
                     LogLevel::Info,
                     format!("holding beta {reached:.4} at stage {:.4} mm for the second torsion sweep", self.stage_mm),
@@ -77,9 +77,30 @@ where
         Ok(())
     }
 
+    /// Deeper than the sweep went: step in from where the stage stands, by the
+    /// normal sweep's step (each move guarded), until the measured depth
+    /// reaches `beta`; the last two points ((absolute stage mm, beta) each).
+    async fn step_in_to(&mut self, beta: f64) -> Step<((f64, f64), (f64, f64))> {
+        let contact = self.contact_mm.unwrap_or(self.stage_mm);
+        let r2 = self.script.indenter.r_mm;
+        let step = self.script.normal.step_mm;
+        let here = self.settle().await?;
+        let mut last = (self.stage_mm, ((self.stage_mm - contact) - here.gamma1_mm) / r2);
+        loop {
+            let pos = last.0 + step;
+            self.move_stage(pos, "step in to the second depth").await?;
+            let r = self.settle().await?;
+            let now = (pos, ((pos - contact) - r.gamma1_mm) / r2);
+            if now.1 >= beta {
+                return Ok((last, now));
+            }
+            last = now;
+        }
+    }
+
     /// The two load points of the first normal sweep around depth `beta`
-    /// ((absolute stage mm, measured beta) each), or its last two when it
-    /// never went that deep; `None` with fewer than two load points.
+    /// ((absolute stage mm, measured beta) each); `None` when the sweep never
+    /// went that deep or recorded fewer than two load points.
     fn load_crossing(&self, beta: f64) -> Option<((f64, f64), (f64, f64))> {
         let contact = self.contact_mm.unwrap_or(0.0);
         let r2 = self.script.indenter.r_mm;
@@ -89,7 +110,7 @@ where
             .filter(|s| s.in_sweep() && s.phase == Phase::Normal && s.rep == Some(0) && s.dir == Some(Direction::Load))
             .map(|s| (s.stage_mm + contact, (s.stage_mm - s.gamma1_mm) / r2))
             .collect();
-        let i = path.iter().position(|p| p.1 >= beta).unwrap_or(path.len().saturating_sub(1)).max(1);
+        let i = path.iter().position(|p| p.1 >= beta)?.max(1);
         Some((*path.get(i - 1)?, *path.get(i)?))
     }
 }

@@ -259,7 +259,7 @@ where
     pub(super) async fn torsion_depth(&mut self, crossing: ((f64, f64), (f64, f64))) -> Step<()> {
         self.track.cursor = Cursor::Depth;
         let target = self.script.normal.target_beta;
-        let beta = self.seek_depth(crossing, target).await?;
+        let beta = self.seek_depth(crossing, target, 4).await?;
         self.torsion_beta = Some(beta);
         self.log(
             LogLevel::Info,
@@ -270,9 +270,14 @@ where
 
     /// Move the stage to where the measured depth beta = (approach - gamma1) / R2
     /// is `target`, starting from the line through the two load points
-    /// `crossing` ((stage_mm, beta) each) and correcting on the readings.
-    /// Returns the beta reached.
-    pub(super) async fn seek_depth(&mut self, crossing: ((f64, f64), (f64, f64)), target: f64) -> Step<f64> {
+    /// `crossing` ((stage_mm, beta) each) and correcting on the readings, at
+    /// most `tries` moves. Returns the beta reached.
+    pub(super) async fn seek_depth(
+        &mut self,
+        crossing: ((f64, f64), (f64, f64)),
+        target: f64,
+        tries: usize,
+    ) -> Step<f64> {
         let contact = self.contact_mm.unwrap_or(self.stage_mm);
         let r2 = self.script.indenter.r_mm;
         let ((p0, b0), (p1, b1)) = crossing;
@@ -280,7 +285,7 @@ where
         let mut pos = if b1 > b0 { p0 + (target - b0) / slope } else { p1 };
         let step = self.script.normal.step_mm;
         let mut beta = f64::NAN;
-        for _ in 0..4 {
+        for _ in 0..tries {
             self.move_stage(pos, "return to depth").await?;
             let r = self.settle().await?;
             beta = ((pos - contact) - r.gamma1_mm) / r2;
