@@ -291,6 +291,32 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     })
 }
 
+/// What `specs` would record, noise-free, on `rig` (already fed the run's
+/// history up to time `t_s`) with the stage standing at `hold_stage_mm`: the
+/// experiment steps as the generator runs them, one sample per `step_time_s`.
+/// A plan predicts an experiment's outcome under a hypothesis with it.
+pub fn continue_run(
+    rig: TrueRig,
+    t_s: f64,
+    hold_stage_mm: f64,
+    specs: &[ExperimentSpec],
+    step_time_s: f64,
+) -> Result<Vec<Sample>, GenerateError> {
+    let noise = NoiseSpec {
+        gamma1_sigma_mm: 0.0,
+        theta1_sigma_deg: 0.0,
+        stage_resolution_mm: 0.0,
+        rotation_resolution_deg: 0.0,
+    };
+    let mut run = Continued { rig, rng: Rng::seed_from(0), t: t_s, samples: Vec::new(), noise, step_time_s };
+    let mut hold = hold_stage_mm;
+    for (i, spec) in specs.iter().enumerate() {
+        spec.validate(i, MAX_TWIST_DEG).map_err(|e| GenerateError::Plan(e.to_string()))?;
+        hold = run.experiment(spec, hold, hold)?;
+    }
+    Ok(run.samples)
+}
+
 /// A generated run after its standard sweeps, continued by experiment steps.
 struct Continued {
     rig: TrueRig,
