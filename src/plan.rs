@@ -60,6 +60,8 @@ pub struct Scored {
 /// The plan for one recording.
 #[derive(Debug, Clone, Serialize)]
 pub struct Plan {
+    /// The diagnosis's answer on the recording as it is, in one line ([`outcome_of`]).
+    pub verdict: String,
     pub hypotheses: Vec<Hypothesis>,
     /// Every candidate, best first.
     pub experiments: Vec<Scored>,
@@ -95,7 +97,9 @@ pub fn plan(rec: &Recording) -> Result<Plan, PlanError> {
 pub fn plan_for(rec: &Recording, d: &Diagnosis) -> Result<Plan, PlanError> {
     let operator_steps: Vec<String> =
         d.degenerate.iter().filter_map(|g| g.separate_by.map(|s| format!("{}: {s}", g.effect))).collect();
+    let verdict = outcome_of(d);
     let empty = |why: &str| Plan {
+        verdict: verdict.clone(),
         hypotheses: vec![],
         experiments: vec![],
         nothing_because: Some(why.to_string()),
@@ -139,7 +143,23 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis) -> Result<Plan, PlanError> {
             false => (b.separation / b.rig_time_s).total_cmp(&(a.separation / a.rig_time_s)),
         })
     });
-    Ok(Plan { hypotheses, experiments, nothing_because: None, operator_steps })
+    Ok(Plan { verdict, hypotheses, experiments, nothing_because: None, operator_steps })
+}
+
+/// A diagnosis in one line: what it named (with the corrected E1, nu1), what
+/// it could not rank, or that nothing stands out.
+pub fn outcome_of(d: &Diagnosis) -> String {
+    let values = format!("E1 {:.4} MPa, nu1 {:.4}", d.e1_mpa, d.nu1);
+    if !d.effects.is_empty() {
+        format!("named {}: {values}", d.effects.join(" + "))
+    } else if !d.ambiguous.is_empty() {
+        let alts: Vec<String> = d.ambiguous.iter().map(|a| a.effects.join(" + ")).collect();
+        format!("ambiguous: {}", alts.join(" / "))
+    } else if d.unexplained {
+        format!("unexplained mismatch: {values}")
+    } else {
+        format!("nothing named: {values}")
+    }
 }
 
 /// Refit the recording with `effects` on top of the baseline.

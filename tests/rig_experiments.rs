@@ -82,3 +82,30 @@ fn every_experiment_runs_through_the_real_drivers_and_records_its_phase() {
     assert_eq!(out.named, ["frame_compliance"], "{out:?}");
     assert!(out.corrected.0.abs() < 1.0 && out.corrected.1.abs() < 2.0, "{out:?}");
 }
+
+/// The closed loop on the emulated rig (`run --adaptive`): with a compliant
+/// frame, which the standard sweeps cannot tell from a layer, the loop runs
+/// the experiment `plan` chooses and the run's diagnosis then names the
+/// frame; on a clean rig it runs nothing.
+#[test]
+fn the_closed_loop_runs_a_deciding_experiment_only_when_something_is_left_to_decide() {
+    let adaptive = || Script {
+        limits: easycalib::run::script::LimitsSection { max_gamma1_mm: 8.0, ..Default::default() },
+        adaptive: easycalib::run::script::AdaptiveSection { enabled: true, ..Default::default() },
+        ..Script::default()
+    };
+    let profile =
+        SimProfile { frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }), ..SimProfile::default() };
+    let (out, rec) = emulated::run_script(5, profile, adaptive());
+    println!("{out:#?}");
+    assert!(!out.adaptive.is_empty(), "{out:?}");
+    let spent: f64 = out.adaptive.iter().map(|s| s.rig_time_s).sum();
+    assert!(spent > 0.0 && spent <= 120.0 + 60.0, "{spent} s");
+    assert!(rec.samples.iter().any(|s| s.experiment.is_some()));
+    assert_eq!(out.named, ["frame_compliance"], "{out:?}");
+    assert!(out.corrected.0.abs() < 1.0 && out.corrected.1.abs() < 2.0, "{out:?}");
+
+    let (clean, rec) = emulated::run_script(5, SimProfile::default(), adaptive());
+    assert!(clean.adaptive.is_empty(), "{clean:?}");
+    assert!(rec.samples.iter().all(|s| s.in_sweep()));
+}

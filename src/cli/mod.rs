@@ -183,6 +183,13 @@ pub struct RunArgs {
     /// with `easycalib diagnose`'s verdict and corrected E1, nu1; docs/run.md).
     #[arg(long)]
     pub no_diagnose: bool,
+    /// After the sweeps, run the experiments `plan` chooses while the
+    /// diagnosis leaves explanations standing (the script's `[adaptive]`; docs/experiments.md).
+    #[arg(long)]
+    pub adaptive: bool,
+    /// Rig time the closed loop may spend on experiments, s (with --adaptive).
+    #[arg(long, value_name = "N", requires = "adaptive")]
+    pub budget_s: Option<f64>,
     #[command(flatten)]
     pub db: history::DbArg,
     /// The simulated elastomer and indenter (emulated rig only).

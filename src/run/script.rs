@@ -126,6 +126,15 @@ home_s = 120.0
 # beta = 0.1
 # amplitude_deg = 8.0
 # step_deg = 0.5
+
+# Closed loop (docs/experiments.md): after the sweeps and the experiment steps,
+# while the diagnosis of the recording so far leaves explanations standing,
+# run the experiment `easycalib plan` chooses when it is decisive, within
+# budget_s of rig time and max_steps experiments. `run --adaptive` turns it on.
+[adaptive]
+enabled = false
+budget_s = 120.0
+max_steps = 3
 "#;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -142,6 +151,24 @@ pub struct Script {
     /// Experiment steps after the torsion sweep, in order (`[[experiment]]`, docs/experiments.md).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub experiment: Vec<ExperimentSpec>,
+    pub adaptive: AdaptiveSection,
+}
+
+/// The closed loop after the experiment steps (docs/experiments.md).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AdaptiveSection {
+    pub enabled: bool,
+    /// Rig time the loop may spend on experiments, s.
+    pub budget_s: f64,
+    /// Most experiments the loop runs.
+    pub max_steps: u32,
+}
+
+impl Default for AdaptiveSection {
+    fn default() -> Self {
+        Self { enabled: false, budget_s: 120.0, max_steps: 3 }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -303,6 +330,7 @@ impl Default for Script {
             settle: SettleSection::default(),
             timeouts: TimeoutsSection::default(),
             experiment: Vec::new(),
+            adaptive: AdaptiveSection::default(),
         }
     }
 }
@@ -368,6 +396,16 @@ impl Script {
         self.validate_torsion()?;
         self.validate_limits()?;
         self.validate_timing()?;
+        let a = &self.adaptive;
+        if !(a.budget_s.is_finite() && a.budget_s > 0.0 && a.budget_s <= MAX_DURATION_S) {
+            return Err(invalid(
+                "adaptive.budget_s",
+                format!("must lie in (0, {MAX_DURATION_S}] s, got {}", a.budget_s),
+            ));
+        }
+        if a.max_steps > 20 {
+            return Err(invalid("adaptive.max_steps", format!("must be <= 20, got {}", a.max_steps)));
+        }
         for (i, e) in self.experiment.iter().enumerate() {
             e.validate(i, self.limits.max_twist_deg).map_err(|e| invalid("experiment", e.to_string()))?;
         }

@@ -35,6 +35,8 @@ pub struct Outcome {
     pub corrected: (f64, f64),
     /// Samples that carry their standard error, of the samples in contact.
     pub with_sd: (usize, usize),
+    /// The experiments the closed loop ran (`[adaptive]`), in order.
+    pub adaptive: Vec<easycalib::run::AdaptiveStep>,
 }
 
 /// Run the default script on the emulated rig with noise seed `seed` and the
@@ -71,6 +73,7 @@ pub fn run_script(seed: u64, profile: SimProfile, script: Script) -> (Outcome, R
             paper: (pct(cal.paper.e1_mpa, truth.e1_mpa), pct(cal.paper.nu1, truth.nu1)),
             corrected: (pct(d.e1_mpa, truth.e1_mpa), pct(d.nu1, truth.nu1)),
             with_sd: (with_sd, live.len()),
+            adaptive: r.outcome.adaptive.clone(),
         };
         (out, rec)
     })

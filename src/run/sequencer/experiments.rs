@@ -64,6 +64,70 @@ where
         Ok(())
     }
 
+    /// The closed loop (docs/experiments.md): diagnose the samples so far
+    /// and run the experiment the plan chooses while it is decisive, within
+    /// the script's rig-time budget and step count. The planning runs off the
+    /// async workers; the axes stand still meanwhile.
+    pub(super) async fn adaptive_loop(&mut self) -> Step<()> {
+        let a = self.script.adaptive;
+        let mut spent = 0.0;
+        for _ in 0..=a.max_steps {
+            let Some(meta) = self.meta.clone() else { return Ok(()) };
+            let rec = sim::recording::Recording { meta, samples: self.samples.clone() };
+            let planned = tokio::task::spawn_blocking(move || crate::plan::plan(&rec)).await;
+            let p = match planned {
+                Ok(Ok(p)) => p,
+                Ok(Err(e)) => {
+                    self.log(LogLevel::Warn, format!("adaptive: no plan: {e}"));
+                    return Ok(());
+                }
+                Err(e) => {
+                    self.log(LogLevel::Warn, format!("adaptive: the planner stopped: {e}"));
+                    return Ok(());
+                }
+            };
+            if let Some(last) = self.adaptive.last_mut() {
+                last.outcome = p.verdict.clone();
+            }
+            if self.adaptive.len() as u32 >= a.max_steps {
+                self.log(LogLevel::Info, format!("adaptive: {} experiments run, the most allowed", a.max_steps));
+                return Ok(());
+            }
+            let Some(c) = p.choice().filter(|c| c.decisive).cloned() else {
+                let why = p.nothing_because.clone().unwrap_or_else(|| "no experiment decides".into());
+                self.log(LogLevel::Info, format!("adaptive: no experiment run: {why}"));
+                return Ok(());
+            };
+            if spent + c.rig_time_s > a.budget_s {
+                self.log(
+                    LogLevel::Info,
+                    format!(
+                        "adaptive: {} ({:.0} s) would exceed the budget ({:.0} s left)",
+                        c.name,
+                        c.rig_time_s,
+                        a.budget_s - spent
+                    ),
+                );
+                return Ok(());
+            }
+            let names: Vec<String> = p.hypotheses.iter().take(2).map(|h| h.effects.join(" + ")).collect();
+            let why = format!("separates {} (separation {:.0})", names.join(" from "), c.separation);
+            self.log(LogLevel::Info, format!("adaptive: running {} ({:.0} s): {why}", c.name, c.rig_time_s));
+            let t0 = self.clock.t_last;
+            self.experiment(&[c.spec]).await?;
+            let took = self.clock.t_last - t0;
+            spent += took;
+            self.adaptive.push(AdaptiveStep {
+                name: c.name,
+                spec: c.spec,
+                why,
+                rig_time_s: took,
+                outcome: String::new(),
+            });
+        }
+        Ok(())
+    }
+
     /// Twist through `angles` (from the torsion sweep's zero) at the stage where it stands.
     async fn twist_path(&mut self, angles: &[(f64, Direction)], label: Experiment, to_go: &mut usize) -> Step<()> {
         let hold = self.stage_mm;

@@ -20,7 +20,7 @@ mod steps;
 #[cfg(test)]
 mod tests;
 
-pub use outcome::{AbortInfo, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus};
+pub use outcome::{AbortInfo, AdaptiveStep, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus};
 
 use futures_util::{FutureExt, TryFutureExt};
 use std::fs::File;
@@ -132,6 +132,9 @@ pub struct Sequencer<S, R, G> {
     consecutive_timeouts: u32,
     last_fit: Option<FitUpdate>,
     track: Tracking,
+    /// The recording's metadata, once written (the closed loop diagnoses the samples so far with it).
+    meta: Option<Metadata>,
+    adaptive: Vec<AdaptiveStep>,
 }
 
 /// The sensor's reading noise: measured at rest before the approach, and
@@ -228,6 +231,8 @@ where
             consecutive_timeouts: 0,
             last_fit: None,
             track: Tracking { step_index: 0, cursor: Cursor::Setup, loads_rep0: None, sweep_start: None },
+            meta: None,
+            adaptive: Vec::new(),
         })
     }
 
@@ -334,6 +339,7 @@ where
             noise_gamma1_mm: (self.noise.gamma1_mm > 0.0).then_some(self.noise.gamma1_mm),
             torsion_beta: self.torsion_beta,
             phase_rig_time_s: phase_times(&self.clock.phase_marks, self.clock.t_last),
+            adaptive: self.adaptive.clone(),
             status,
         }
     }
@@ -375,6 +381,9 @@ where
             self.step(base + 2 + i, format!("experiment {}/{}: {}", i + 1, experiments.len(), spec.name()), phase);
             self.device_status().await?;
             self.experiment(&experiments[i..]).await?;
+        }
+        if self.script.adaptive.enabled {
+            self.adaptive_loop().await?;
         }
         self.step(base + 2 + experiments.len(), "retract", RunPhase::Retract);
         self.mark_phase("retract").await?;

@@ -71,6 +71,7 @@ where
             created: Some(crate::report::rfc3339_utc(SystemTime::now())),
             extra,
         };
+        self.meta = Some(meta.clone());
         let w = RecordingWriter::with_standard_errors(BufWriter::new(file), &meta).map_err(|e| Halt {
             culprit: Culprit::Recording,
             message: format!("cannot write the recording {}: {e}", self.recording_path.display()),
