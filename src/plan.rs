@@ -55,6 +55,9 @@ pub struct Scored {
     pub separation: f64,
     /// `separation` >= [`DECISIVE_SEPARATION`].
     pub decisive: bool,
+    /// The largest gamma1 the best hypothesis predicts during it, mm (a rig
+    /// checks it against its soft limit before running it).
+    pub peak_gamma1_mm: f64,
 }
 
 /// The plan for one recording.
@@ -125,7 +128,8 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis) -> Result<Plan, PlanError> {
     let step_time_s = step_time(rec);
     let mut experiments = Vec::new();
     for spec in candidates() {
-        let separation = separation(rec, &hypotheses[0], &hypotheses[1], &spec, step_time_s, sigma_g, sigma_t)?;
+        let (separation, peak_gamma1_mm) =
+            separation(rec, &hypotheses[0], &hypotheses[1], &spec, step_time_s, sigma_g, sigma_t)?;
         experiments.push(Scored {
             name: spec.name(),
             spec,
@@ -133,6 +137,7 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis) -> Result<Plan, PlanError> {
             rig_time_s: spec.rig_time_s(step_time_s),
             separation,
             decisive: separation >= DECISIVE_SEPARATION,
+            peak_gamma1_mm,
         });
     }
     // Decisive first, the cheapest of them (the better separating at equal
@@ -198,7 +203,9 @@ fn pair_of(rec: &Recording, profile: &SimProfile) -> Option<ContactPair> {
 }
 
 /// How far apart `spec`'s outcomes are under hypotheses `a` and `b`: the rig
-/// runs it as it would under `a` (the best), both predict its readings.
+/// runs it as it would under `a` (the best), from the stage of the
+/// recording's last sample, both predict its readings. Also the largest
+/// gamma1 `a` predicts, mm.
 fn separation(
     rec: &Recording,
     a: &Hypothesis,
@@ -207,7 +214,7 @@ fn separation(
     step_time_s: f64,
     sigma_g: f64,
     sigma_t: f64,
-) -> Result<f64, PlanError> {
+) -> Result<(f64, f64), PlanError> {
     let fail = |e: String| PlanError::Simulate(e);
     let hist = history(rec);
     let (Some(pair_a), Some(pair_b)) = (pair_of(rec, &a.profile), pair_of(rec, &b.profile)) else {
@@ -217,17 +224,15 @@ fn separation(
     for p in &hist {
         rig.read(*p).map_err(|e| fail(e.to_string()))?;
     }
-    let (last_t, hold) = match rec.sweep(Phase::Torsion).last().or(rec.samples.last()) {
-        Some(s) => (rec.samples.last().map_or(s.t_s, |l| l.t_s), s.stage_mm),
-        None => return Err(fail("the recording is empty".into())),
-    };
+    let Some(last) = rec.samples.last() else { return Err(fail("the recording is empty".into())) };
+    let (last_t, hold) = (last.t_s, last.stage_mm);
     let run: Vec<Sample> = sim::generator::continue_run(rig, last_t + step_time_s, hold, &[*spec], step_time_s)
         .map_err(|e| fail(e.to_string()))?;
     let mut cmds = hist.clone();
     cmds.extend(run.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }));
     let pred_b = simulate(pair_b, &b.profile, &cmds).map_err(|e| fail(e.to_string()))?;
     let tail = &pred_b[hist.len()..];
-    Ok(run
+    let d = run
         .iter()
         .zip(tail)
         .map(|(s, r)| {
@@ -235,7 +240,8 @@ fn separation(
             let t = if s.phase == Phase::Torsion { ((s.theta1_deg - r.theta1_deg) / sigma_t).powi(2) } else { 0.0 };
             g + t
         })
-        .sum())
+        .sum();
+    Ok((d, run.iter().map(|s| s.gamma1_mm).fold(0.0, f64::max)))
 }
 
 /// The plan as text: the hypotheses, the choice with its time and what each outcome would mean, the others.
@@ -265,22 +271,14 @@ pub fn report(p: &Plan) -> String {
             "Run: {} {:?} ({} samples, about {:.0} s of rig time): separation {:.1} (decisive at {DECISIVE_SEPARATION}), {verdict}.",
             c.name, c.spec, c.samples, c.rig_time_s, c.separation
         );
-        let _ = writeln!(
-            s,
-            "  If its readings follow {}: {} is named, with E1 {:.4} MPa, nu1 {:.4}.",
-            a.effects.join(" + "),
-            a.effects.join(" + "),
-            a.e1_mpa,
-            a.nu1
-        );
-        let _ = writeln!(
-            s,
-            "  If they follow {}: {} is named, with E1 {:.4} MPa, nu1 {:.4}.",
-            b.effects.join(" + "),
-            b.effects.join(" + "),
-            b.e1_mpa,
-            b.nu1
-        );
+        for h in [a, b] {
+            let effects = h.effects.join(" + ");
+            let _ = writeln!(
+                s,
+                "  If its readings follow {effects}: {effects} is named, with E1 {:.4} MPa, nu1 {:.4}.",
+                h.e1_mpa, h.nu1
+            );
+        }
         let _ = writeln!(s, "Candidates (separation, rig time):");
         for e in &p.experiments {
             let _ = writeln!(s, "  {:<18} {:>8.1} {:>6.0} s  {:?}", e.name, e.separation, e.rig_time_s, e.spec);

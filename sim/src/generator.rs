@@ -269,6 +269,11 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     }
     let samples = run.samples;
 
+    Ok(Recording { meta: sim_metadata(cfg, &pair), samples })
+}
+
+/// A generated recording's metadata: the simulated truth and seed, and the effects on.
+fn sim_metadata(cfg: &GeneratorConfig, pair: &ContactPair) -> Metadata {
     let mut extra = vec![
         ("sim_E1_MPa".to_string(), format!("{}", pair.elastomer.e_mpa)),
         ("sim_nu1".to_string(), format!("{}", pair.elastomer.nu)),
@@ -278,17 +283,14 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     if !on.is_empty() {
         extra.push(("sim_effects".to_string(), on.join(",")));
     }
-    Ok(Recording {
-        meta: Metadata {
-            sensor: Some(cfg.sensor.clone()),
-            indenter: pair.indenter,
-            elastomer_r_mm: pair.elastomer.r_mm,
-            layer: None,
-            created: None,
-            extra,
-        },
-        samples,
-    })
+    Metadata {
+        sensor: Some(cfg.sensor.clone()),
+        indenter: pair.indenter,
+        elastomer_r_mm: pair.elastomer.r_mm,
+        layer: None,
+        created: None,
+        extra,
+    }
 }
 
 /// What `specs` would record, noise-free, on `rig` (already fed the run's

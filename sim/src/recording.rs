@@ -176,6 +176,9 @@ fn err(line: usize, message: impl Into<String>) -> RecordingError {
 
 const REQUIRED_COLUMNS: [&str; 6] = ["t_s", "phase", "stage_mm", "rot_deg", "gamma1_mm", "theta1_deg"];
 
+/// The phases this reader knows, as its error for an unknown one says.
+const KNOWN: &str = "this reader knows `normal`, `torsion`, `dwell`, `reload`, `reversal` and `torsion2`";
+
 /// The optional per-sample standard errors (docs/recording-format.md).
 const SD_COLUMNS: [&str; 2] = ["gamma1_sd_mm", "theta1_sd_deg"];
 
@@ -495,18 +498,11 @@ fn parse_row(n: usize, line: &str, columns: &Columns, last_t: f64) -> Result<Sam
     let (phase, experiment) = match fields[idx[1]] {
         "normal" => (Phase::Normal, None),
         "torsion" => (Phase::Torsion, None),
-        other => match Experiment::parse(other) {
-            Some(e) => (e.kind(), Some(e)),
-            None => {
-                return Err(col_err(
-                    idx[1],
-                    format!(
-                        "unknown phase `{other}` (this reader knows `normal`, `torsion`, `dwell`, `reload`, `reversal` \
-                         and `torsion2`)"
-                    ),
-                ));
-            }
-        },
+        other => {
+            let e = Experiment::parse(other)
+                .ok_or_else(|| col_err(idx[1], format!("unknown phase `{other}` ({KNOWN})")))?;
+            (e.kind(), Some(e))
+        }
     };
     let stage_mm = num(2)?;
     let rot_deg = num(3)?;
@@ -547,19 +543,8 @@ fn parse_row(n: usize, line: &str, columns: &Columns, last_t: f64) -> Result<Sam
     };
     let gamma1_sd_mm = sd(columns.gamma1_sd)?;
     let theta1_sd_deg = sd(columns.theta1_sd)?;
-    Ok(Sample {
-        t_s,
-        phase,
-        stage_mm,
-        rot_deg,
-        gamma1_mm,
-        theta1_deg,
-        rep,
-        dir,
-        gamma1_sd_mm,
-        theta1_sd_deg,
-        experiment,
-    })
+    let sample = Sample::new(t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg);
+    Ok(Sample { rep, dir, gamma1_sd_mm, theta1_sd_deg, experiment, ..sample })
 }
 
 /// The declared layer from its three keys: a base or a tolerance without a

@@ -93,7 +93,10 @@ where
                 self.log(LogLevel::Info, format!("adaptive: {} experiments run, the most allowed", a.max_steps));
                 return Ok(());
             }
-            let Some(c) = p.choice().filter(|c| c.decisive).cloned() else {
+            // The guard would stop the run at a move that could pass the gamma1
+            // limit: only experiments well inside it (its bound grows by each inward move).
+            let room = 0.8 * self.script.limits.max_gamma1_mm;
+            let Some(c) = p.experiments.iter().find(|c| c.decisive && c.peak_gamma1_mm <= room).cloned() else {
                 let why = p.nothing_because.clone().unwrap_or_else(|| "no experiment decides".into());
                 self.log(LogLevel::Info, format!("adaptive: no experiment run: {why}"));
                 return Ok(());
