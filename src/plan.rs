@@ -125,16 +125,16 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis) -> Result<Plan, PlanError> {
     if hypotheses.len() < 2 {
         return Ok(empty("fewer than two of the explanations could be refitted"));
     }
-    let step_time_s = step_time(rec);
     let mut experiments = Vec::new();
     for spec in candidates() {
+        let step_time_s = step_time(rec, spec.phase().kind());
         let (separation, peak_gamma1_mm) =
             separation(rec, &hypotheses[0], &hypotheses[1], &spec, step_time_s, sigma_g, sigma_t)?;
         experiments.push(Scored {
             name: spec.name(),
             spec,
             samples: spec.samples(),
-            rig_time_s: spec.rig_time_s(step_time_s),
+            rig_time_s: spec.rig_time_s(step_time_s) + seek_time(rec, &spec),
             separation,
             decisive: separation >= DECISIVE_SEPARATION,
             peak_gamma1_mm,
@@ -178,11 +178,33 @@ fn refit(model: &Model, base: &Fitted, effects: &[&'static str]) -> Option<Hypot
     Some(Hypothesis { effects: effects.to_vec(), e1_mpa: b.e1_mpa, nu1: b.nu1, chi2: fit.chi2, profile })
 }
 
-/// The recording's time per settled sample: the median step between samples of the sweeps, s.
-fn step_time(rec: &Recording) -> f64 {
-    let mut dt: Vec<f64> =
-        rec.samples.windows(2).map(|w| w[1].t_s - w[0].t_s).filter(|d| d.is_finite() && *d > 0.0).collect();
+/// The recording's time per settled sample of this kind: the median step
+/// between consecutive samples of its sweep, s (a twist settles longer than a
+/// stage step on most rigs).
+fn step_time(rec: &Recording, kind: Phase) -> f64 {
+    let mut dt: Vec<f64> = rec
+        .samples
+        .windows(2)
+        .filter(|w| w.iter().all(|s| s.in_sweep() && s.phase == kind))
+        .map(|w| w[1].t_s - w[0].t_s)
+        .filter(|d| d.is_finite() && *d > 0.0)
+        .collect();
     if dt.is_empty() { 1.0 } else { crate::numerics::stats::median(&mut dt) }
+}
+
+/// Rig time to reach a second depth, s: what the recording's own return to the
+/// torsion depth took (from the last sample of the normal sweep to the first of
+/// the torsion sweep); 0 for the experiments that act where the rig stands.
+fn seek_time(rec: &Recording, spec: &ExperimentSpec) -> f64 {
+    if !matches!(spec, ExperimentSpec::TorsionAtDepth { .. }) {
+        return 0.0;
+    }
+    let last_normal = rec.sweep(Phase::Normal).last().map(|s| s.t_s);
+    let first_torsion = rec.sweep(Phase::Torsion).next().map(|s| s.t_s);
+    match (last_normal, first_torsion) {
+        (Some(a), Some(b)) if b > a => b - a,
+        _ => 0.0,
+    }
 }
 
 /// The commanded history of a recording, as the diagnosis replays it.

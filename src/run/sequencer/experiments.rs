@@ -115,6 +115,8 @@ where
             }
             let names: Vec<String> = p.hypotheses.iter().take(2).map(|h| h.effects.join(" + ")).collect();
             let why = format!("separates {} (separation {:.0})", names.join(" from "), c.separation);
+            let phase = if c.spec.phase().kind() == Phase::Torsion { RunPhase::Torsion } else { RunPhase::Normal };
+            self.step(self.track.step_index, format!("adaptive: {}", c.name), phase);
             self.log(LogLevel::Info, format!("adaptive: running {} ({:.0} s): {why}", c.name, c.rig_time_s));
             let t0 = self.clock.t_last;
             self.experiment(&[c.spec]).await?;
