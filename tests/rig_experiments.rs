@@ -102,11 +102,19 @@ fn the_closed_loop_runs_a_deciding_experiment_only_when_something_is_left_to_dec
     let spent: f64 = out.adaptive.iter().map(|s| s.rig_time_s).sum();
     assert!(spent > 0.0 && spent <= 120.0 + 60.0, "{spent} s");
     assert!(rec.samples.iter().any(|s| s.experiment.is_some()));
+    // The chain in the report: experiment, why, rig time, outcome.
+    let chain = &out.report_chain.0;
+    assert_eq!(chain.as_array().map(Vec::len), Some(out.adaptive.len()), "{chain:#}");
+    assert!(chain[0]["why"].as_str().is_some_and(|w| w.contains("separates")), "{chain:#}");
+    assert!(chain[0]["outcome"].as_str().is_some_and(|o| o.contains("frame_compliance")), "{chain:#}");
+    assert_eq!(out.report_chain.1.len(), out.adaptive.len(), "{:?}", out.report_chain.1);
+    assert!(out.report_chain.1[0].starts_with("| experiment 1 | torsion_at_depth"), "{:?}", out.report_chain.1);
     assert_eq!(out.named, ["frame_compliance"], "{out:?}");
     assert!(out.corrected.0.abs() < 1.0 && out.corrected.1.abs() < 2.0, "{out:?}");
 
     let (clean, rec) = emulated::run_script(5, SimProfile::default(), adaptive());
     assert!(clean.adaptive.is_empty(), "{clean:?}");
+    assert!(clean.report_chain.0.is_null() && clean.report_chain.1.is_empty(), "{:?}", clean.report_chain);
     assert!(rec.samples.iter().all(|s| s.in_sweep()));
 }
 

@@ -37,6 +37,9 @@ pub struct Outcome {
     pub with_sd: (usize, usize),
     /// The experiments the closed loop ran (`[adaptive]`), in order.
     pub adaptive: Vec<easycalib::run::AdaptiveStep>,
+    /// The closed loop's chain as the run's reports give it: report.json's
+    /// `run.experiments` (null when absent), report.md's `| experiment` rows.
+    pub report_chain: (serde_json::Value, Vec<String>),
 }
 
 /// Run the default script on the emulated rig with noise seed `seed` and the
@@ -74,6 +77,14 @@ pub fn run_script(seed: u64, profile: SimProfile, script: Script) -> (Outcome, R
             corrected: (pct(d.e1_mpa, truth.e1_mpa), pct(d.nu1, truth.nu1)),
             with_sd: (with_sd, live.len()),
             adaptive: r.outcome.adaptive.clone(),
+            report_chain: {
+                let files = r.report.as_ref().expect("a completed run writes its report");
+                let json: serde_json::Value =
+                    serde_json::from_str(&std::fs::read_to_string(&files.json).unwrap()).unwrap();
+                let md = std::fs::read_to_string(&files.markdown).unwrap();
+                let rows = md.lines().filter(|l| l.starts_with("| experiment")).map(str::to_string).collect();
+                (json["run"]["experiments"].clone(), rows)
+            },
         };
         (out, rec)
     })
