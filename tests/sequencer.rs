@@ -469,11 +469,13 @@ async fn a_limit_that_forbids_the_target_depth_stops_the_sweep_safely() {
 async fn an_experiment_beyond_the_gamma1_limit_stops_safely_and_keeps_the_recording() {
     use sim::experiment::{Experiment, ExperimentSpec};
     let dir = tempfile::tempdir().unwrap();
-    let mut script = Script::default();
-    script.experiment = vec![
-        ExperimentSpec::Dwell { hold_s: 4.0, every_s: 1.0 },
-        ExperimentSpec::TorsionAtDepth { beta: 0.3, amplitude_deg: 2.0, step_deg: 0.5 },
-    ];
+    let mut script = Script {
+        experiment: vec![
+            ExperimentSpec::Dwell { hold_s: 4.0, every_s: 1.0 },
+            ExperimentSpec::TorsionAtDepth { beta: 0.3, amplitude_deg: 2.0, step_deg: 0.5 },
+        ],
+        ..Script::default()
+    };
     script.limits.max_gamma1_mm = 20.0;
     let path = dir.path().join("room.csv");
     let (out, _, rig) = run_sim(script.clone(), SimRigConfig::default(), &path).await;
