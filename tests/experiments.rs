@@ -140,3 +140,45 @@ fn recordings_with_every_experiment_round_trip_and_fit() {
     assert!((cal.full.e1_mpa / truth.e_mpa - 1.0).abs() < 0.01, "E1 {}", cal.full.e1_mpa);
     assert!((cal.full.nu1 / truth.nu - 1.0).abs() < 0.03, "nu1 {}", cal.full.nu1);
 }
+
+/// docs/physics.md 2.7 and 2.8 on a twist reversal (+4 deg, through zero to
+/// -4 deg and back, noise-free): a mount's lost motion `b` shifts theta1 by
+/// one constant, H-scaled b, from the first reversal to the second and by
+/// nothing before or after; slip at the contact's edge bends the response
+/// instead, so its departure from the clean twist is not one step.
+#[test]
+fn a_twist_reversal_shows_lost_motion_as_one_step_and_slip_as_a_bend() {
+    use sim::effects::{partial_slip, rotation_backlash};
+    let reversal = |profile: SimProfile| {
+        let cfg = GeneratorConfig {
+            noise: noiseless(),
+            profile,
+            experiments: vec![ExperimentSpec::TwistReversal { amplitude_deg: 4.0, step_deg: 1.0 }],
+            ..GeneratorConfig::default()
+        };
+        let rec = generate(&cfg).unwrap();
+        rec.samples
+            .iter()
+            .filter(|s| s.experiment == Some(Experiment::Reversal))
+            .map(|s| s.theta1_deg)
+            .collect::<Vec<_>>()
+    };
+    let clean = reversal(SimProfile::default());
+    assert_eq!(clean.len(), 16);
+    let dev = |v: Vec<f64>| v.iter().zip(&clean).map(|(a, c)| a - c).collect::<Vec<f64>>();
+    let b = 0.2;
+    let lost = dev(reversal(SimProfile {
+        rotation_backlash: Some(rotation_backlash::Params { b_deg: b, engaged: true }),
+        ..SimProfile::default()
+    }));
+    // Out to +4 (samples 0-3) and after the turn at -4 (12-15): the clean twist.
+    assert!(lost[..4].iter().chain(&lost[12..]).all(|d| d.abs() < 1e-9), "{lost:?}");
+    // From +3 back to -4 (4-11): one step, theta1 per mount degree times b.
+    let step = clean[0] * b;
+    assert!(lost[4..12].iter().all(|d| (d - step).abs() < 1e-3 * step), "{lost:?} vs {step}");
+    let slip =
+        dev(reversal(SimProfile { partial_slip: Some(partial_slip::Params { mu: 0.5 }), ..SimProfile::default() }));
+    let (lo, hi) = slip[4..12].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), d| (l.min(*d), h.max(*d)));
+    assert!(hi - lo > 0.02, "slip departs from the clean twist by {lo}..{hi} deg: not one step");
+    assert!(slip[3] < -0.01, "slip lowers theta1 at +4 deg: {}", slip[3]);
+}
