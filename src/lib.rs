@@ -4,6 +4,7 @@ pub mod cli;
 pub mod diagnosis;
 pub mod fit;
 pub mod numerics;
+pub mod plan;
 pub mod report;
 pub mod rig;
 pub mod run;

@@ -460,6 +460,46 @@ async fn a_limit_that_forbids_the_target_depth_stops_the_sweep_safely() {
     assert_eq!(st.stage_mm, 0.0);
 }
 
+/// Experiment steps go through the same guard and abort path as the sweeps
+/// (docs/experiments.md): with a gamma1 limit between the torsion depth's and
+/// the second depth's, the run records the dwell, then stops before the
+/// second depth with the guard's reason, backs the stage off and keeps the
+/// recording; with room, the same script completes with every phase.
+#[tokio::test]
+async fn an_experiment_beyond_the_gamma1_limit_stops_safely_and_keeps_the_recording() {
+    use sim::experiment::{Experiment, ExperimentSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let mut script = Script {
+        experiment: vec![
+            ExperimentSpec::Dwell { hold_s: 4.0, every_s: 1.0 },
+            ExperimentSpec::TorsionAtDepth { beta: 0.3, amplitude_deg: 2.0, step_deg: 0.5 },
+        ],
+        ..Script::default()
+    };
+    script.limits.max_gamma1_mm = 20.0;
+    let path = dir.path().join("room.csv");
+    let (out, _, rig) = run_sim(script.clone(), SimRigConfig::default(), &path).await;
+    assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
+    let rec = Recording::read_path(&path).unwrap();
+    let of = |r: &Recording, e| r.samples.iter().filter(|s| s.experiment == Some(e)).count();
+    assert_eq!((of(&rec, Experiment::Dwell), of(&rec, Experiment::Torsion2)), (5, 9));
+    let deepest = rig.state().max_true_gamma1;
+    let hold = rec.sweep(Phase::Torsion).map(|s| s.gamma1_mm).fold(0.0, f64::max);
+    assert!(deepest > hold * 1.2, "the second depth is deeper: {deepest} vs {hold}");
+
+    script.limits.max_gamma1_mm = 0.5 * (hold + deepest);
+    let path = dir.path().join("limited.csv");
+    let (out, _, rig) = run_sim(script.clone(), SimRigConfig::default(), &path).await;
+    let RunStatus::Aborted(info) = &out.status else { panic!("{:?}", out.status) };
+    assert_eq!(info.culprit, Culprit::Safety, "{info}");
+    assert!(info.message.contains("max gamma1"), "{info}");
+    let st = rig.state();
+    assert!(st.max_true_gamma1 <= script.limits.max_gamma1_mm, "true gamma1 reached {}", st.max_true_gamma1);
+    assert_eq!(st.stage_mm, 0.0);
+    let rec = Recording::read_path(&path).unwrap();
+    assert_eq!((of(&rec, Experiment::Dwell), of(&rec, Experiment::Torsion2)), (5, 0));
+}
+
 mod mocks {
     use super::simrig::SimFault;
     use super::*;

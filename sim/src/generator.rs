@@ -17,6 +17,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::effects::{CommandedPose, EffectError, SimProfile, TrueRig};
+use crate::experiment::{ExperimentSpec, reload_path, reversal_angles, sweep_angles};
 use crate::physics::{ContactPair, NormalError, NormalModel, ParamError, torsion_at};
 use crate::recording::{Direction, Metadata, Phase, Recording, Sample};
 use crate::rng::Rng;
@@ -85,6 +86,9 @@ pub struct GeneratorConfig {
     /// A `material` in the profile overrides `pair.elastomer`'s E1 and nu1.
     #[serde(default)]
     pub profile: SimProfile,
+    /// Experiment steps after the torsion sweep, in order (docs/experiments.md).
+    #[serde(default)]
+    pub experiments: Vec<ExperimentSpec>,
 }
 
 impl Default for GeneratorConfig {
@@ -97,6 +101,7 @@ impl Default for GeneratorConfig {
             seed: crate::defaults::SEED,
             sensor: "sim-tac3d".to_string(),
             profile: SimProfile::default(),
+            experiments: Vec::new(),
         }
     }
 }
@@ -144,6 +149,9 @@ impl CleanRig {
     }
 }
 
+/// Largest twist an experiment of the generator may ask for, degrees.
+const MAX_TWIST_DEG: f64 = 45.0;
+
 /// Bisection bound on the torsion-depth search, mm of stage.
 const DEPTH_TOL_MM: f64 = 1e-10;
 
@@ -158,6 +166,9 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
         return Err(GenerateError::Plan(format!("target beta {} outside (0, 0.3]", plan.target_beta)));
     }
     cfg.pair.validate()?;
+    for (i, e) in cfg.experiments.iter().enumerate() {
+        e.validate(i, MAX_TWIST_DEG).map_err(|e| GenerateError::Plan(e.to_string()))?;
+    }
     let mut rig = TrueRig::new(cfg.pair, &cfg.profile)?;
     let pair = *rig.pair();
     let r2 = pair.indenter.r_mm;
@@ -192,6 +203,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
                 dir: Some(Direction::Load),
                 gamma1_sd_mm: None,
                 theta1_sd_deg: None,
+                experiment: None,
             });
             t += plan.step_time_s;
             stage_path.push(stage);
@@ -219,6 +231,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
                 dir: Some(Direction::Unload),
                 gamma1_sd_mm: None,
                 theta1_sd_deg: None,
+                experiment: None,
             });
             t += plan.step_time_s;
         }
@@ -245,10 +258,22 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
             dir: Some(dir),
             gamma1_sd_mm: None,
             theta1_sd_deg: None,
+            experiment: None,
         });
         t += plan.step_time_s;
     }
+    let mut run = Continued { rig, rng, t, samples, noise, step_time_s: plan.step_time_s };
+    let mut hold = stage_t;
+    for spec in &cfg.experiments {
+        hold = run.experiment(spec, hold, top_stage)?;
+    }
+    let samples = run.samples;
 
+    Ok(Recording { meta: sim_metadata(cfg, &pair), samples })
+}
+
+/// A generated recording's metadata: the simulated truth and seed, and the effects on.
+fn sim_metadata(cfg: &GeneratorConfig, pair: &ContactPair) -> Metadata {
     let mut extra = vec![
         ("sim_E1_MPa".to_string(), format!("{}", pair.elastomer.e_mpa)),
         ("sim_nu1".to_string(), format!("{}", pair.elastomer.nu)),
@@ -258,17 +283,110 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     if !on.is_empty() {
         extra.push(("sim_effects".to_string(), on.join(",")));
     }
-    Ok(Recording {
-        meta: Metadata {
-            sensor: Some(cfg.sensor.clone()),
-            indenter: pair.indenter,
-            elastomer_r_mm: pair.elastomer.r_mm,
-            layer: None,
-            created: None,
-            extra,
-        },
-        samples,
-    })
+    Metadata {
+        sensor: Some(cfg.sensor.clone()),
+        indenter: pair.indenter,
+        elastomer_r_mm: pair.elastomer.r_mm,
+        layer: None,
+        created: None,
+        extra,
+    }
+}
+
+/// What `specs` would record, noise-free, on `rig` (already fed the run's
+/// history up to time `t_s`) with the stage standing at `hold_stage_mm`: the
+/// experiment steps as the generator runs them, one sample per `step_time_s`.
+/// A plan predicts an experiment's outcome under a hypothesis with it.
+pub fn continue_run(
+    rig: TrueRig,
+    t_s: f64,
+    hold_stage_mm: f64,
+    specs: &[ExperimentSpec],
+    step_time_s: f64,
+) -> Result<Vec<Sample>, GenerateError> {
+    let noise = NoiseSpec {
+        gamma1_sigma_mm: 0.0,
+        theta1_sigma_deg: 0.0,
+        stage_resolution_mm: 0.0,
+        rotation_resolution_deg: 0.0,
+    };
+    let mut run = Continued { rig, rng: Rng::seed_from(0), t: t_s, samples: Vec::new(), noise, step_time_s };
+    let mut hold = hold_stage_mm;
+    for (i, spec) in specs.iter().enumerate() {
+        spec.validate(i, MAX_TWIST_DEG).map_err(|e| GenerateError::Plan(e.to_string()))?;
+        hold = run.experiment(spec, hold, hold)?;
+    }
+    Ok(run.samples)
+}
+
+/// A generated run after its standard sweeps, continued by experiment steps.
+struct Continued {
+    rig: TrueRig,
+    rng: Rng,
+    t: f64,
+    samples: Vec<Sample>,
+    noise: NoiseSpec,
+    step_time_s: f64,
+}
+
+impl Continued {
+    /// One reading at (stage, mount) now, recorded as a sample of `spec`'s
+    /// phase; the clock then moves on by `dt_s`.
+    fn take(
+        &mut self,
+        spec: &ExperimentSpec,
+        stage: f64,
+        rot: f64,
+        dir: Option<Direction>,
+        dt_s: f64,
+    ) -> Result<(), GenerateError> {
+        let (stage, rot) =
+            (quantize(stage, self.noise.stage_resolution_mm), quantize(rot, self.noise.rotation_resolution_deg));
+        let r = self.rig.read(CommandedPose { t_s: self.t, stage_mm: stage, rot_deg: rot })?;
+        let g1 = if r.in_contact { r.gamma1_mm + self.rng.gaussian(self.noise.gamma1_sigma_mm) } else { 0.0 };
+        let kind = spec.phase().kind();
+        let th1 =
+            if kind == Phase::Torsion { r.theta1_deg + self.rng.gaussian(self.noise.theta1_sigma_deg) } else { 0.0 };
+        let s = Sample { dir, ..Sample::new(self.t, kind, stage, rot, g1, th1) };
+        self.samples.push(s.of_experiment(spec.phase()));
+        self.t += dt_s;
+        Ok(())
+    }
+
+    /// Run one experiment step from the stage `hold`; returns where the stage stands after it.
+    fn experiment(&mut self, spec: &ExperimentSpec, hold: f64, top_stage: f64) -> Result<f64, GenerateError> {
+        let dt = self.step_time_s;
+        match *spec {
+            ExperimentSpec::Dwell { hold_s, every_s } => {
+                let n = crate::experiment::dwell_count(hold_s, every_s);
+                for i in 0..n {
+                    self.take(spec, hold, 0.0, None, if i + 1 < n { every_s } else { dt })?;
+                }
+                Ok(hold)
+            }
+            ExperimentSpec::Reload { fraction, steps, cycles } => {
+                for (stage, dir) in reload_path(hold, 0.0, fraction, steps, cycles) {
+                    self.take(spec, stage, 0.0, Some(dir), dt)?;
+                }
+                Ok(hold)
+            }
+            ExperimentSpec::TwistReversal { amplitude_deg, step_deg } => {
+                for (rot, dir) in reversal_angles(amplitude_deg, step_deg) {
+                    self.take(spec, hold, rot, Some(dir), dt)?;
+                }
+                Ok(hold)
+            }
+            ExperimentSpec::TorsionAtDepth { beta, amplitude_deg, step_deg } => {
+                let r2 = self.rig.pair().indenter.r_mm;
+                let stage =
+                    quantize(torsion_stage(&self.rig, self.t, beta * r2, top_stage)?, self.noise.stage_resolution_mm);
+                for (rot, dir) in sweep_angles(amplitude_deg, step_deg) {
+                    self.take(spec, stage, rot, Some(dir), dt)?;
+                }
+                Ok(stage)
+            }
+        }
+    }
 }
 
 /// The commanded stage at which the rig's noise-free depth reading gives

@@ -7,6 +7,7 @@ pub mod corpus;
 pub mod defaults;
 pub mod effects;
 pub mod emulator;
+pub mod experiment;
 pub mod generator;
 pub mod physics;
 pub mod recording;

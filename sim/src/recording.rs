@@ -11,6 +11,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
+use crate::experiment::Experiment;
 use crate::physics::{Body, Layer, LayerBase};
 
 pub const FORMAT_VERSION: u32 = 1;
@@ -75,6 +76,10 @@ pub struct Sample {
     pub gamma1_sd_mm: Option<f64>,
     /// Standard error of `theta1_deg` (optional column `theta1_sd_deg`), degrees.
     pub theta1_sd_deg: Option<f64>,
+    /// The experiment the sample belongs to, `None` in the standard sweeps; the
+    /// `phase` column then names the experiment and `phase` is its kind
+    /// ([`Experiment::kind`], docs/recording-format.md).
+    pub experiment: Option<Experiment>,
 }
 
 impl Sample {
@@ -91,7 +96,23 @@ impl Sample {
             dir: None,
             gamma1_sd_mm: None,
             theta1_sd_deg: None,
+            experiment: None,
         }
+    }
+
+    /// A sample of `experiment` (its kind is the sample's `phase`).
+    pub fn of_experiment(self, experiment: Experiment) -> Self {
+        Self { phase: experiment.kind(), experiment: Some(experiment), ..self }
+    }
+
+    /// What the `phase` column holds: the experiment's name, or the sweep's.
+    pub fn phase_name(&self) -> &'static str {
+        self.experiment.map_or(self.phase.as_str(), Experiment::as_str)
+    }
+
+    /// A sample of the standard normal or torsion sweep (no experiment).
+    pub fn in_sweep(&self) -> bool {
+        self.experiment.is_none()
     }
 }
 
@@ -154,6 +175,9 @@ fn err(line: usize, message: impl Into<String>) -> RecordingError {
 }
 
 const REQUIRED_COLUMNS: [&str; 6] = ["t_s", "phase", "stage_mm", "rot_deg", "gamma1_mm", "theta1_deg"];
+
+/// The phases this reader knows, as its error for an unknown one says.
+const KNOWN: &str = "this reader knows `normal`, `torsion`, `dwell`, `reload`, `reversal` and `torsion2`";
 
 /// The optional per-sample standard errors (docs/recording-format.md).
 const SD_COLUMNS: [&str; 2] = ["gamma1_sd_mm", "theta1_sd_deg"];
@@ -230,8 +254,14 @@ impl Recording {
         std::fs::write(path, self.to_csv_string())
     }
 
+    /// Every sample of this kind, the experiments' included (what the full model covers).
     pub fn phase(&self, phase: Phase) -> impl Iterator<Item = &Sample> {
         self.samples.iter().filter(move |s| s.phase == phase)
+    }
+
+    /// The samples of the standard sweep of this kind only (what the paper's method covers).
+    pub fn sweep(&self, phase: Phase) -> impl Iterator<Item = &Sample> {
+        self.samples.iter().filter(move |s| s.phase == phase && s.in_sweep())
     }
 }
 
@@ -465,11 +495,13 @@ fn parse_row(n: usize, line: &str, columns: &Columns, last_t: f64) -> Result<Sam
         Ok(x)
     };
     let t_s = num(0)?;
-    let phase = match fields[idx[1]] {
-        "normal" => Phase::Normal,
-        "torsion" => Phase::Torsion,
+    let (phase, experiment) = match fields[idx[1]] {
+        "normal" => (Phase::Normal, None),
+        "torsion" => (Phase::Torsion, None),
         other => {
-            return Err(col_err(idx[1], format!("unknown phase `{other}` (expected `normal` or `torsion`)")));
+            let e = Experiment::parse(other)
+                .ok_or_else(|| col_err(idx[1], format!("unknown phase `{other}` ({KNOWN})")))?;
+            (e.kind(), Some(e))
         }
     };
     let stage_mm = num(2)?;
@@ -511,7 +543,8 @@ fn parse_row(n: usize, line: &str, columns: &Columns, last_t: f64) -> Result<Sam
     };
     let gamma1_sd_mm = sd(columns.gamma1_sd)?;
     let theta1_sd_deg = sd(columns.theta1_sd)?;
-    Ok(Sample { t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg, rep, dir, gamma1_sd_mm, theta1_sd_deg })
+    let sample = Sample::new(t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg);
+    Ok(Sample { rep, dir, gamma1_sd_mm, theta1_sd_deg, experiment, ..sample })
 }
 
 /// The declared layer from its three keys: a base or a tolerance without a
@@ -630,7 +663,7 @@ impl<W: Write> RecordingWriter<W> {
             self.out,
             "{:.3},{},{:.4},{:.3},{:.5},{:.5},{},{}",
             s.t_s,
-            s.phase.as_str(),
+            s.phase_name(),
             s.stage_mm,
             s.rot_deg,
             s.gamma1_mm,
@@ -705,6 +738,32 @@ mod tests {
     }
 
     #[test]
+    fn experiment_phases_read_as_their_kind_and_round_trip() {
+        let text = GOOD.replace(
+            "31.20,torsion,1.450,0.500,1.0,0.1602\n",
+            "31.20,torsion,1.450,0.500,1.0,0.1602\n32.0,dwell,1.450,0.0,1.01,0\n33.0,reload,1.2,0.0,0.8,0\n\
+             34.0,reversal,1.450,-0.5,1.0,-0.16\n35.0,torsion2,0.9,0.5,0.6,0.2\n",
+        );
+        let r = Recording::parse(&text).unwrap();
+        let got: Vec<(Phase, Option<Experiment>)> = r.samples.iter().map(|s| (s.phase, s.experiment)).collect();
+        use Experiment::*;
+        assert_eq!(
+            &got[3..],
+            &[
+                (Phase::Normal, Some(Dwell)),
+                (Phase::Normal, Some(Reload)),
+                (Phase::Torsion, Some(Reversal)),
+                (Phase::Torsion, Some(Torsion2))
+            ]
+        );
+        assert_eq!(r.phase(Phase::Torsion).count(), 3);
+        assert_eq!(r.sweep(Phase::Torsion).count(), 1);
+        let back = Recording::parse(&r.to_csv_string()).unwrap();
+        assert_eq!(back.samples, r.samples);
+        assert!(r.to_csv_string().contains(",torsion2,"));
+    }
+
+    #[test]
     fn columns_in_any_order_with_extras() {
         let text = "# easycalib-recording: 1\n# indenter_E_MPa: 2\n# indenter_nu: 0.4\n# indenter_R_mm: 5\nphase,extra,gamma1_mm,t_s,theta1_deg,rot_deg,stage_mm,dir\nnormal,x,0.1,0,0,0,0.2,load\n";
         let r = Recording::parse(text).unwrap();
@@ -760,6 +819,7 @@ mod tests {
         let e = error_of(&GOOD.replace("31.20,torsion", "31.20,twist"));
         assert_eq!(e.line, 12);
         assert!(e.message.contains("unknown phase `twist`"), "{e}");
+        assert_eq!(e.column.clone().map(|c| c.1), Some("phase".to_string()));
         let e = error_of(&GOOD.replace("indenter_E_MPa: 2.0", "indenter_E_MPa: -2.0"));
         assert_eq!(e.line, 3, "{e}");
         let e = error_of(&GOOD.replace("indenter_nu: 0.40", "indenter_nu: 0.6"));
@@ -807,6 +867,7 @@ mod tests {
             dir: None,
             gamma1_sd_mm: None,
             theta1_sd_deg: None,
+            experiment: None,
         };
         assert!(w.append(&s).is_err());
         let ok = Sample { gamma1_mm: 0.05, ..s };

@@ -4,6 +4,7 @@ mod calibrate;
 pub mod devices;
 mod diagnose;
 pub mod history;
+mod plan;
 pub mod run;
 mod script;
 pub mod sensor;
@@ -44,6 +45,17 @@ pub enum Command {
     Diagnose(DiagnoseArgs),
     /// Per-sensor calibration history: list, plot, import, export, sync (docs/history.md).
     History(history::HistoryArgs),
+    /// Which experiment would separate the explanations a recording leaves standing (docs/experiments.md).
+    Plan(PlanArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct PlanArgs {
+    /// Recording in easycalib format v1 (CSV with `#` metadata).
+    pub recording: PathBuf,
+    /// Print JSON instead of the human report.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -171,6 +183,13 @@ pub struct RunArgs {
     /// with `easycalib diagnose`'s verdict and corrected E1, nu1; docs/run.md).
     #[arg(long)]
     pub no_diagnose: bool,
+    /// After the sweeps, run the experiments `plan` chooses while the
+    /// diagnosis leaves explanations standing (the script's `[adaptive]`; docs/experiments.md).
+    #[arg(long)]
+    pub adaptive: bool,
+    /// Rig time the closed loop may spend on experiments, s (with --adaptive).
+    #[arg(long, value_name = "N", requires = "adaptive")]
+    pub budget_s: Option<f64>,
     #[command(flatten)]
     pub db: history::DbArg,
     /// The simulated elastomer and indenter (emulated rig only).
@@ -195,6 +214,7 @@ pub fn main() -> ExitCode {
         Command::Diagnose(a) => diagnose::run(a),
         Command::Sim(a) => sim::run(a),
         Command::History(a) => history::run(a),
+        Command::Plan(a) => plan::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

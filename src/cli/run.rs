@@ -115,7 +115,14 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
 }
 
 async fn run_async(args: &RunArgs) -> Result<(), CliError> {
-    let RigChoice { spec, truth, script, emulated } = choose_rig(args).await?;
+    let RigChoice { spec, truth, mut script, emulated } = choose_rig(args).await?;
+    if args.adaptive {
+        script.adaptive.enabled = true;
+        if let Some(b) = args.budget_s {
+            script.adaptive.budget_s = b;
+        }
+        script.validate().map_err(|e| CliError::bad_input(e.to_string()))?;
+    }
     let out_dir = match &args.out {
         Some(d) => d.clone(),
         None => default_run_dir(Path::new("runs"), Some(&spec.sensor_name), SystemTime::now()),

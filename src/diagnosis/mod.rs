@@ -19,7 +19,7 @@ pub mod model;
 pub mod plot;
 pub mod prose;
 mod schema;
-mod search;
+pub(crate) mod search;
 
 use sim::recording::Recording;
 

@@ -193,7 +193,7 @@ fn sensor_gain_degeneracy(model: &Model, last: &Fitted) -> Option<Degenerate> {
 /// Fit with a candidate on top of `from`'s parameters: from a typical amount
 /// of the effect and from next to none, keeping the better (a typical start
 /// can stall in a local minimum; next to none starts from the baseline's cost).
-fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fitted> {
+pub(crate) fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fitted> {
     let mut cands = from.cands.clone();
     cands.push(add);
     let mut results: Vec<Fitted> = Vec::new();

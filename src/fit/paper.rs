@@ -69,7 +69,7 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
     }
     // Eq. 22: gamma2 = H1 gamma1 + H2 gamma1^1.5 over the window.
     let pts: Vec<(f64, f64)> =
-        rec.phase(Phase::Normal).filter(|s| s.gamma1_mm >= lo && s.gamma1_mm <= hi).map(eq22_point).collect();
+        rec.sweep(Phase::Normal).filter(|s| s.gamma1_mm >= lo && s.gamma1_mm <= hi).map(eq22_point).collect();
     if pts.len() < 4 {
         return Err(FitError::TooFewSamples {
             what: format!("normal samples with gamma1 in [{lo}, {hi}] mm"),
@@ -81,7 +81,7 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
 
     // Eq. 38: theta2 = H3 theta1 through the origin.
     let tors: Vec<(f64, f64)> =
-        rec.phase(Phase::Torsion).filter(|s| s.theta1_deg != 0.0 || s.rot_deg != 0.0).map(eq38_point).collect();
+        rec.sweep(Phase::Torsion).filter(|s| s.theta1_deg != 0.0 || s.rot_deg != 0.0).map(eq38_point).collect();
     if tors.len() < 3 {
         return Err(FitError::TooFewSamples { what: "torsion samples with twist".into(), found: tors.len(), need: 3 });
     }
@@ -89,7 +89,7 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
         fit_eq38(&tors).ok_or_else(|| FitError::Degenerate("theta1 is zero in every torsion sample".into()))?;
 
     // The depth actually reached, from the torsion samples themselves.
-    let (beta, beta_se) = torsion_depth(rec.phase(Phase::Torsion), rec.meta.indenter.r_mm).unwrap_or((f64::NAN, 0.0));
+    let (beta, beta_se) = torsion_depth(rec.sweep(Phase::Torsion), rec.meta.indenter.r_mm).unwrap_or((f64::NAN, 0.0));
     let (h1, h1_se, h3, h3_se) = (normal.h1, normal.h1_se, torsion.h3, torsion.h3_se);
 
     let e2 = rec.meta.indenter.e_mpa;

@@ -63,7 +63,9 @@ fn check_stage(rec: &Recording) -> Result<(), Implausible> {
     if normal.is_empty() {
         return Ok(());
     }
-    check_monotone(&normal)?;
+    // Experiments (a dwell, a reload) move on their own paths; the sweep's direction holds for the sweep.
+    let sweep: Vec<(usize, &Sample)> = normal.iter().copied().filter(|(_, s)| s.in_sweep()).collect();
+    check_monotone(&sweep)?;
     let lo = normal.iter().map(|(_, s)| s.stage_mm).fold(f64::INFINITY, f64::min);
     let hi = normal.iter().map(|(_, s)| s.stage_mm).fold(f64::NEG_INFINITY, f64::max);
     let travel = hi - lo;

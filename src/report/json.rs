@@ -39,6 +39,9 @@ pub struct RunTimings {
     pub rig_time_s: f64,
     pub wall_time_s: f64,
     pub phases: Vec<crate::run::PhaseTime>,
+    /// The experiments the closed loop ran (`run --adaptive`, docs/experiments.md), in order.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub experiments: Vec<crate::run::AdaptiveStep>,
 }
 
 #[derive(Debug, Clone, Copy, Serialize)]

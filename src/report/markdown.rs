@@ -68,6 +68,18 @@ fn write_header(s: &mut String, out: &CalibrationOutput, rec: &Recording) {
             phases.join(", "),
             t.wall_time_s
         );
+        // The closed loop's chain: hypotheses -> experiment -> outcome (docs/experiments.md).
+        for (i, e) in t.experiments.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                "| experiment {} | {} ({:.1} s of rig time): {}; then {} |",
+                i + 1,
+                e.name,
+                e.rig_time_s,
+                e.why,
+                e.outcome
+            );
+        }
     }
     let _ = writeln!(s);
 }

@@ -187,6 +187,7 @@ pub async fn run_calibration(
         rig_time_s: outcome.rig_time_s,
         wall_time_s: outcome.wall_time_s,
         phases: outcome.phase_rig_time_s.clone(),
+        experiments: outcome.adaptive.clone(),
     };
     if req.diagnose {
         let message = "fitting, then diagnosing the recording (--no-diagnose skips the diagnosis)".to_string();
@@ -249,7 +250,7 @@ mod tests {
     }
 
     fn timings() -> RunTimings {
-        RunTimings { rig_time_s: 1.0, wall_time_s: 1.0, phases: vec![] }
+        RunTimings { rig_time_s: 1.0, wall_time_s: 1.0, phases: vec![], experiments: vec![] }
     }
 
     #[test]

@@ -114,8 +114,11 @@ impl FitUpdate {
     /// while the paper's gamma1 window has fewer than four; returns `None`
     /// when nothing can be fitted yet.
     pub fn estimate(samples: &[Sample], indenter: &Body) -> Option<FitUpdate> {
-        let normal: Vec<(f64, f64)> =
-            samples.iter().filter(|s| s.phase == Phase::Normal && s.gamma1_mm > 0.0).map(eq22_point).collect();
+        let normal: Vec<(f64, f64)> = samples
+            .iter()
+            .filter(|s| s.phase == Phase::Normal && s.in_sweep() && s.gamma1_mm > 0.0)
+            .map(eq22_point)
+            .collect();
         let windowed: Vec<(f64, f64)> =
             normal.iter().copied().filter(|&(g1, _)| (PAPER_WINDOW_MM[0]..=PAPER_WINDOW_MM[1]).contains(&g1)).collect();
         let pts = if windowed.len() >= 4 { windowed } else { normal };
@@ -124,7 +127,7 @@ impl FitUpdate {
             fit.h1 = Some(eq22.h1);
             fit.h2 = Some(eq22.h2);
         }
-        let tors: Vec<&Sample> = samples.iter().filter(|s| s.phase == Phase::Torsion).collect();
+        let tors: Vec<&Sample> = samples.iter().filter(|s| s.phase == Phase::Torsion && s.in_sweep()).collect();
         let twist: Vec<(f64, f64)> = tors.iter().map(|s| eq38_point(s)).collect();
         if let Some(eq38) = fit_eq38(&twist).filter(|_| tors.len() >= 2) {
             fit.h3 = Some(eq38.h3);

@@ -13,4 +13,4 @@ pub mod sequencer;
 pub use gauge::{Gauge, GaugeError, GaugeReading, SensorGauge};
 pub use safety::{LimitViolation, SafetyGuard, SoftLimits};
 pub use script::{DEFAULT_SCRIPT_TOML, Script, ScriptError};
-pub use sequencer::{AbortInfo, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus, Sequencer};
+pub use sequencer::{AbortInfo, AdaptiveStep, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus, Sequencer};

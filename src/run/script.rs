@@ -8,6 +8,7 @@
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
+use sim::experiment::ExperimentSpec;
 use sim::physics::Body;
 
 /// The built-in script, as `easycalib script --default` prints it.
@@ -104,6 +105,36 @@ read_s = 0.5
 sensor_dropout_s = 2.0
 move_s = 60.0
 home_s = 120.0
+
+# Experiment steps after the torsion sweep, in order (none by default; see
+# docs/experiments.md). Dwell and reload act at the depth where the rig stands.
+# [[experiment]]
+# kind = "dwell"              # hold, one sample every every_s
+# hold_s = 30.0
+# every_s = 2.0
+# [[experiment]]
+# kind = "reload"             # unload to fraction of the travel past contact, load back
+# fraction = 0.5
+# steps = 4
+# cycles = 1
+# [[experiment]]
+# kind = "twist_reversal"     # twist to +amplitude, to -amplitude, back to 0
+# amplitude_deg = 4.0
+# step_deg = 0.5
+# [[experiment]]
+# kind = "torsion_at_depth"   # torsion sweep at a second depth
+# beta = 0.1
+# amplitude_deg = 8.0
+# step_deg = 0.5
+
+# Closed loop (docs/experiments.md): after the sweeps and the experiment steps,
+# while the diagnosis of the recording so far leaves explanations standing,
+# run the experiment `easycalib plan` chooses when it is decisive, within
+# budget_s of rig time and max_steps experiments. `run --adaptive` turns it on.
+[adaptive]
+enabled = false
+budget_s = 120.0
+max_steps = 3
 "#;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -117,6 +148,27 @@ pub struct Script {
     pub limits: LimitsSection,
     pub settle: SettleSection,
     pub timeouts: TimeoutsSection,
+    /// Experiment steps after the torsion sweep, in order (`[[experiment]]`, docs/experiments.md).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub experiment: Vec<ExperimentSpec>,
+    pub adaptive: AdaptiveSection,
+}
+
+/// The closed loop after the experiment steps (docs/experiments.md).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AdaptiveSection {
+    pub enabled: bool,
+    /// Rig time the loop may spend on experiments, s.
+    pub budget_s: f64,
+    /// Most experiments the loop runs.
+    pub max_steps: u32,
+}
+
+impl Default for AdaptiveSection {
+    fn default() -> Self {
+        Self { enabled: false, budget_s: 120.0, max_steps: 3 }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -277,6 +329,8 @@ impl Default for Script {
             limits: LimitsSection::default(),
             settle: SettleSection::default(),
             timeouts: TimeoutsSection::default(),
+            experiment: Vec::new(),
+            adaptive: AdaptiveSection::default(),
         }
     }
 }
@@ -341,7 +395,21 @@ impl Script {
         self.validate_normal()?;
         self.validate_torsion()?;
         self.validate_limits()?;
-        self.validate_timing()
+        self.validate_timing()?;
+        let a = &self.adaptive;
+        if !(a.budget_s.is_finite() && a.budget_s > 0.0 && a.budget_s <= MAX_DURATION_S) {
+            return Err(invalid(
+                "adaptive.budget_s",
+                format!("must lie in (0, {MAX_DURATION_S}] s, got {}", a.budget_s),
+            ));
+        }
+        if a.max_steps > 20 {
+            return Err(invalid("adaptive.max_steps", format!("must be <= 20, got {}", a.max_steps)));
+        }
+        for (i, e) in self.experiment.iter().enumerate() {
+            e.validate(i, self.limits.max_twist_deg).map_err(|e| invalid("experiment", e.to_string()))?;
+        }
+        Ok(())
     }
 
     /// `[approach]`: steps, contact detection, the refinement window (the
@@ -581,6 +649,28 @@ mod tests {
                 other => panic!("{text}: {other:?}"),
             }
         }
+    }
+
+    #[test]
+    fn experiments_parse_validate_and_round_trip() {
+        let text = "[[experiment]]\nkind = \"dwell\"\nhold_s = 20.0\nevery_s = 2.0\n\
+                    [[experiment]]\nkind = \"torsion_at_depth\"\nbeta = 0.1\namplitude_deg = 6.0\nstep_deg = 0.5\n";
+        let s = Script::from_toml(text).unwrap();
+        assert_eq!(
+            s.experiment,
+            vec![
+                ExperimentSpec::Dwell { hold_s: 20.0, every_s: 2.0 },
+                ExperimentSpec::TorsionAtDepth { beta: 0.1, amplitude_deg: 6.0, step_deg: 0.5 }
+            ]
+        );
+        assert_eq!(Script::from_toml(&s.to_toml().unwrap()).unwrap(), s);
+        // A twist beyond the guard's limit, an unknown kind or key: refused, named.
+        let e = Script::from_toml(&text.replace("amplitude_deg = 6.0", "amplitude_deg = 12.0")).unwrap_err();
+        assert!(e.to_string().contains("amplitude_deg"), "{e}");
+        let e = Script::from_toml(&text.replace("\"dwell\"", "\"nap\"")).unwrap_err();
+        assert!(e.to_string().contains("nap"), "{e}");
+        let e = Script::from_toml(&text.replace("every_s", "each_s")).unwrap_err();
+        assert!(e.to_string().contains("each_s"), "{e}");
     }
 
     #[test]

@@ -35,11 +35,21 @@ pub struct Outcome {
     pub corrected: (f64, f64),
     /// Samples that carry their standard error, of the samples in contact.
     pub with_sd: (usize, usize),
+    /// The experiments the closed loop ran (`[adaptive]`), in order.
+    pub adaptive: Vec<easycalib::run::AdaptiveStep>,
+    /// The closed loop's chain as the run's reports give it: report.json's
+    /// `run.experiments` (null when absent), report.md's `| experiment` rows.
+    pub report_chain: (serde_json::Value, Vec<String>),
 }
 
 /// Run the default script on the emulated rig with noise seed `seed` and the
 /// left-out physics of `profile`.
 pub fn run_seed(seed: u64, profile: SimProfile) -> Outcome {
+    run_script(seed, profile, Script::default()).0
+}
+
+/// As [`run_seed`] with `script`; also the recording the run left (stage zero moved).
+pub fn run_script(seed: u64, profile: SimProfile, script: Script) -> (Outcome, Recording) {
     let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     rt.block_on(async {
@@ -47,7 +57,7 @@ pub fn run_seed(seed: u64, profile: SimProfile) -> Outcome {
         let rig = EmulatedRig::start(setup, ServeOptions::default()).await.unwrap();
         let dir = tempfile::tempdir().unwrap();
         let truth = rig.truth();
-        let r = rig.calibrate(Script::default(), dir.path()).await.expect("devices open");
+        let r = rig.calibrate(script, dir.path()).await.expect("devices open");
         assert_eq!(r.outcome.status, RunStatus::Completed, "seed {seed}: {:?}", r.outcome.status);
         let cal = r.calibration.as_ref().unwrap_or_else(|| panic!("seed {seed}: no fit: {:?}", r.fit_error));
         let rec = Recording::read_path(&r.outcome.recording).unwrap();
@@ -56,7 +66,7 @@ pub fn run_seed(seed: u64, profile: SimProfile) -> Outcome {
         let live: Vec<_> = rec.samples.iter().filter(|s| s.gamma1_mm != 0.0).collect();
         let with_sd = live.iter().filter(|s| s.gamma1_sd_mm.is_some()).count();
         let pct = |x: f64, t: f64| 100.0 * (x / t - 1.0);
-        Outcome {
+        let out = Outcome {
             seed,
             chi2_dof: cal.full.chi2_dof.expect("a rig-made recording carries standard errors"),
             verdict: d.verdict.as_str(),
@@ -66,6 +76,16 @@ pub fn run_seed(seed: u64, profile: SimProfile) -> Outcome {
             paper: (pct(cal.paper.e1_mpa, truth.e1_mpa), pct(cal.paper.nu1, truth.nu1)),
             corrected: (pct(d.e1_mpa, truth.e1_mpa), pct(d.nu1, truth.nu1)),
             with_sd: (with_sd, live.len()),
-        }
+            adaptive: r.outcome.adaptive.clone(),
+            report_chain: {
+                let files = r.report.as_ref().expect("a completed run writes its report");
+                let json: serde_json::Value =
+                    serde_json::from_str(&std::fs::read_to_string(&files.json).unwrap()).unwrap();
+                let md = std::fs::read_to_string(&files.markdown).unwrap();
+                let rows = md.lines().filter(|l| l.starts_with("| experiment")).map(str::to_string).collect();
+                (json["run"]["experiments"].clone(), rows)
+            },
+        };
+        (out, rec)
     })
 }

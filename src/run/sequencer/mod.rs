@@ -9,6 +9,7 @@
 //! Any failure ends in [`Sequencer::abort`]: stop both axes, back the stage
 //! off to the retract position, say which device did what.
 
+mod experiments;
 mod homing;
 mod motion;
 mod outcome;
@@ -19,7 +20,7 @@ mod steps;
 #[cfg(test)]
 mod tests;
 
-pub use outcome::{AbortInfo, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus};
+pub use outcome::{AbortInfo, AdaptiveStep, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus};
 
 use futures_util::{FutureExt, TryFutureExt};
 use std::fs::File;
@@ -28,6 +29,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
 use devices::motion::{Axis, AxisStatus, DeviceFault, FaultKind, Identify, LinearStage, Mm, RotationMount};
+use sim::experiment::{Experiment, ExperimentSpec};
 use sim::recording::{CONTACT_SD_KEY, Direction, Metadata, Phase, RecordingWriter, Sample};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
@@ -65,10 +67,23 @@ fn kind_str(k: FaultKind) -> &'static str {
 #[derive(Debug, Clone, Copy)]
 enum Cursor {
     Setup,
-    Load { rep: u32, k: usize, beta: f64 },
-    Unload { rep: u32, left: usize },
+    Load {
+        rep: u32,
+        k: usize,
+        beta: f64,
+    },
+    Unload {
+        rep: u32,
+        left: usize,
+    },
     Depth,
-    Twist { left: usize },
+    Twist {
+        left: usize,
+    },
+    /// Samples left in the experiment steps.
+    Experiment {
+        left: usize,
+    },
     Done,
 }
 
@@ -117,6 +132,9 @@ pub struct Sequencer<S, R, G> {
     consecutive_timeouts: u32,
     last_fit: Option<FitUpdate>,
     track: Tracking,
+    /// The recording's metadata, once written (the closed loop diagnoses the samples so far with it).
+    meta: Option<Metadata>,
+    adaptive: Vec<AdaptiveStep>,
 }
 
 /// The sensor's reading noise: measured at rest before the approach, and
@@ -213,6 +231,8 @@ where
             consecutive_timeouts: 0,
             last_fit: None,
             track: Tracking { step_index: 0, cursor: Cursor::Setup, loads_rep0: None, sweep_start: None },
+            meta: None,
+            adaptive: Vec::new(),
         })
     }
 
@@ -256,7 +276,7 @@ where
     }
 
     fn total_steps(&self) -> usize {
-        6 + self.script.normal.repeats as usize
+        6 + self.script.normal.repeats as usize + self.script.experiment.len()
     }
 
     fn emit(&self, ev: RunEvent) {
@@ -319,6 +339,7 @@ where
             noise_gamma1_mm: (self.noise.gamma1_mm > 0.0).then_some(self.noise.gamma1_mm),
             torsion_beta: self.torsion_beta,
             phase_rig_time_s: phase_times(&self.clock.phase_marks, self.clock.t_last),
+            adaptive: self.adaptive.clone(),
             status,
         }
     }
@@ -351,7 +372,20 @@ where
         self.step(base + 1, "torsion sweep", RunPhase::Torsion);
         self.device_status().await?;
         self.torsion_sweep().await?;
-        self.step(base + 2, "retract", RunPhase::Retract);
+        let experiments = self.script.experiment.clone();
+        if !experiments.is_empty() {
+            self.mark_phase("experiments").await?;
+        }
+        for (i, spec) in experiments.iter().enumerate() {
+            let phase = if spec.phase().kind() == Phase::Torsion { RunPhase::Torsion } else { RunPhase::Normal };
+            self.step(base + 2 + i, format!("experiment {}/{}: {}", i + 1, experiments.len(), spec.name()), phase);
+            self.device_status().await?;
+            self.experiment(&experiments[i..]).await?;
+        }
+        if self.script.adaptive.enabled {
+            self.adaptive_loop().await?;
+        }
+        self.step(base + 2 + experiments.len(), "retract", RunPhase::Retract);
         self.mark_phase("retract").await?;
         self.retract().await?;
         self.mark_end().await;

@@ -75,6 +75,19 @@ pub enum RunStatus {
     Aborted(AbortInfo),
 }
 
+/// One experiment the closed loop ran (docs/experiments.md): why, how long, what came of it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct AdaptiveStep {
+    pub name: &'static str,
+    pub spec: sim::experiment::ExperimentSpec,
+    /// The hypotheses it was chosen to separate, and its predicted separation.
+    pub why: String,
+    /// Rig time it took, s.
+    pub rig_time_s: f64,
+    /// The diagnosis's verdict with its samples.
+    pub outcome: String,
+}
+
 /// Rig time of one phase of the procedure.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct PhaseTime {
@@ -113,6 +126,8 @@ pub struct RunOutcome {
     /// Rig time per phase of the procedure, in order (`homing`, `approach`,
     /// `normal`, `torsion`, `retract`), by the sensor's clock.
     pub phase_rig_time_s: Vec<PhaseTime>,
+    /// The experiments the closed loop ran, in order (empty without `[adaptive]`).
+    pub adaptive: Vec<AdaptiveStep>,
     pub status: RunStatus,
 }
 

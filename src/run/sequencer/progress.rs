@@ -25,6 +25,7 @@ where
             Cursor::Unload { left, .. } => n_load.map(|n| 1.0 - 0.5 * left as f64 / n.max(1.0)).unwrap_or(0.5),
             Cursor::Depth => 0.5,
             Cursor::Twist { left } => 1.0 - left as f64 / twist_total.max(1) as f64,
+            Cursor::Experiment { left } => 1.0 - left as f64 / self.experiment_samples().max(1) as f64,
             Cursor::Done => 1.0,
         };
         self.progress_fraction(frac);
@@ -50,6 +51,12 @@ where
         cost(self.script.torsion.frames) / cost(self.script.normal.frames)
     }
 
+    /// Samples of the script's experiment steps (a dwell's counted as samples
+    /// too: a rough share of the estimate).
+    pub(super) fn experiment_samples(&self) -> usize {
+        self.script.experiment.iter().map(ExperimentSpec::samples).sum()
+    }
+
     /// Rig time left: samples left (a torsion sample counting
     /// [`Self::torsion_weight`] normal ones) times the time per sample so far.
     pub(super) fn eta(&self) -> Option<f64> {
@@ -62,7 +69,7 @@ where
         let done: f64 = since.iter().map(|s| if s.phase == Phase::Torsion { w } else { 1.0 }).sum();
         let per = (self.clock.t_last - t_start) / done;
         let reps = self.script.normal.repeats as f64;
-        let twist = self.script.twist_angles().len() as f64 * w;
+        let twist = self.script.twist_angles().len() as f64 * w + self.experiment_samples() as f64;
         let left = match self.track.cursor {
             Cursor::Setup => return None,
             Cursor::Load { rep, k, .. } => {
@@ -74,7 +81,8 @@ where
                 left as f64 - 1.0 + (reps - rep as f64 - 1.0) * (2.0 * n - 1.0) + twist + 2.0
             }
             Cursor::Depth => twist + 2.0,
-            Cursor::Twist { left } => left as f64 * w,
+            Cursor::Twist { left } => left as f64 * w + self.experiment_samples() as f64,
+            Cursor::Experiment { left } => left as f64,
             Cursor::Done => 0.0,
         };
         Some(left.max(0.0) * per)

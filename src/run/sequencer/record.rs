@@ -16,6 +16,7 @@ where
         r: GaugeReading,
         rep: Option<u32>,
         dir: Option<Direction>,
+        experiment: Option<Experiment>,
     ) -> Step<()> {
         let contact = self.contact_mm.unwrap_or(0.0);
         let t0 = self.clock.t0.unwrap_or(r.t_s);
@@ -31,6 +32,7 @@ where
             dir,
             gamma1_sd_mm: r.gamma1_sd_mm,
             theta1_sd_deg: if phase == Phase::Torsion { r.theta1_sd_deg } else { None },
+            experiment,
         };
         let Some(w) = self.writer.as_mut() else {
             return Err(Halt { culprit: Culprit::Recording, message: "recording is not open".into() });

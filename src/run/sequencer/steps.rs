@@ -1,5 +1,6 @@
 //! The procedure's steps: connect, open the recording, home, approach and find contact,
-//! the normal sweep, the return to the torsion depth, the torsion sweep, retract.
+//! the normal sweep, the return to the torsion depth, the torsion sweep, retract
+//! (the experiment steps after the torsion sweep are in `experiments.rs`).
 
 use super::*;
 
@@ -70,6 +71,7 @@ where
             created: Some(crate::report::rfc3339_utc(SystemTime::now())),
             extra,
         };
+        self.meta = Some(meta.clone());
         let w = RecordingWriter::with_standard_errors(BufWriter::new(file), &meta).map_err(|e| Halt {
             culprit: Culprit::Recording,
             message: format!("cannot write the recording {}: {e}", self.recording_path.display()),
@@ -220,7 +222,7 @@ where
             let r = self.settle_frames(n.frames).await?;
             let beta = ((pos - contact) - r.gamma1_mm) / r2;
             self.track.cursor = Cursor::Load { rep, k, beta };
-            self.record(Phase::Normal, pos, r, Some(rep), Some(Direction::Load))?;
+            self.record(Phase::Normal, pos, r, Some(rep), Some(Direction::Load), None)?;
             path.push((pos, beta));
             if beta >= n.target_beta {
                 break;
@@ -250,23 +252,42 @@ where
             self.track.cursor = Cursor::Unload { rep, left: back.len() - i };
             self.move_stage(*pos, "normal unload").await?;
             let r = self.settle_frames(n.frames).await?;
-            self.record(Phase::Normal, *pos, r, Some(rep), Some(Direction::Unload))?;
+            self.record(Phase::Normal, *pos, r, Some(rep), Some(Direction::Unload), None)?;
         }
         Ok(crossing)
     }
 
     pub(super) async fn torsion_depth(&mut self, crossing: ((f64, f64), (f64, f64))) -> Step<()> {
         self.track.cursor = Cursor::Depth;
-        let contact = self.contact_mm.unwrap_or(self.stage_mm);
         let target = self.script.normal.target_beta;
+        let beta = self.seek_depth(crossing, target, 4).await?;
+        self.torsion_beta = Some(beta);
+        self.log(
+            LogLevel::Info,
+            format!("holding beta {beta:.4} at stage {:.4} mm for the torsion sweep", self.stage_mm),
+        );
+        Ok(())
+    }
+
+    /// Move the stage to where the measured depth beta = (approach - gamma1) / R2
+    /// is `target`, starting from the line through the two load points
+    /// `crossing` ((stage_mm, beta) each) and correcting on the readings, at
+    /// most `tries` moves. Returns the beta reached.
+    pub(super) async fn seek_depth(
+        &mut self,
+        crossing: ((f64, f64), (f64, f64)),
+        target: f64,
+        tries: usize,
+    ) -> Step<f64> {
+        let contact = self.contact_mm.unwrap_or(self.stage_mm);
         let r2 = self.script.indenter.r_mm;
         let ((p0, b0), (p1, b1)) = crossing;
         let slope = if (p1 - p0).abs() > 0.0 && b1 > b0 { (b1 - b0) / (p1 - p0) } else { 1.0 / r2 };
         let mut pos = if b1 > b0 { p0 + (target - b0) / slope } else { p1 };
         let step = self.script.normal.step_mm;
         let mut beta = f64::NAN;
-        for _ in 0..4 {
-            self.move_stage(pos, "return to torsion depth").await?;
+        for _ in 0..tries {
+            self.move_stage(pos, "return to depth").await?;
             let r = self.settle().await?;
             beta = ((pos - contact) - r.gamma1_mm) / r2;
             // Good to a quarter of a percent of the target, or as good as the step allows.
@@ -275,9 +296,7 @@ where
             }
             pos += ((target - beta) / slope).clamp(-step, step);
         }
-        self.torsion_beta = Some(beta);
-        self.log(LogLevel::Info, format!("holding beta {beta:.4} at stage {pos:.4} mm for the torsion sweep"));
-        Ok(())
+        Ok(beta)
     }
 
     pub(super) async fn torsion_sweep(&mut self) -> Step<()> {
@@ -292,7 +311,7 @@ where
             self.move_mount(target, "torsion sweep").await?;
             let r = self.settle_frames(self.script.torsion.frames).await?;
             let dir = if i <= half { Direction::Load } else { Direction::Unload };
-            self.record(Phase::Torsion, hold, r, None, Some(dir))?;
+            self.record(Phase::Torsion, hold, r, None, Some(dir), None)?;
         }
         Ok(())
     }

@@ -1,0 +1,263 @@
+//! Discriminating experiments: steps a rig runs after the standard sweeps to
+//! tell apart explanations the sweeps leave standing (docs/experiments.md).
+//!
+//! [`ExperimentSpec`] is one step as a script or a generator plan names it;
+//! [`Experiment`] is the `phase` its samples carry in the recording
+//! (docs/recording-format.md). The stage and mount paths of each step are
+//! defined here once, for the generator ([`crate::generator`]) and the
+//! controller's sequencer alike.
+
+use serde::{Deserialize, Serialize};
+
+use crate::recording::{Direction, Phase};
+
+/// The recording phase of an experiment's samples. Each is a normal-state or
+/// a torsion-state sample to the model ([`Experiment::kind`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Experiment {
+    /// A hold at one depth, sampled in time.
+    Dwell,
+    /// Unload to a fraction of the depth and load back.
+    Reload,
+    /// A twist out, back through zero to the other side, and back to zero.
+    Reversal,
+    /// A torsion sweep at a second depth.
+    Torsion2,
+}
+
+impl Experiment {
+    pub const ALL: [Experiment; 4] =
+        [Experiment::Dwell, Experiment::Reload, Experiment::Reversal, Experiment::Torsion2];
+
+    /// The name in the recording's `phase` column.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Experiment::Dwell => "dwell",
+            Experiment::Reload => "reload",
+            Experiment::Reversal => "reversal",
+            Experiment::Torsion2 => "torsion2",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Experiment> {
+        Experiment::ALL.into_iter().find(|e| e.as_str() == name)
+    }
+
+    /// What the model sees: a normal-state sample (gamma1 at a stage
+    /// position) or a torsion-state one (also theta1 at a mount angle).
+    pub fn kind(self) -> Phase {
+        match self {
+            Experiment::Dwell | Experiment::Reload => Phase::Normal,
+            Experiment::Reversal | Experiment::Torsion2 => Phase::Torsion,
+        }
+    }
+}
+
+/// One experiment step (a `[[experiment]]` entry of a script, with `kind`).
+/// Dwell and reload act at the depth where the rig stands when they begin
+/// (the torsion depth, or the last `torsion_at_depth`'s); a twist reversal
+/// twists about the mount's zero of the torsion sweep.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ExperimentSpec {
+    /// Hold the stage for `hold_s`, one sample every `every_s`.
+    Dwell { hold_s: f64, every_s: f64 },
+    /// Unload to `fraction` of the stage travel past contact in `steps` steps and
+    /// load back the same way, `cycles` times.
+    Reload { fraction: f64, steps: u32, cycles: u32 },
+    /// Twist to +amplitude, to -amplitude and back to 0 in `step_deg` steps.
+    TwistReversal { amplitude_deg: f64, step_deg: f64 },
+    /// Go to depth `beta` (gamma2/R2 as measured), twist out to `amplitude_deg` and back.
+    TorsionAtDepth { beta: f64, amplitude_deg: f64, step_deg: f64 },
+}
+
+/// Most samples one experiment step may take (a typo would cost hours of rig time).
+pub const MAX_EXPERIMENT_SAMPLES: usize = 2000;
+
+/// An experiment step that cannot run: the field (`experiment[i].key`) and why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("experiment {index} ({kind}) `{key}`: {message}")]
+pub struct SpecError {
+    pub index: usize,
+    pub kind: &'static str,
+    pub key: &'static str,
+    pub message: String,
+}
+
+impl ExperimentSpec {
+    /// The script's name of the step (`kind`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            ExperimentSpec::Dwell { .. } => "dwell",
+            ExperimentSpec::Reload { .. } => "reload",
+            ExperimentSpec::TwistReversal { .. } => "twist_reversal",
+            ExperimentSpec::TorsionAtDepth { .. } => "torsion_at_depth",
+        }
+    }
+
+    /// The recording phase of its samples.
+    pub fn phase(&self) -> Experiment {
+        match self {
+            ExperimentSpec::Dwell { .. } => Experiment::Dwell,
+            ExperimentSpec::Reload { .. } => Experiment::Reload,
+            ExperimentSpec::TwistReversal { .. } => Experiment::Reversal,
+            ExperimentSpec::TorsionAtDepth { .. } => Experiment::Torsion2,
+        }
+    }
+
+    /// Samples the step takes.
+    pub fn samples(&self) -> usize {
+        match *self {
+            ExperimentSpec::Dwell { hold_s, every_s } => dwell_count(hold_s, every_s),
+            ExperimentSpec::Reload { steps, cycles, .. } => (2 * steps as usize) * cycles as usize,
+            ExperimentSpec::TwistReversal { amplitude_deg, step_deg } => reversal_angles(amplitude_deg, step_deg).len(),
+            ExperimentSpec::TorsionAtDepth { amplitude_deg, step_deg, .. } => {
+                sweep_angles(amplitude_deg, step_deg).len()
+            }
+        }
+    }
+
+    /// Rig time the step takes, s, at `step_time_s` per settled sample (a dwell
+    /// takes its hold whatever the sample time).
+    pub fn rig_time_s(&self, step_time_s: f64) -> f64 {
+        match *self {
+            ExperimentSpec::Dwell { hold_s, .. } => hold_s,
+            _ => self.samples() as f64 * step_time_s,
+        }
+    }
+
+    /// Check the step's values (`index` names it in the error); twist
+    /// amplitudes are bounded by `max_twist_deg` (the guard's twist limit).
+    pub fn validate(&self, index: usize, max_twist_deg: f64) -> Result<(), SpecError> {
+        let fail = |key: &'static str, message: String| SpecError { index, kind: self.name(), key, message };
+        let in_range = |key: &'static str, x: f64, lo: f64, hi: f64| {
+            if x.is_finite() && x > lo && x <= hi {
+                Ok(())
+            } else {
+                Err(fail(key, format!("must lie in ({lo}, {hi}], got {x}")))
+            }
+        };
+        match *self {
+            ExperimentSpec::Dwell { hold_s, every_s } => {
+                in_range("hold_s", hold_s, 0.0, 3600.0)?;
+                in_range("every_s", every_s, 0.0, hold_s)?;
+            }
+            ExperimentSpec::Reload { fraction, steps, cycles } => {
+                if !(fraction.is_finite() && (0.0..1.0).contains(&fraction)) {
+                    return Err(fail("fraction", format!("must lie in [0, 1), got {fraction}")));
+                }
+                if !(1..=200).contains(&steps) {
+                    return Err(fail("steps", format!("must be 1..=200, got {steps}")));
+                }
+                if !(1..=20).contains(&cycles) {
+                    return Err(fail("cycles", format!("must be 1..=20, got {cycles}")));
+                }
+            }
+            ExperimentSpec::TwistReversal { amplitude_deg, step_deg }
+            | ExperimentSpec::TorsionAtDepth { amplitude_deg, step_deg, .. } => {
+                in_range("amplitude_deg", amplitude_deg, 0.0, max_twist_deg)?;
+                in_range("step_deg", step_deg, 0.0, amplitude_deg)?;
+            }
+        }
+        if let ExperimentSpec::TorsionAtDepth { beta, .. } = *self {
+            in_range("beta", beta, 0.0, 0.3)?;
+        }
+        let n = self.samples();
+        if n > MAX_EXPERIMENT_SAMPLES {
+            return Err(fail("kind", format!("takes {n} samples; the limit is {MAX_EXPERIMENT_SAMPLES}")));
+        }
+        Ok(())
+    }
+}
+
+/// Samples of a dwell: one every `every_s` over `hold_s`, the first at its start.
+pub fn dwell_count(hold_s: f64, every_s: f64) -> usize {
+    let n = (hold_s / every_s).round();
+    if n.is_finite() && n >= 0.0 { (n as usize).min(MAX_EXPERIMENT_SAMPLES + 1) + 1 } else { 1 }
+}
+
+/// Steps of `step_deg` to `amplitude_deg`, at least one.
+fn twist_steps(amplitude_deg: f64, step_deg: f64) -> usize {
+    let n = (amplitude_deg / step_deg).round();
+    if n.is_finite() && n >= 1.0 { (n as usize).min(MAX_EXPERIMENT_SAMPLES + 1) } else { 1 }
+}
+
+/// Mount angles (from the twist zero) of a torsion sweep out and back,
+/// 0 included at both ends, with their direction.
+pub fn sweep_angles(amplitude_deg: f64, step_deg: f64) -> Vec<(f64, Direction)> {
+    let n = twist_steps(amplitude_deg, step_deg);
+    let step = amplitude_deg / n as f64;
+    let mut a: Vec<(f64, Direction)> = (0..=n).map(|i| (i as f64 * step, Direction::Load)).collect();
+    a.extend((0..n).rev().map(|i| (i as f64 * step, Direction::Unload)));
+    a
+}
+
+/// Mount angles of a twist reversal from the twist zero: out to +A, through 0
+/// to -A, back to 0 (the start at 0 is not repeated). `load` while |angle| grows.
+pub fn reversal_angles(amplitude_deg: f64, step_deg: f64) -> Vec<(f64, Direction)> {
+    let n = twist_steps(amplitude_deg, step_deg) as i64;
+    let step = amplitude_deg / n as f64;
+    let ks = (1..=n).chain((-n..n).rev()).chain(-n + 1..=0);
+    let mut prev = 0i64;
+    ks.map(|k| {
+        let dir = if k.abs() > prev.abs() { Direction::Load } else { Direction::Unload };
+        prev = k;
+        (k as f64 * step, dir)
+    })
+    .collect()
+}
+
+/// Stage positions of reload cycles between `top_mm` and the stage at
+/// `fraction` of the travel past `contact_mm`: down in `steps` steps, back up.
+pub fn reload_path(top_mm: f64, contact_mm: f64, fraction: f64, steps: u32, cycles: u32) -> Vec<(f64, Direction)> {
+    let bottom = contact_mm + fraction * (top_mm - contact_mm);
+    let at = |i: u32| top_mm - (top_mm - bottom) * i as f64 / steps.max(1) as f64;
+    let mut out = Vec::new();
+    for _ in 0..cycles {
+        out.extend((1..=steps).map(|i| (at(i), Direction::Unload)));
+        out.extend((0..steps).rev().map(|i| (at(i), Direction::Load)));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paths_turn_where_they_should() {
+        let r = reversal_angles(2.0, 1.0);
+        let angles: Vec<f64> = r.iter().map(|a| a.0).collect();
+        assert_eq!(angles, vec![1.0, 2.0, 1.0, 0.0, -1.0, -2.0, -1.0, 0.0]);
+        let dirs: Vec<Direction> = r.iter().map(|a| a.1).collect();
+        use Direction::{Load as L, Unload as U};
+        assert_eq!(dirs, vec![L, L, U, U, L, L, U, U]);
+        let s: Vec<f64> = sweep_angles(1.0, 0.5).iter().map(|a| a.0).collect();
+        assert_eq!(s, vec![0.0, 0.5, 1.0, 0.5, 0.0]);
+        let p = reload_path(1.0, 0.0, 0.5, 2, 1);
+        let stages: Vec<f64> = p.iter().map(|a| a.0).collect();
+        assert_eq!(stages, vec![0.75, 0.5, 0.75, 1.0]);
+        assert_eq!(dwell_count(10.0, 2.0), 6);
+    }
+
+    #[test]
+    fn validation_names_the_key() {
+        let e = ExperimentSpec::Dwell { hold_s: 10.0, every_s: 0.0 }.validate(2, 10.0).unwrap_err();
+        assert_eq!((e.index, e.key), (2, "every_s"));
+        let e = ExperimentSpec::TwistReversal { amplitude_deg: 12.0, step_deg: 1.0 }.validate(0, 10.0).unwrap_err();
+        assert_eq!(e.key, "amplitude_deg");
+        let e = ExperimentSpec::TorsionAtDepth { beta: 0.4, amplitude_deg: 4.0, step_deg: 1.0 }
+            .validate(0, 10.0)
+            .unwrap_err();
+        assert_eq!(e.key, "beta");
+        let e = ExperimentSpec::Reload { fraction: 1.0, steps: 3, cycles: 1 }.validate(0, 10.0).unwrap_err();
+        assert_eq!(e.key, "fraction");
+        let e = ExperimentSpec::Dwell { hold_s: 3600.0, every_s: 0.01 }.validate(0, 10.0).unwrap_err();
+        assert!(e.message.contains("limit"), "{e}");
+        assert!(ExperimentSpec::Reload { fraction: 0.5, steps: 5, cycles: 2 }.validate(0, 10.0).is_ok());
+        for e in Experiment::ALL {
+            assert_eq!(Experiment::parse(e.as_str()), Some(e));
+        }
+    }
+}

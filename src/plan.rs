@@ -1,0 +1,313 @@
+//! Which experiment would separate what a diagnosis leaves standing
+//! (docs/experiments.md, "Choosing an experiment"): each hypothesis the
+//! diagnosis could not rank is refitted to the recording, each candidate
+//! experiment is simulated after the recording under it, and the predicted
+//! outcomes of the two best hypotheses are compared against the noise.
+
+use serde::Serialize;
+use sim::effects::{CommandedPose, SimProfile, TrueRig, simulate};
+use sim::experiment::ExperimentSpec;
+use sim::physics::{Body, ContactPair};
+use sim::recording::{Phase, Recording, Sample};
+
+use crate::diagnosis::model::{Base, Candidate, Fitted, Model};
+use crate::diagnosis::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose};
+
+/// A separation (sum of squared predicted differences over the noise) at or
+/// above which an experiment decides: the realised chi² gain then falls below
+/// the diagnosis's ambiguity margin (a BIC gap of 6) in about 3 % of runs,
+/// its spread being 2 sqrt(separation).
+pub const DECISIVE_SEPARATION: f64 = 24.0;
+
+/// The experiments a plan weighs: what the rig can run alone.
+pub fn candidates() -> Vec<ExperimentSpec> {
+    vec![
+        ExperimentSpec::Dwell { hold_s: 60.0, every_s: 2.0 },
+        ExperimentSpec::Reload { fraction: 0.5, steps: 4, cycles: 1 },
+        ExperimentSpec::TwistReversal { amplitude_deg: 4.0, step_deg: 0.5 },
+        ExperimentSpec::TorsionAtDepth { beta: 0.1, amplitude_deg: 8.0, step_deg: 0.4 },
+        ExperimentSpec::TorsionAtDepth { beta: 0.3, amplitude_deg: 8.0, step_deg: 0.4 },
+    ]
+}
+
+/// One explanation still standing, refitted.
+#[derive(Debug, Clone, Serialize)]
+pub struct Hypothesis {
+    pub effects: Vec<&'static str>,
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    /// The refit's chi² against the noise floor.
+    pub chi2: f64,
+    #[serde(skip)]
+    pub profile: SimProfile,
+}
+
+/// One candidate experiment, scored.
+#[derive(Debug, Clone, Serialize)]
+pub struct Scored {
+    pub name: &'static str,
+    pub spec: ExperimentSpec,
+    pub samples: usize,
+    pub rig_time_s: f64,
+    /// Sum over its samples of the squared difference between the two best
+    /// hypotheses' predictions, each over its reading's noise.
+    pub separation: f64,
+    /// `separation` >= [`DECISIVE_SEPARATION`].
+    pub decisive: bool,
+    /// The largest gamma1 the best hypothesis predicts during it, mm (a rig
+    /// checks it against its soft limit before running it).
+    pub peak_gamma1_mm: f64,
+}
+
+/// The plan for one recording.
+#[derive(Debug, Clone, Serialize)]
+pub struct Plan {
+    /// The diagnosis's answer on the recording as it is, in one line ([`outcome_of`]).
+    pub verdict: String,
+    pub hypotheses: Vec<Hypothesis>,
+    /// Every candidate, best first.
+    pub experiments: Vec<Scored>,
+    /// Why nothing is proposed, when nothing is.
+    pub nothing_because: Option<String>,
+    /// Separations of effects no rig experiment can reach (degenerate ones), with what would.
+    pub operator_steps: Vec<String>,
+}
+
+impl Plan {
+    /// The experiment to run: the cheapest decisive one, else the one that
+    /// separates most per second of rig time.
+    pub fn choice(&self) -> Option<&Scored> {
+        self.experiments.first().filter(|s| s.separation > 0.0)
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    #[error(transparent)]
+    Diagnose(#[from] DiagnoseError),
+    #[error("cannot simulate an experiment after this recording: {0}")]
+    Simulate(String),
+}
+
+/// Plan the next experiment for `rec` (diagnosed here).
+pub fn plan(rec: &Recording) -> Result<Plan, PlanError> {
+    let d = diagnose(rec, &DiagnoseOptions::default())?;
+    plan_for(rec, &d)
+}
+
+/// Plan for `rec` given its diagnosis `d`.
+pub fn plan_for(rec: &Recording, d: &Diagnosis) -> Result<Plan, PlanError> {
+    let operator_steps: Vec<String> =
+        d.degenerate.iter().filter_map(|g| g.separate_by.map(|s| format!("{}: {s}", g.effect))).collect();
+    let verdict = outcome_of(d);
+    let empty = |why: &str| Plan {
+        verdict: verdict.clone(),
+        hypotheses: vec![],
+        experiments: vec![],
+        nothing_because: Some(why.to_string()),
+        operator_steps: operator_steps.clone(),
+    };
+    if d.ambiguous.len() < 2 {
+        return Ok(empty("the diagnosis leaves no two explanations standing: nothing to separate"));
+    }
+    let sigma_g = d.noise.normal_um * 1e-3;
+    let sigma_t = d.noise.torsion_deg;
+    let model = Model::new(rec, sigma_g, sigma_t);
+    let base_x =
+        Base { e1_mpa: d.baseline.e1_mpa, nu1: d.baseline.nu1, contact_offset_mm: d.baseline.contact_offset_mm }
+            .internal();
+    let Some(base) = model.fit(&[], &base_x) else {
+        return Ok(empty("the baseline cannot be refitted"));
+    };
+    let mut hypotheses: Vec<Hypothesis> = d.ambiguous.iter().filter_map(|a| refit(&model, &base, &a.effects)).collect();
+    hypotheses.sort_by(|a, b| a.chi2.total_cmp(&b.chi2));
+    if hypotheses.len() < 2 {
+        return Ok(empty("fewer than two of the explanations could be refitted"));
+    }
+    let mut experiments = Vec::new();
+    for spec in candidates() {
+        let step_time_s = step_time(rec, spec.phase().kind());
+        let (separation, peak_gamma1_mm) =
+            separation(rec, &hypotheses[0], &hypotheses[1], &spec, step_time_s, sigma_g, sigma_t)?;
+        experiments.push(Scored {
+            name: spec.name(),
+            spec,
+            samples: spec.samples(),
+            rig_time_s: spec.rig_time_s(step_time_s) + seek_time(rec, &spec),
+            separation,
+            decisive: separation >= DECISIVE_SEPARATION,
+            peak_gamma1_mm,
+        });
+    }
+    // Decisive first, the cheapest of them (the better separating at equal
+    // time); then the rest by separation per second.
+    experiments.sort_by(|a, b| {
+        b.decisive.cmp(&a.decisive).then_with(|| match a.decisive {
+            true => a.rig_time_s.total_cmp(&b.rig_time_s).then(b.separation.total_cmp(&a.separation)),
+            false => (b.separation / b.rig_time_s).total_cmp(&(a.separation / a.rig_time_s)),
+        })
+    });
+    Ok(Plan { verdict, hypotheses, experiments, nothing_because: None, operator_steps })
+}
+
+/// A diagnosis in one line: what it named (with the corrected E1, nu1), what
+/// it could not rank, or that nothing stands out.
+pub fn outcome_of(d: &Diagnosis) -> String {
+    let values = format!("E1 {:.4} MPa, nu1 {:.4}", d.e1_mpa, d.nu1);
+    if !d.effects.is_empty() {
+        format!("named {}: {values}", d.effects.join(" + "))
+    } else if !d.ambiguous.is_empty() {
+        let alts: Vec<String> = d.ambiguous.iter().map(|a| a.effects.join(" + ")).collect();
+        format!("ambiguous: {}", alts.join(" / "))
+    } else if d.unexplained {
+        format!("unexplained mismatch: {values}")
+    } else {
+        format!("nothing named: {values}")
+    }
+}
+
+/// Refit the recording with `effects` on top of the baseline.
+fn refit(model: &Model, base: &Fitted, effects: &[&'static str]) -> Option<Hypothesis> {
+    let mut fit = base.clone();
+    for name in effects {
+        fit = crate::diagnosis::search::extend(model, &fit, Candidate::from_name(name)?)?;
+    }
+    let profile = model.profile(&fit.cands, &fit.x)?;
+    let b = fit.base();
+    Some(Hypothesis { effects: effects.to_vec(), e1_mpa: b.e1_mpa, nu1: b.nu1, chi2: fit.chi2, profile })
+}
+
+/// The recording's time per settled sample of this kind: the median step
+/// between consecutive samples of its sweep, s (a twist settles longer than a
+/// stage step on most rigs).
+fn step_time(rec: &Recording, kind: Phase) -> f64 {
+    let mut dt: Vec<f64> = rec
+        .samples
+        .windows(2)
+        .filter(|w| w.iter().all(|s| s.in_sweep() && s.phase == kind))
+        .map(|w| w[1].t_s - w[0].t_s)
+        .filter(|d| d.is_finite() && *d > 0.0)
+        .collect();
+    if dt.is_empty() { 1.0 } else { crate::numerics::stats::median(&mut dt) }
+}
+
+/// Rig time to reach a second depth, s: what the recording's own return to the
+/// torsion depth took (from the last sample of the normal sweep to the first of
+/// the torsion sweep); 0 for the experiments that act where the rig stands.
+fn seek_time(rec: &Recording, spec: &ExperimentSpec) -> f64 {
+    if !matches!(spec, ExperimentSpec::TorsionAtDepth { .. }) {
+        return 0.0;
+    }
+    let last_normal = rec.sweep(Phase::Normal).last().map(|s| s.t_s);
+    let first_torsion = rec.sweep(Phase::Torsion).next().map(|s| s.t_s);
+    match (last_normal, first_torsion) {
+        (Some(a), Some(b)) if b > a => b - a,
+        _ => 0.0,
+    }
+}
+
+/// The commanded history of a recording, as the diagnosis replays it.
+fn history(rec: &Recording) -> Vec<CommandedPose> {
+    rec.samples
+        .iter()
+        .map(|s| CommandedPose {
+            t_s: s.t_s,
+            stage_mm: s.stage_mm,
+            rot_deg: if s.phase == Phase::Torsion { s.rot_deg } else { 0.0 },
+        })
+        .collect()
+}
+
+fn pair_of(rec: &Recording, profile: &SimProfile) -> Option<ContactPair> {
+    let m = profile.material?;
+    Some(ContactPair { elastomer: Body::new(m.e1_mpa, m.nu1, rec.meta.elastomer_r_mm), indenter: rec.meta.indenter })
+}
+
+/// How far apart `spec`'s outcomes are under hypotheses `a` and `b`: the rig
+/// runs it as it would under `a` (the best), from the stage of the
+/// recording's last sample, both predict its readings. Also the largest
+/// gamma1 `a` predicts, mm.
+fn separation(
+    rec: &Recording,
+    a: &Hypothesis,
+    b: &Hypothesis,
+    spec: &ExperimentSpec,
+    step_time_s: f64,
+    sigma_g: f64,
+    sigma_t: f64,
+) -> Result<(f64, f64), PlanError> {
+    let fail = |e: String| PlanError::Simulate(e);
+    let hist = history(rec);
+    let (Some(pair_a), Some(pair_b)) = (pair_of(rec, &a.profile), pair_of(rec, &b.profile)) else {
+        return Err(fail("a hypothesis has no material".into()));
+    };
+    let mut rig = TrueRig::new(pair_a, &a.profile).map_err(|e| fail(e.to_string()))?;
+    for p in &hist {
+        rig.read(*p).map_err(|e| fail(e.to_string()))?;
+    }
+    let Some(last) = rec.samples.last() else { return Err(fail("the recording is empty".into())) };
+    let (last_t, hold) = (last.t_s, last.stage_mm);
+    let run: Vec<Sample> = sim::generator::continue_run(rig, last_t + step_time_s, hold, &[*spec], step_time_s)
+        .map_err(|e| fail(e.to_string()))?;
+    let mut cmds = hist.clone();
+    cmds.extend(run.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }));
+    let pred_b = simulate(pair_b, &b.profile, &cmds).map_err(|e| fail(e.to_string()))?;
+    let tail = &pred_b[hist.len()..];
+    let d = run
+        .iter()
+        .zip(tail)
+        .map(|(s, r)| {
+            let g = ((s.gamma1_mm - r.gamma1_mm) / sigma_g).powi(2);
+            let t = if s.phase == Phase::Torsion { ((s.theta1_deg - r.theta1_deg) / sigma_t).powi(2) } else { 0.0 };
+            g + t
+        })
+        .sum();
+    Ok((d, run.iter().map(|s| s.gamma1_mm).fold(0.0, f64::max)))
+}
+
+/// The plan as text: the hypotheses, the choice with its time and what each outcome would mean, the others.
+pub fn report(p: &Plan) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    if let Some(why) = &p.nothing_because {
+        let _ = writeln!(s, "No experiment proposed: {why}.");
+    }
+    if !p.hypotheses.is_empty() {
+        let _ = writeln!(s, "Standing (refitted, best first):");
+        for h in &p.hypotheses {
+            let _ = writeln!(
+                s,
+                "  {:<28} E1 {:.4} MPa, nu1 {:.4}, chi2 {:.1}",
+                h.effects.join(" + "),
+                h.e1_mpa,
+                h.nu1,
+                h.chi2
+            );
+        }
+    }
+    if let (Some(c), [a, b, ..]) = (p.choice(), p.hypotheses.as_slice()) {
+        let verdict = if c.decisive { "decides" } else { "separates best per second, but may not decide" };
+        let _ = writeln!(
+            s,
+            "Run: {} {:?} ({} samples, about {:.0} s of rig time): separation {:.1} (decisive at {DECISIVE_SEPARATION}), {verdict}.",
+            c.name, c.spec, c.samples, c.rig_time_s, c.separation
+        );
+        for h in [a, b] {
+            let effects = h.effects.join(" + ");
+            let _ = writeln!(
+                s,
+                "  If its readings follow {effects}: {effects} is named, with E1 {:.4} MPa, nu1 {:.4}.",
+                h.e1_mpa, h.nu1
+            );
+        }
+        let _ = writeln!(s, "Candidates (separation, rig time):");
+        for e in &p.experiments {
+            let _ = writeln!(s, "  {:<18} {:>8.1} {:>6.0} s  {:?}", e.name, e.separation, e.rig_time_s, e.spec);
+        }
+    }
+    for o in &p.operator_steps {
+        let _ = writeln!(s, "Beyond what the rig can run alone: {o}");
+    }
+    s
+}

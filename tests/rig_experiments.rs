@@ -1,0 +1,162 @@
+//! The experiment steps end to end on the emulated rig (issue 14): the real
+//! APT drivers, the simulated sensor with the rig's effects, the sequencer's
+//! guarded moves. One run with every kind of step; the recording must hold
+//! each step's samples under its own phase, on the paths the script asked for.
+
+#[path = "support/emulated.rs"]
+mod emulated;
+
+use easycalib::run::Script;
+use sim::effects::{SimProfile, frame_compliance};
+use sim::experiment::{Experiment, ExperimentSpec};
+use sim::recording::{Direction, Phase};
+
+#[test]
+fn every_experiment_runs_through_the_real_drivers_and_records_its_phase() {
+    let script = Script {
+        experiment: vec![
+            ExperimentSpec::Dwell { hold_s: 10.0, every_s: 2.0 },
+            ExperimentSpec::Reload { fraction: 0.5, steps: 3, cycles: 1 },
+            ExperimentSpec::TwistReversal { amplitude_deg: 2.0, step_deg: 0.5 },
+            ExperimentSpec::TorsionAtDepth { beta: 0.3, amplitude_deg: 8.0, step_deg: 0.4 },
+        ],
+        // The second depth goes deeper than the sweep: at beta 0.3 this gel's
+        // gamma1 comes near the default 5 mm limit, which the guard's bound
+        // (growing by every inward move) would reach first.
+        limits: easycalib::run::script::LimitsSection { max_gamma1_mm: 8.0, ..Default::default() },
+        ..Script::default()
+    };
+    let profile =
+        SimProfile { frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }), ..SimProfile::default() };
+    let (out, rec) = emulated::run_script(3, profile, script);
+    println!("{out:?}");
+    // The steps' samples follow the sweeps, in the script's order, each under its phase.
+    let first = rec.samples.iter().position(|s| s.experiment.is_some()).expect("experiment samples");
+    assert!(rec.samples[..first].iter().all(|s| s.in_sweep()));
+    let mut order: Vec<Experiment> = rec.samples[first..]
+        .iter()
+        .map(|s| s.experiment.expect("no sweep sample after the experiments began"))
+        .collect();
+    order.dedup();
+    assert_eq!(order, [Experiment::Dwell, Experiment::Reload, Experiment::Reversal, Experiment::Torsion2]);
+    let of = |e: Experiment| rec.samples.iter().filter(move |s| s.experiment == Some(e)).collect::<Vec<_>>();
+    let torsion_stage = rec.sweep(Phase::Torsion).last().expect("torsion sweep").stage_mm;
+    // Dwell: six samples at the torsion depth, due every 2 s of rig time (each
+    // stamped when its settling ends).
+    let dwell = of(Experiment::Dwell);
+    assert_eq!(dwell.len(), 6);
+    assert!(dwell.iter().all(|s| s.phase == Phase::Normal && (s.stage_mm - torsion_stage).abs() < 1e-6));
+    let times: Vec<f64> = dwell.iter().map(|s| s.t_s).collect();
+    assert!(times.windows(2).all(|w| (1.0..3.0).contains(&(w[1] - w[0]))), "{times:?}");
+    assert!((times[5] - times[0] - 10.0).abs() < 1.0, "{times:?}");
+    // Reload: down to half the travel past contact and back to the depth.
+    let reload = of(Experiment::Reload);
+    assert_eq!(reload.len(), 6);
+    // (In the streamed stage coordinates: the run then moved the stage zero.)
+    let moved: f64 = rec
+        .meta
+        .extra
+        .iter()
+        .find(|(k, _)| k == "stage_zero_moved_mm")
+        .map_or(0.0, |(_, v)| v.parse().expect("a number"));
+    let lowest = reload.iter().map(|s| s.stage_mm).fold(f64::INFINITY, f64::min) + moved;
+    let top = torsion_stage + moved;
+    assert!((lowest - 0.5 * top).abs() < 0.002, "lowest {lowest} of {top}");
+    assert_eq!(reload.iter().filter(|s| s.dir == Some(Direction::Unload)).count(), 3);
+    assert!((reload.last().unwrap().stage_mm - torsion_stage).abs() < 1e-3);
+    // Twist reversal: through zero to the other side; theta1 follows the sign.
+    let rev = of(Experiment::Reversal);
+    let (lo, hi) = rev.iter().fold((0.0f64, 0.0f64), |(a, b), s| (a.min(s.rot_deg), b.max(s.rot_deg)));
+    assert!((lo + 2.0).abs() < 0.01 && (hi - 2.0).abs() < 0.01, "{lo} {hi}");
+    let at_min = rev.iter().find(|s| (s.rot_deg - lo).abs() < 1e-9).unwrap();
+    assert!(at_min.theta1_deg < 0.0 && at_min.phase == Phase::Torsion);
+    // Torsion at the second depth: the measured beta there is 0.3.
+    let t2 = of(Experiment::Torsion2);
+    assert_eq!(t2.len(), 41);
+    let beta = (t2[0].stage_mm + moved - t2[0].gamma1_mm) / rec.meta.indenter.r_mm;
+    assert!((beta - 0.3).abs() < 0.005, "beta {beta}");
+    // The run fitted and diagnosed the whole recording: the torsion at the
+    // second depth tells the compliant frame from a layer (the standard sweeps
+    // leave them ambiguous, tests/rig_effects.rs), and the correction holds
+    // (named in each of the 9 runs of this seed checked while the test was written).
+    assert_eq!(out.named, ["frame_compliance"], "{out:?}");
+    assert!(out.corrected.0.abs() < 1.0 && out.corrected.1.abs() < 2.0, "{out:?}");
+}
+
+/// The closed loop on the emulated rig (`run --adaptive`): with a compliant
+/// frame, which the standard sweeps cannot tell from a layer, the loop runs
+/// the experiment `plan` chooses and the run's diagnosis then names the
+/// frame; on a clean rig it runs nothing.
+#[test]
+fn the_closed_loop_runs_a_deciding_experiment_only_when_something_is_left_to_decide() {
+    let adaptive = || Script {
+        limits: easycalib::run::script::LimitsSection { max_gamma1_mm: 8.0, ..Default::default() },
+        adaptive: easycalib::run::script::AdaptiveSection { enabled: true, ..Default::default() },
+        ..Script::default()
+    };
+    let profile =
+        SimProfile { frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }), ..SimProfile::default() };
+    let (out, rec) = emulated::run_script(5, profile, adaptive());
+    println!("{out:#?}");
+    assert!(!out.adaptive.is_empty(), "{out:?}");
+    let spent: f64 = out.adaptive.iter().map(|s| s.rig_time_s).sum();
+    assert!(spent > 0.0 && spent <= 120.0 + 60.0, "{spent} s");
+    assert!(rec.samples.iter().any(|s| s.experiment.is_some()));
+    // The chain in the report: experiment, why, rig time, outcome.
+    let chain = &out.report_chain.0;
+    assert_eq!(chain.as_array().map(Vec::len), Some(out.adaptive.len()), "{chain:#}");
+    assert!(chain[0]["why"].as_str().is_some_and(|w| w.contains("separates")), "{chain:#}");
+    assert!(chain[0]["outcome"].as_str().is_some_and(|o| o.contains("frame_compliance")), "{chain:#}");
+    assert_eq!(out.report_chain.1.len(), out.adaptive.len(), "{:?}", out.report_chain.1);
+    assert!(out.report_chain.1[0].starts_with("| experiment 1 | torsion_at_depth"), "{:?}", out.report_chain.1);
+    assert_eq!(out.named, ["frame_compliance"], "{out:?}");
+    assert!(out.corrected.0.abs() < 1.0 && out.corrected.1.abs() < 2.0, "{out:?}");
+
+    let (clean, rec) = emulated::run_script(5, SimProfile::default(), adaptive());
+    assert!(clean.adaptive.is_empty(), "{clean:?}");
+    assert!(clean.report_chain.0.is_null() && clean.report_chain.1.is_empty(), "{:?}", clean.report_chain);
+    assert!(rec.samples.iter().all(|s| s.in_sweep()));
+}
+
+/// Rates of the closed loop over seeds (issue 14, "Must show", for the pair
+/// this slice covers): with a compliant frame the true effect is named in at
+/// least 90 % of seeds with E1 within 1 % and nu1 within 2 % of the truth; on
+/// a clean rig no experiment is run in at least 95 % of seeds (here: at most
+/// one of ten) and nothing is named. The median extra rig time is printed.
+/// About 2 minutes on two cores (10/10 and 10/10, median 26 s, when written): `cargo test --release --test rig_experiments -- --ignored --nocapture`.
+#[test]
+#[ignore = "a rate study (20 emulated runs); run by hand or in the statistical suite"]
+fn closed_loop_rates_over_seeds() {
+    let adaptive = || Script {
+        limits: easycalib::run::script::LimitsSection { max_gamma1_mm: 8.0, ..Default::default() },
+        adaptive: easycalib::run::script::AdaptiveSection { enabled: true, ..Default::default() },
+        ..Script::default()
+    };
+    let frame =
+        SimProfile { frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }), ..SimProfile::default() };
+    let (mut named, mut extra) = (0, Vec::new());
+    for seed in 100..110 {
+        let (o, _) = emulated::run_script(seed, frame.clone(), adaptive());
+        let ok = o.named == ["frame_compliance"] && o.corrected.0.abs() < 1.0 && o.corrected.1.abs() < 2.0;
+        named += usize::from(ok);
+        extra.push(o.adaptive.iter().map(|s| s.rig_time_s).sum::<f64>());
+        println!(
+            "frame seed {seed}: {ok} {:?} {:?} {:?}",
+            o.named,
+            o.corrected,
+            o.adaptive.iter().map(|s| (s.name, s.rig_time_s)).collect::<Vec<_>>()
+        );
+    }
+    extra.sort_by(f64::total_cmp);
+    println!("RATE frame_compliance: named within 1 %/2 % in {named}/10; median extra rig time {:.1} s", extra[5]);
+    let mut quiet = 0;
+    for seed in 100..110 {
+        let (o, _) = emulated::run_script(seed, SimProfile::default(), adaptive());
+        quiet += usize::from(o.adaptive.is_empty() && o.named.is_empty());
+        println!("clean seed {seed}: {:?} {:?}", o.named, o.adaptive.iter().map(|s| s.name).collect::<Vec<_>>());
+    }
+    println!("RATE clean: no experiment and nothing named in {quiet}/10");
+    assert!(named >= 9, "{named}/10");
+    assert!(extra[5] <= 60.0, "median extra rig time {} s", extra[5]);
+    assert!(quiet >= 9, "{quiet}/10");
+}
