@@ -19,7 +19,13 @@ fn fits(c: &mut Criterion) {
     let mut g = c.benchmark_group("fit_200_samples");
     g.bench_function("paper_method", |b| b.iter(|| fit_paper(black_box(&rec), &opts.paper)));
     let paper = fit_paper(&rec, &opts.paper).expect("paper fit");
-    let start = ModelParams { e1_mpa: paper.e1_mpa, nu1: paper.nu1, contact_offset_mm: 0.0, contact_friction: None };
+    let start = ModelParams {
+        e1_mpa: paper.e1_mpa,
+        nu1: paper.nu1,
+        contact_offset_mm: 0.0,
+        contact_friction: None,
+        large_strain: false,
+    };
     g.bench_function("full_model_fit", |b| b.iter(|| fit_full(black_box(&rec), &opts.full, start)));
     g.finish();
 
@@ -28,7 +34,8 @@ fn fits(c: &mut Criterion) {
     let path =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear/tableI_2_E2-2.0_nu2-0.40.csv");
     let layered = sim::recording::Recording::read_path(&path).expect("dev-set recording");
-    let start = ModelParams { e1_mpa: 0.8, nu1: 0.4, contact_offset_mm: 0.0, contact_friction: None };
+    let start =
+        ModelParams { e1_mpa: 0.8, nu1: 0.4, contact_offset_mm: 0.0, contact_friction: None, large_strain: false };
     fit_full(&layered, &opts.full, start).expect("layered fit (warms the tables)");
     let mut g = c.benchmark_group("fit_layer_fe");
     g.sample_size(10);

@@ -91,12 +91,7 @@ fn main() {
             std::process::exit(1);
         }
     };
-    let p = ModelParams {
-        e1_mpa: cal.full.e1_mpa,
-        nu1: cal.full.nu1,
-        contact_offset_mm: cal.full.contact_offset_mm,
-        contact_friction: cal.full.contact_friction,
-    };
+    let p = cal.full.params();
     let rs = match rows(&rec, &p) {
         Ok(r) => r,
         Err(e) => {

@@ -1,28 +1,50 @@
 //! A declared bonded layer is fitted with the project's FE reference (hemisphere
 //! indenter on a bonded gel, Coulomb friction between them while pressing and
 //! twisting): checked on the independent finite-element recordings of the dev
-//! set, which it did not make. Issue 13 asks for E1 within 1 % and nu1 within
-//! 2 %; what this model reaches is printed and asserted at the level it holds
-//! today (nu1 within 2.1 %, E1 within 1.9 %), with intervals that cover the truth
-//! (the model error is part of them).
+//! set, which it did not make: the linear recordings with the linear layer
+//! model, the neo-Hookean ones with the large-strain model (the fit chooses).
+//! Issue 13 asks for E1 within 1 % and nu1 within 2 %; what the models reach is
+//! printed and asserted at the level they hold today, with intervals that cover
+//! the truth (the model error is part of them).
 
 use std::path::PathBuf;
 
 use easycalib::fit::{FitOptions, calibrate};
 use sim::recording::Recording;
 
+/// One dev-set recording fitted: its truth.csv row, the calibration, the truth
+/// and the errors in percent.
+struct Recovered {
+    f: Vec<String>,
+    cal: easycalib::fit::Calibration,
+    e1: f64,
+    nu1: f64,
+    de: f64,
+    dn: f64,
+}
+
+fn recovered(set: &str) -> Vec<Recovered> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev").join(set);
+    let truth = std::fs::read_to_string(dir.join("truth.csv")).unwrap();
+    truth
+        .lines()
+        .skip(1)
+        .map(|line| {
+            let f: Vec<String> = line.split(',').map(str::to_string).collect();
+            let (e1, nu1): (f64, f64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
+            let rec = Recording::read_path(&dir.join(&f[0])).unwrap();
+            let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+            let (de, dn) = ((cal.full.e1_mpa / e1 - 1.0) * 100.0, (cal.full.nu1 / nu1 - 1.0) * 100.0);
+            Recovered { f, cal, e1, nu1, de, dn }
+        })
+        .collect()
+}
+
 #[test]
 fn the_dev_sets_linear_recordings_are_recovered() {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear");
-    let truth = std::fs::read_to_string(dir.join("truth.csv")).unwrap();
     let (mut worst_e, mut worst_nu) = (0.0f64, 0.0f64);
-    for line in truth.lines().skip(1) {
-        let f: Vec<&str> = line.split(',').collect();
-        let (e1, nu1): (f64, f64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
-        let rec = Recording::read_path(&dir.join(f[0])).unwrap();
-        let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+    for Recovered { f, cal, e1, nu1, de, dn } in recovered("linear") {
         let full = &cal.full;
-        let (de, dn) = ((full.e1_mpa / e1 - 1.0) * 100.0, (full.nu1 / nu1 - 1.0) * 100.0);
         println!(
             "{:32} E1 {:.4} [{:.4}, {:.4}] ({de:+.2} %)  nu1 {:.4} [{:.4}, {:.4}] ({dn:+.2} %)  mu {:.3?}  paper E1 {:+.1} % nu1 {:+.1} %",
             f[0],
@@ -50,13 +72,55 @@ fn the_dev_sets_linear_recordings_are_recovered() {
     assert!(worst_e < 2.0 && worst_nu < 2.5, "E1 {worst_e} %, nu1 {worst_nu} %");
 }
 
+/// The dev set's neo-Hookean recordings: the linear layer model leaves 14–16 µm
+/// of systematic residuals and a nu1 19–27 % low; the fit takes the large-strain
+/// model (the linear one times the neo-Hookean reference's ratios, tabulated in
+/// dimensionless groups) because it fits better, and recovers the truth.
+#[test]
+fn the_dev_sets_nonlinear_recordings_are_recovered_at_large_strain() {
+    let (mut worst_e, mut worst_nu) = (0.0f64, 0.0f64);
+    for Recovered { f, cal, e1, nu1, de, dn } in recovered("nonlinear") {
+        let full = &cal.full;
+        println!(
+            "{:32} {} E1 {:.4} [{:.4}, {:.4}] ({de:+.2} %)  nu1 {:.4} [{:.4}, {:.4}] ({dn:+.2} %)  rms {:.2} µm, {:.4}°  \
+             warnings {:?}",
+            f[0],
+            full.model,
+            full.e1_mpa,
+            full.ci95.e1_mpa[0],
+            full.ci95.e1_mpa[1],
+            full.nu1,
+            full.ci95.nu1[0],
+            full.ci95.nu1[1],
+            full.rms.normal_um,
+            full.rms.torsion_deg,
+            cal.warnings.iter().map(|w| w.code).collect::<Vec<_>>()
+        );
+        assert_eq!(full.model, "layer-fe-large-strain", "{}", f[0]);
+        assert!(full.ci95.e1_mpa[0] <= e1 && e1 <= full.ci95.e1_mpa[1], "{}: E1 interval misses {e1}", f[0]);
+        assert!(full.ci95.nu1[0] <= nu1 && nu1 <= full.ci95.nu1[1], "{}: nu1 interval misses {nu1}", f[0]);
+        assert!(!cal.warnings.iter().any(|w| w.code == "systematic_residuals"), "{}", f[0]);
+        worst_e = worst_e.max(de.abs());
+        worst_nu = worst_nu.max(dn.abs());
+    }
+    println!("worst: E1 {worst_e:.2} %, nu1 {worst_nu:.2} %");
+    assert!(worst_e < LARGE_E1_PCT && worst_nu < LARGE_NU1_PCT, "E1 {worst_e} %, nu1 {worst_nu} %");
+}
+
+/// What the large-strain fit holds on the dev set's neo-Hookean recordings
+/// (issue 13 asks for 1 % and 2 %; measured: E1 within 1.1–1.5 %, nu1 within
+/// 0.5 %).
+const LARGE_E1_PCT: f64 = 2.0;
+const LARGE_NU1_PCT: f64 = 2.0;
+
 #[test]
 fn diagnose_starts_from_the_layer_model_and_agrees_with_fit() {
     use easycalib::diagnosis::{DiagnoseOptions, diagnose};
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev");
-    // A linear recording is explained to its noise; a large-strain one is not.
+    // A linear recording is explained by the linear layer model, a neo-Hookean
+    // one by the large-strain model: neither is left unexplained.
     for (file, explained) in
-        [("linear/tableI_6_E2-2.0_nu2-0.35.csv", true), ("nonlinear/tableI_6_E2-2.0_nu2-0.35.csv", false)]
+        [("linear/tableI_6_E2-2.0_nu2-0.35.csv", true), ("nonlinear/tableI_6_E2-2.0_nu2-0.35.csv", true)]
     {
         let rec = Recording::read_path(&dir.join(file)).unwrap();
         let cal = calibrate(&rec, &FitOptions::default()).unwrap();

@@ -45,7 +45,8 @@ struct GelTables {
     torsion: Vec<Vec<f64>>,
 }
 
-fn gel_mesh(h: f64) -> Result<Mesh, FemError> {
+/// The gel's mesh for a layer of thickness `h` (both references use it).
+pub fn gel_mesh(h: f64) -> Result<Mesh, FemError> {
     Mesh::gel((GEL_RADIUS_IN_H * h).max(12.0), h, FINE_MM, 6.0, 1.5)
 }
 

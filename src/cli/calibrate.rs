@@ -5,7 +5,7 @@ use sim::generator::{GeneratorConfig, generate};
 use sim::recording::Recording;
 
 use super::sim_setup::{SimSetupArgs, sim_setup};
-use super::{CliError, ElastomerArgs, FitArgs, SimulateArgs};
+use super::{CliError, ElastomerArgs, Fidelity, FitArgs, SimulateArgs};
 use crate::fit::{FitError, FitOptions, calibrate};
 
 pub use crate::report::json::{CalibrationOutput, calibration_output};
@@ -129,8 +129,9 @@ fn fit_options(window: &[f64], noise_um: Option<f64>) -> Result<FitOptions, CliE
 }
 
 pub fn fit(args: &FitArgs) -> Result<(), CliError> {
-    let rec = Recording::read_path(&args.recording)
+    let mut rec = Recording::read_path(&args.recording)
         .map_err(|e| CliError::bad_input(format!("{}: {e}", args.recording.display())))?;
+    args.layer.apply(&mut rec)?;
     let opts = fit_options(&args.window_mm, args.noise_um)?;
     let cal = calibrate(&rec, &opts).map_err(|e| match e {
         FitError::Implausible(_) => CliError::bad_input(format!("{}: {e}", args.recording.display())),
@@ -175,7 +176,15 @@ pub fn generator_config(a: &ElastomerArgs) -> Result<GeneratorConfig, CliError> 
 
 pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {
     let cfg = generator_config(&args.elastomer)?;
-    let rec = generate(&cfg).map_err(|e| CliError::bad_input(format!("cannot simulate: {e}")))?;
+    let rec = match args.fidelity {
+        Fidelity::Fe => super::simulate_fe::fe_recording(args)?,
+        Fidelity::Analytic if args.layer.thickness_mm.is_some() => {
+            return Err(CliError::bad_input(
+                "the analytic generator models a half-space: a declared layer needs --fidelity fe",
+            ));
+        }
+        Fidelity::Analytic => generate(&cfg).map_err(|e| CliError::bad_input(format!("cannot simulate: {e}")))?,
+    };
     rec.write_path(&args.output)
         .map_err(|e| CliError::other(format!("cannot write {}: {e}", args.output.display())))?;
     eprintln!(

@@ -8,8 +8,9 @@ use crate::diagnosis::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose, plot
 use crate::fit::FitError;
 
 pub fn run(args: &DiagnoseArgs) -> Result<(), CliError> {
-    let rec = Recording::read_path(&args.recording)
+    let mut rec = Recording::read_path(&args.recording)
         .map_err(|e| CliError::bad_input(format!("{}: {e}", args.recording.display())))?;
+    args.layer.apply(&mut rec)?;
     let opts = DiagnoseOptions { noise_um: args.noise_um, ..Default::default() };
     let d = diagnose(&rec, &opts).map_err(|e| match e {
         DiagnoseError::Options(m) => CliError::bad_input(m),

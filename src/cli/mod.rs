@@ -10,6 +10,7 @@ mod script;
 pub mod sensor;
 pub mod sim;
 pub mod sim_setup;
+mod simulate_fe;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -89,6 +90,8 @@ pub struct DiagnoseArgs {
     pub record: bool,
     #[command(flatten)]
     pub db: history::DbArg,
+    #[command(flatten)]
+    pub layer: LayerArgs,
 }
 
 #[derive(Debug, Args)]
@@ -109,6 +112,39 @@ pub struct FitArgs {
     pub record: bool,
     #[command(flatten)]
     pub db: history::DbArg,
+    #[command(flatten)]
+    pub layer: LayerArgs,
+}
+
+/// The sensor's elastomer layer, declared on the command line (it replaces the
+/// recording's `elastomer_thickness_mm` / `elastomer_base`; docs/recording-format.md).
+#[derive(Debug, Clone, Default, Args)]
+pub struct LayerArgs {
+    /// Thickness of the sensor's gel layer, mm (from its datasheet).
+    #[arg(long, value_name = "MM")]
+    pub thickness_mm: Option<f64>,
+    /// How the gel sits on its window: `bonded` (default with a thickness) or `sliding`.
+    #[arg(long, value_name = "BASE", requires = "thickness_mm")]
+    pub base: Option<String>,
+}
+
+impl LayerArgs {
+    /// `rec` with the layer declared here, if any; a bad value is an error naming it.
+    pub fn apply(&self, rec: &mut ::sim::recording::Recording) -> Result<(), CliError> {
+        let Some(h) = self.thickness_mm else {
+            return Ok(());
+        };
+        let base = match self.base.as_deref() {
+            None => ::sim::physics::LayerBase::Bonded,
+            Some(b) => ::sim::physics::LayerBase::parse(b)
+                .ok_or_else(|| CliError::bad_input(format!("--base {b}: expected `bonded` or `sliding`")))?,
+        };
+        let tol = rec.meta.layer.and_then(|l| l.thickness_tol_mm);
+        let layer = ::sim::physics::Layer { thickness_mm: h, base, thickness_tol_mm: tol };
+        layer.validate().map_err(|e| CliError::bad_input(format!("--thickness-mm {h}: {e}")))?;
+        rec.meta.layer = Some(layer);
+        Ok(())
+    }
 }
 
 /// The simulated elastomer, indenter and noise seed. A flag not given takes
@@ -140,6 +176,20 @@ pub struct SimulateArgs {
     /// Where to write the recording.
     #[arg(short = 'o', long = "output")]
     pub output: PathBuf,
+    /// Which physics makes the recording: `analytic` (the paper's model, a
+    /// half-space) or `fe` (the project's large-strain finite-element
+    /// reference of a bonded gel layer: needs --thickness-mm; about a minute).
+    #[arg(long, value_enum, default_value_t = Fidelity::Analytic)]
+    pub fidelity: Fidelity,
+    #[command(flatten)]
+    pub layer: LayerArgs,
+}
+
+/// The physics `simulate` writes a recording from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Fidelity {
+    Analytic,
+    Fe,
 }
 
 #[derive(Debug, Args)]

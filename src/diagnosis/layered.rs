@@ -7,7 +7,7 @@ use sim::recording::{Phase, Recording};
 
 use super::{Ci95, DiagnoseError, Diagnosis, FitSummary, Rms, SampleResidual, prose};
 use crate::fit::full::{predict, residuals};
-use crate::fit::{FitOptions, FullOptions, ModelParams, Warning, calibrate};
+use crate::fit::{FitOptions, FullOptions, Warning, calibrate};
 use crate::numerics::stats::rms;
 
 pub fn diagnose_layered(rec: &Recording, noise_um: Option<f64>) -> Result<Diagnosis, DiagnoseError> {
@@ -17,12 +17,7 @@ pub fn diagnose_layered(rec: &Recording, noise_um: Option<f64>) -> Result<Diagno
     };
     let cal = calibrate(rec, &opts)?;
     let f = &cal.full;
-    let p = ModelParams {
-        e1_mpa: f.e1_mpa,
-        nu1: f.nu1,
-        contact_offset_mm: f.contact_offset_mm,
-        contact_friction: f.contact_friction,
-    };
+    let p = f.params();
     let pred = predict(rec, &p)?;
     let r = residuals(rec, &pred);
     let rms_fit =

@@ -38,6 +38,11 @@ pub struct ModelParams {
     /// only; `None`: the contact sticks).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_friction: Option<f64>,
+    /// The FE layer model at large strain: the linear layer model times the
+    /// large-strain ratios of the project's neo-Hookean reference (docs/physics.md,
+    /// "Large strain"). Not a fitted parameter: the fit tries both and keeps the better.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub large_strain: bool,
 }
 
 /// The model's reading for one sample.
@@ -55,10 +60,7 @@ pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitE
     predict_with(rec, p, None)
 }
 
-/// Per-sample (gamma1 mm, theta1 deg) to add to the FE model's frictionless
-/// normal state to stand for the frictional one (a deferred correction: see
-/// [`friction_correction`]).
-type Correction = Vec<(f64, f64)>;
+use super::layer_model::{Correction, NormalContact, friction_correction, predict_fe};
 
 /// [`predict`], or with a declared layer and `correction`, the fast form of the
 /// FE model: each depth solved frictionless on its own, plus the correction.
@@ -108,85 +110,6 @@ fn predict_with(
 pub fn fe_layer(rec: &Recording) -> Option<Layer> {
     rec.meta.layer.filter(|l| l.base == LayerBase::Bonded && rec.meta.elastomer_r_mm.is_infinite())
 }
-
-/// The normal contact in the FE model: followed with Coulomb friction along the
-/// approach (the model itself), or frictionless with each depth solved on its
-/// own (its fast form, hundreds of times cheaper; see [`friction_correction`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum NormalContact {
-    Frictional,
-    Frictionless,
-}
-
-/// The layered contact from the project's own FE reference (docs/physics.md,
-/// "Finite-element reference"): a hemisphere held at its flat face on a bonded gel,
-/// with Coulomb friction between them in both sweeps (one coefficient).
-fn predict_fe(
-    rec: &Recording,
-    p: &ModelParams,
-    layer: Layer,
-    normal: NormalContact,
-) -> Result<Vec<Prediction>, FitError> {
-    let ind = rec.meta.indenter;
-    let fw = fem::forward::Forward::cached(layer.thickness_mm, ind.e_mpa, ind.nu, ind.r_mm)?;
-    if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
-        return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
-    }
-    let model = fw.model(p.e1_mpa, p.nu1);
-    let mu = p.contact_friction.unwrap_or(f64::INFINITY);
-    let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).collect();
-    let states: Vec<fem::ContactState> = match normal {
-        // The gel and the indenter grip each other while the stage presses (the
-        // same interface friction as in torsion), so the normal state depends on
-        // the path: it is followed through the recording's depths in small steps.
-        NormalContact::Frictional => {
-            let deepest = deltas.iter().copied().fold(0.0, f64::max);
-            model.normal_path(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?
-        }
-        NormalContact::Frictionless => {
-            let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
-            let mut out = Vec::with_capacity(deltas.len());
-            for &delta in &deltas {
-                let st = match solved.entry(delta.to_bits()) {
-                    Entry::Occupied(e) => e.into_mut(),
-                    Entry::Vacant(e) => e.insert(model.normal(delta)?),
-                };
-                out.push(st.clone());
-            }
-            out
-        }
-    };
-    let mut out = Vec::with_capacity(rec.samples.len());
-    for (s, st) in rec.samples.iter().zip(&states) {
-        let theta1_deg = match s.phase {
-            Phase::Normal => 0.0,
-            Phase::Torsion => {
-                let twist = s.rot_deg.to_radians();
-                model.theta1_rad(st, twist.abs(), mu).map_or(0.0, |t| t.to_degrees() * twist.signum())
-            }
-        };
-        out.push(Prediction { gamma1_mm: st.gamma1_mm, theta1_deg, beta: st.gamma2_mm / ind.r_mm });
-    }
-    Ok(out)
-}
-
-/// The frictional FE model minus its fast frictionless form at `p`, per sample:
-/// the fit iterates on the fast form plus this difference and refreshes it
-/// between passes (the difference changes little with the parameters, so the
-/// passes settle where the frictional model itself fits). `None` without an FE layer.
-fn friction_correction(rec: &Recording, p: &ModelParams) -> Result<Option<Correction>, FitError> {
-    let Some(layer) = fe_layer(rec) else {
-        return Ok(None);
-    };
-    let exact = predict_fe(rec, p, layer, NormalContact::Frictional)?;
-    let fast = predict_fe(rec, p, layer, NormalContact::Frictionless)?;
-    Ok(Some(exact.iter().zip(&fast).map(|(e, f)| (e.gamma1_mm - f.gamma1_mm, e.theta1_deg - f.theta1_deg)).collect()))
-}
-
-/// Load steps from first touch to the deepest sample in the frictional normal
-/// path (from 30 to 120 steps gamma1 moves by at most 0.4 µm on the dev set's
-/// recordings, a fifth of their noise; docs/physics.md).
-const NORMAL_LOAD_STEPS: f64 = 60.0;
 
 /// Residuals per group, in time order.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
@@ -256,8 +179,12 @@ pub struct FullFit {
     pub iterations: usize,
     pub converged: bool,
     pub samples_used: usize,
-    /// The contact model fitted: `half-space` (the paper's) or `layer-fe` (a declared bonded layer).
+    /// The contact model fitted: `half-space` (the paper's), `layer-fe` (a
+    /// declared bonded layer, linear elasticity) or `layer-fe-large-strain`.
     pub model: &'static str,
+    /// Whether the layer model was taken at large strain.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub large_strain: bool,
     /// Fitted Coulomb friction in torsion (layer model only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_friction: Option<f64>,
@@ -309,16 +236,23 @@ fn to_internal(p: &ModelParams) -> Vec<f64> {
     x.extend(p.contact_friction.map(f64::ln));
     x
 }
-fn from_internal(x: &[f64]) -> ModelParams {
+fn from_internal(x: &[f64], like: &ModelParams) -> ModelParams {
     ModelParams {
         e1_mpa: x[0].exp(),
         nu1: 0.5 * logistic(x[1]),
         contact_offset_mm: x[2],
         contact_friction: x.get(3).map(|v| v.exp()),
+        large_strain: like.large_strain,
     }
 }
-fn from_physical(v: &[f64]) -> ModelParams {
-    ModelParams { e1_mpa: v[0], nu1: v[1], contact_offset_mm: v[2], contact_friction: v.get(3).copied() }
+fn from_physical(v: &[f64], like: &ModelParams) -> ModelParams {
+    ModelParams {
+        e1_mpa: v[0],
+        nu1: v[1],
+        contact_offset_mm: v[2],
+        contact_friction: v.get(3).copied(),
+        large_strain: like.large_strain,
+    }
 }
 
 /// The noise each sample's residuals are divided by: the recording's own
@@ -397,6 +331,7 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
     let pred = predict(rec, &params)?;
     let r = residuals(rec, &pred);
     warnings.extend(systematic_warning(&r));
+    warnings.extend(super::large_strain::warning(rec, &params));
     let dof = cov.dof;
     Ok(FullFit {
         e1_mpa: params.e1_mpa,
@@ -428,10 +363,28 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         iterations: passes.out.iterations,
         converged: passes.out.converged,
         samples_used: n_obs,
-        model: if params.contact_friction.is_some() { "layer-fe" } else { "half-space" },
+        model: match (params.contact_friction.is_some(), params.large_strain) {
+            (true, true) => "layer-fe-large-strain",
+            (true, false) => "layer-fe",
+            _ => "half-space",
+        },
         contact_friction: params.contact_friction,
+        large_strain: params.large_strain,
         warnings,
     })
+}
+
+impl FullFit {
+    /// The fitted model's parameters (to predict with them).
+    pub fn params(&self) -> ModelParams {
+        ModelParams {
+            e1_mpa: self.e1_mpa,
+            nu1: self.nu1,
+            contact_offset_mm: self.contact_offset_mm,
+            contact_friction: self.contact_friction,
+            large_strain: self.large_strain,
+        }
+    }
 }
 
 /// Live normal samples (gamma1 off the dead band) and torsion samples, when
@@ -491,12 +444,12 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result
         correction = friction_correction(rec, &params)?;
         let x0 = to_internal(&params);
         let out = lm::minimize(
-            |x, r| weighted_residuals(rec, &from_internal(x), correction.as_ref(), &sigma, r),
+            |x, r| weighted_residuals(rec, &from_internal(x, &start), correction.as_ref(), &sigma, r),
             &x0,
             LmOptions::default(),
         )?;
         let before = params;
-        params = from_internal(&out.x);
+        params = from_internal(&out.x, &start);
         res = Some(out);
         let settled = (params.e1_mpa / before.e1_mpa - 1.0).abs() < 1e-4 && (params.nu1 - before.nu1).abs() < 1e-4;
         if pass >= 1 && (correction.is_none() || settled) {
@@ -622,8 +575,8 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<(DMatrix<f64>, 
         hi[j] += steps[j];
         lo[j] -= steps[j];
         let (mut rp, mut rm) = (Vec::new(), Vec::new());
-        let up = weighted_residuals(rec, &from_physical(&hi), correction.as_ref(), sig, &mut rp);
-        let down = weighted_residuals(rec, &from_physical(&lo), correction.as_ref(), sig, &mut rm);
+        let up = weighted_residuals(rec, &from_physical(&hi, params), correction.as_ref(), sig, &mut rp);
+        let down = weighted_residuals(rec, &from_physical(&lo, params), correction.as_ref(), sig, &mut rm);
         // Deep sweeps end close to the contact model's turning point, where a
         // step to one side may leave the model's range: difference one-sided then.
         for i in 0..m {
@@ -645,10 +598,12 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<(DMatrix<f64>, 
 /// "Finite-element reference": the spread of its recoveries on independent
 /// finite-element recordings).
 fn standard_errors(params: &ModelParams, cov: &DMatrix<f64>) -> [f64; 3] {
-    let model_sd = if params.contact_friction.is_some() {
-        [LAYER_MODEL_SD_E1 * params.e1_mpa, LAYER_MODEL_SD_NU1 * params.nu1, 0.0]
-    } else {
-        [0.0; 3]
+    let model_sd = match (params.contact_friction.is_some(), params.large_strain) {
+        (true, true) => {
+            [super::large_strain::MODEL_SD_E1 * params.e1_mpa, super::large_strain::MODEL_SD_NU1 * params.nu1, 0.0]
+        }
+        (true, false) => [LAYER_MODEL_SD_E1 * params.e1_mpa, LAYER_MODEL_SD_NU1 * params.nu1, 0.0],
+        _ => [0.0; 3],
     };
     std::array::from_fn(|i| (cov[(i, i)] + model_sd[i] * model_sd[i]).sqrt())
 }

@@ -1,6 +1,8 @@
 //! Fitting E1 and nu1 from a recording: the paper's method and the full-model fit.
 
 pub mod full;
+mod large_strain;
+mod layer_model;
 pub mod paper;
 pub mod plausible;
 pub mod regression;
@@ -103,8 +105,50 @@ pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitE
 /// otherwise, or if that fit fails or ends on a bound, from typical elastomers
 /// too, keeping the fit with the smallest residuals (an interior one if any).
 fn best_full_fit(rec: &Recording, opts: &FitOptions, paper: &PaperFit) -> Result<FullFit, FitError> {
-    let paper_start =
-        ModelParams { e1_mpa: paper.e1_mpa, nu1: paper.nu1, contact_offset_mm: 0.0, contact_friction: None };
+    let linear = best_fit_over_starts(rec, opts, paper, false, None)?;
+    if full::fe_layer(rec).is_none() {
+        return Ok(linear);
+    }
+    // A declared layer: the large-strain model too (what a real gel does at
+    // these depths), from the linear answer and the usual starts; the better
+    // fit of the two models is kept.
+    let Ok(large) = best_fit_over_starts(rec, opts, paper, true, Some(linear.params())) else {
+        return Ok(linear);
+    };
+    if !better(&linear, &large) {
+        return Ok(large);
+    }
+    let mut linear = linear;
+    linear.warnings.push(Warning::new(
+        "small_strain_fits_better",
+        format!(
+            "the linear-elastic layer model fits this recording better than the large-strain one (residual cost \
+             {:.3} against {:.3}): the recording behaves as small strain, which a real gel pressed to beta = 0.2 \
+             does not; E1 and nu1 are the linear model's",
+            fit_cost(&linear),
+            fit_cost(&large)
+        ),
+    ));
+    Ok(linear)
+}
+
+/// The best full fit of one strain model over start points: `first` (if any),
+/// then the paper's answer where plausible, then typical elastomers (unless a
+/// fit so far is interior).
+fn best_fit_over_starts(
+    rec: &Recording,
+    opts: &FitOptions,
+    paper: &PaperFit,
+    large_strain: bool,
+    first: Option<ModelParams>,
+) -> Result<FullFit, FitError> {
+    let start = |e1_mpa: f64, nu1: f64| ModelParams {
+        e1_mpa,
+        nu1,
+        contact_offset_mm: 0.0,
+        contact_friction: None,
+        large_strain,
+    };
     let plausible = paper.e1_mpa > 0.0 && (0.1..=0.49).contains(&paper.nu1);
     let mut best: Option<FullFit> = None;
     let mut last_err = None;
@@ -116,15 +160,16 @@ fn best_full_fit(rec: &Recording, opts: &FitOptions, paper: &PaperFit) -> Result
         }
         Err(e) => last_err = Some(e),
     };
-    if plausible {
-        consider(fit_full(rec, &opts.full, paper_start), &mut best);
-        if best.as_ref().is_some_and(|f| !pinned(f)) {
-            return best.ok_or_else(|| FitError::Model("no start of the full fit converged".into()));
-        }
+    if let Some(p) = first {
+        consider(fit_full(rec, &opts.full, ModelParams { large_strain, ..p }), &mut best);
     }
-    for m in start_points::typical_elastomers(rec.meta.indenter.e_mpa) {
-        let start = ModelParams { e1_mpa: m.e1_mpa, nu1: m.nu1, contact_offset_mm: 0.0, contact_friction: None };
-        consider(fit_full(rec, &opts.full, start), &mut best);
+    if plausible {
+        consider(fit_full(rec, &opts.full, start(paper.e1_mpa, paper.nu1)), &mut best);
+    }
+    if best.as_ref().is_none_or(pinned) {
+        for m in start_points::typical_elastomers(rec.meta.indenter.e_mpa) {
+            consider(fit_full(rec, &opts.full, start(m.e1_mpa, m.nu1)), &mut best);
+        }
     }
     best.ok_or_else(|| last_err.unwrap_or_else(|| FitError::Model("no start of the full fit converged".into())))
 }

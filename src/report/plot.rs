@@ -36,12 +36,7 @@ pub struct SweepPlot {
 }
 
 fn full_params(cal: &Calibration) -> ModelParams {
-    ModelParams {
-        e1_mpa: cal.full.e1_mpa,
-        nu1: cal.full.nu1,
-        contact_offset_mm: cal.full.contact_offset_mm,
-        contact_friction: cal.full.contact_friction,
-    }
+    cal.full.params()
 }
 
 fn sorted_by_x(mut v: Vec<(f64, f64)>) -> Vec<(f64, f64)> {

@@ -15,9 +15,13 @@
 use std::f64::consts::PI;
 
 mod body;
+mod sweep;
+mod table;
 mod twist;
 
 pub use body::HyperBody;
+pub use sweep::{Sweep, SweepPlan, calibration_sweep};
+pub use table::{Groups, LargeStrainTable, Lookup};
 
 use crate::FemError;
 use crate::banded::Factor;
@@ -27,6 +31,10 @@ use crate::mesh::Mesh;
 
 /// Newton stops when no displacement moves by more than this, mm.
 const TOLERANCE_MM: f64 = 2e-7;
+/// ... or by more than this after `STALL_ROUNDS` fresh tangents, mm (a tenth of a
+/// micrometre: a twentieth of a sensor's noise).
+const STALL_TOLERANCE_MM: f64 = 1e-4;
+const STALL_ROUNDS: usize = 3;
 
 /// The indenter's surface as a chain of nodes from the tip to the equator.
 fn sphere_chain(mesh: &Mesh, radius_mm: f64) -> Vec<usize> {
@@ -148,26 +156,31 @@ impl LargeStrainContact {
         };
         let mut best: Option<Projection> = None;
         for m in 0..nseg {
-            let (h0, g0, _) = at(m, 0.0);
+            let (h0, _, _) = at(m, 0.0);
             let (h1, _, _) = at(m, 1.0);
             if h0 * h1 > 0.0 && h0 != 0.0 {
                 continue;
             }
-            // Bisection on [0, 1] for the crossing.
-            let (mut lo, mut hi, mut hlo) = (0.0, 1.0, h0);
-            for _ in 0..50 {
-                let mid = 0.5 * (lo + hi);
-                let (hm, _, _) = at(m, mid);
-                if (hm < 0.0) == (hlo < 0.0) {
-                    lo = mid;
-                    hlo = hm;
-                } else {
-                    hi = mid;
+            // Bisection on [0, 1] for the crossing (an end that is one already is
+            // taken as it is: the node on the axis sits on the tip's normal).
+            let xi = if h0 == 0.0 {
+                0.0
+            } else if h1 == 0.0 {
+                1.0
+            } else {
+                let (mut lo, mut hi) = (0.0, 1.0);
+                for _ in 0..50 {
+                    let mid = 0.5 * (lo + hi);
+                    let (hm, _, _) = at(m, mid);
+                    if (hm < 0.0) == (h0 < 0.0) {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
                 }
-            }
-            let xi = 0.5 * (lo + hi);
+                0.5 * (lo + hi)
+            };
             let (_, gap, normal) = at(m, xi);
-            let _ = g0;
             if best.as_ref().is_none_or(|b| gap.abs() < b.gap.abs()) {
                 best = Some(Projection { m, xi, normal, gap });
             }
@@ -276,7 +289,10 @@ impl LargeStrainContact {
                 for k in 0..ns {
                     self.lambda[k] = if active[k] { nl[k].max(0.0) } else { 0.0 };
                 }
-                if size < TOLERANCE_MM {
+                // A node sliding over a corner of the indenter's chain can hold the
+                // iteration at a few hundredths of a micrometre: after a few fresh
+                // tangents that is accepted.
+                if size < TOLERANCE_MM || (round >= STALL_ROUNDS && size < STALL_TOLERANCE_MM) {
                     return Ok(self.state());
                 }
                 prev = prev.min(size);
@@ -379,6 +395,26 @@ impl LargeStrainContact {
 
     /// The contact along a monotone approach through every entry of `deltas_mm`
     /// (increasing), in load steps of at most `max_step_mm`.
+    /// [`Self::step_to`]; a step whose iteration does not settle is taken again
+    /// from where it started in two halves (at most `depth` times over): the
+    /// iteration's trouble spots (a node on a corner of the indenter's chain)
+    /// depend on where the load steps fall.
+    fn step_or_split(&mut self, delta_mm: f64, depth: usize) -> Result<LargeState, FemError> {
+        let saved = (self.gel.u.clone(), self.indenter.u.clone(), self.lambda.clone(), self.delta_mm);
+        match self.step_to(delta_mm) {
+            Err(FemError::ContactNotSettled(n)) => {
+                if depth == 0 {
+                    return Err(FemError::ContactNotSettled(n));
+                }
+                (self.gel.u, self.indenter.u, self.lambda, self.delta_mm) = saved;
+                let mid = 0.5 * (self.delta_mm + delta_mm);
+                self.step_or_split(mid, depth - 1)?;
+                self.step_or_split(delta_mm, depth - 1)
+            }
+            other => other,
+        }
+    }
+
     pub fn solve_path(&mut self, deltas_mm: &[f64], max_step_mm: f64) -> Result<Vec<LargeState>, FemError> {
         let mut out = Vec::with_capacity(deltas_mm.len());
         for &target in deltas_mm {
@@ -389,7 +425,7 @@ impl LargeStrainContact {
             let from = self.delta_mm;
             let mut st = None;
             for m in 1..=steps {
-                st = Some(self.step_to(from + (target - from) * m as f64 / steps as f64)?);
+                st = Some(self.step_or_split(from + (target - from) * m as f64 / steps as f64, 3)?);
             }
             out.push(st.unwrap_or_else(|| self.state()));
         }

@@ -1,0 +1,84 @@
+//! A whole calibration on the large-strain reference (docs/physics.md, "Large
+//! strain"): the normal sweep in even stage steps to the depth where the
+//! indenter's deformation reaches beta R2, then the twist sweep there. This is
+//! `easycalib simulate --fidelity fe`.
+
+use super::{LargeState, LargeStrainContact};
+use crate::FemError;
+use crate::elastic::Material;
+use crate::mesh::Mesh;
+
+/// What to sweep.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepPlan {
+    /// Target gamma2 / R2 of the deepest normal sample (the torsion depth).
+    pub beta: f64,
+    /// Even stage steps from first contact to that depth.
+    pub normal_steps: usize,
+    /// Platform twists of the torsion sweep, degrees (increasing from 0).
+    pub twists_deg: Vec<f64>,
+    /// Coulomb friction between the bodies while twisting.
+    pub friction: f64,
+}
+
+/// The sweeps' results, noise-free.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sweep {
+    /// One state per stage step, the first at zero approach.
+    pub normal: Vec<LargeState>,
+    /// (platform twist, theta1), degrees, at the deepest state.
+    pub torsion_deg: Vec<(f64, f64)>,
+}
+
+/// Load step while searching for the torsion depth, mm.
+const SEARCH_STEP_MM: f64 = 0.05;
+
+impl LargeStrainContact {
+    /// A gel layer of `thickness_mm` bonded to its window (as wide as the linear
+    /// reference's, with the same mesh) and a hemisphere of `indenter_radius_mm`.
+    pub fn for_layer(
+        thickness_mm: f64,
+        gel: Material,
+        indenter: Material,
+        indenter_radius_mm: f64,
+    ) -> Result<Self, FemError> {
+        let gel_mesh = crate::forward::gel_mesh(thickness_mm)?;
+        let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * indenter_radius_mm).collect();
+        let hemi = Mesh::hemisphere(indenter_radius_mm, &rs, 30)?;
+        Self::new(gel_mesh, gel, hemi, indenter, indenter_radius_mm)
+    }
+}
+
+/// Runs `plan` on fresh contacts from `build` (one to find the depth, one to
+/// sweep: the frictionless normal contact does not depend on the path).
+pub fn calibration_sweep(
+    build: impl Fn() -> Result<LargeStrainContact, FemError>,
+    indenter_radius_mm: f64,
+    plan: &SweepPlan,
+) -> Result<Sweep, FemError> {
+    if !(plan.beta > 0.0 && plan.beta < 0.3 && plan.normal_steps >= 2) {
+        return Err(FemError::Invalid(format!("sweep to beta {} in {} steps", plan.beta, plan.normal_steps)));
+    }
+    let target = plan.beta * indenter_radius_mm;
+    let mut search = build()?;
+    let mut last = search.step_to(0.0)?;
+    let depth = loop {
+        let next = search.step_to(last.delta_mm + SEARCH_STEP_MM)?;
+        if next.gamma2_mm >= target {
+            let t = (target - last.gamma2_mm) / (next.gamma2_mm - last.gamma2_mm);
+            break last.delta_mm + t * (next.delta_mm - last.delta_mm);
+        }
+        if next.delta_mm > 4.0 * indenter_radius_mm {
+            return Err(FemError::Invalid(format!("gamma2 never reaches {target} mm")));
+        }
+        last = next;
+    };
+    let mut sweep = build()?;
+    let stages: Vec<f64> = (0..=plan.normal_steps).map(|k| depth * k as f64 / plan.normal_steps as f64).collect();
+    let normal = sweep.solve_path(&stages, SEARCH_STEP_MM)?;
+    let deepest = normal.last().ok_or_else(|| FemError::Invalid("an empty sweep".into()))?;
+    let twists: Vec<f64> = plan.twists_deg.iter().map(|d| d.to_radians()).collect();
+    let theta = sweep.theta1_rad(deepest, &twists, plan.friction)?;
+    let torsion_deg = plan.twists_deg.iter().zip(&theta).map(|(&d, t)| (d, t.to_degrees())).collect();
+    Ok(Sweep { normal, torsion_deg })
+}

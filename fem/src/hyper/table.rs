@@ -1,0 +1,224 @@
+//! The large-strain correction in dimensionless groups (docs/physics.md,
+//! "Large strain"): the ratio of the neo-Hookean reference's gamma1 to the
+//! linear reference's at the same approach, and the same ratio for the stuck
+//! twist (theta1 / platform twist), tabulated by `fem/examples/large_strain_table.rs`
+//! over the indenter-to-gel modulus ratio E2/E1, the two Poisson's ratios and
+//! the approach over the indenter's radius, for a gel as thick as the
+//! indenter's radius. A fit multiplies its linear layer model by them.
+
+use std::sync::OnceLock;
+
+use crate::FemError;
+
+/// One tabulated material case: its groups and its ratios along the approach.
+#[derive(Debug, Clone, PartialEq)]
+struct Case {
+    key: [f64; 3],
+    /// (delta / R2, gamma1 ratio), increasing delta.
+    gamma1: Vec<(f64, f64)>,
+    /// (delta / R2, twist ratio), increasing delta.
+    twist: Vec<(f64, f64)>,
+}
+
+/// Where a query falls against the table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lookup {
+    pub ratio: f64,
+    /// The query lay outside the tabulated groups and was taken at the nearest edge.
+    pub clamped: bool,
+}
+
+/// The tabulated ratios.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LargeStrainTable {
+    /// Grid axes: ln(E2/E1), nu1, nu2.
+    axes: [Vec<f64>; 3],
+    h_over_r2: f64,
+    cases: Vec<Case>,
+}
+
+/// The dimensionless groups of one sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Groups {
+    pub e2_over_e1: f64,
+    pub nu1: f64,
+    pub nu2: f64,
+    pub h_over_r2: f64,
+    pub delta_over_r2: f64,
+}
+
+impl LargeStrainTable {
+    /// The table shipped with the project (fem/data/large_strain.csv).
+    pub fn builtin() -> Result<&'static Self, FemError> {
+        static TABLE: OnceLock<Result<LargeStrainTable, FemError>> = OnceLock::new();
+        TABLE.get_or_init(|| Self::parse(include_str!("../../data/large_strain.csv"))).as_ref().map_err(Clone::clone)
+    }
+
+    /// Reads the table's CSV (comment lines start with `#`; one header line).
+    pub fn parse(text: &str) -> Result<Self, FemError> {
+        let mut cases: Vec<Case> = Vec::new();
+        let mut h = None;
+        for (n, line) in text.lines().enumerate().filter(|(_, l)| !l.starts_with('#') && !l.trim().is_empty()).skip(1) {
+            let bad = || FemError::Invalid(format!("large-strain table, line {}: {line:?}", n + 1));
+            let f: Vec<&str> = line.split(',').collect();
+            if f.len() != 8 {
+                return Err(bad());
+            }
+            let num = |i: usize| f[i].trim().parse::<f64>().map_err(|_| bad());
+            let key = [num(0)?.ln(), num(1)?, num(2)?];
+            let (hr, d, g) = (num(3)?, num(4)?, num(5)?);
+            if !(key.iter().all(|v| v.is_finite()) && d > 0.0 && g > 0.0 && hr > 0.0) {
+                return Err(bad());
+            }
+            if h.is_some_and(|v: f64| (v - hr).abs() > 1e-9) {
+                return Err(FemError::Invalid("large-strain table: one gel thickness per table".into()));
+            }
+            h = Some(hr);
+            let case = match cases.iter_mut().find(|c| c.key.iter().zip(&key).all(|(a, b)| (a - b).abs() < 1e-9)) {
+                Some(c) => c,
+                None => {
+                    cases.push(Case { key, gamma1: Vec::new(), twist: Vec::new() });
+                    cases.last_mut().ok_or_else(bad)?
+                }
+            };
+            case.gamma1.push((d, g));
+            if !f[7].trim().is_empty() {
+                case.twist.push((d, num(7)?));
+            }
+        }
+        let axis = |i: usize| {
+            let mut v: Vec<f64> = cases.iter().map(|c| c.key[i]).collect();
+            v.sort_by(f64::total_cmp);
+            v.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+            v
+        };
+        let axes = [axis(0), axis(1), axis(2)];
+        if cases.len() != axes.iter().map(Vec::len).product::<usize>() || cases.iter().any(|c| c.gamma1.len() < 2) {
+            return Err(FemError::Invalid("large-strain table: not a full grid of cases".into()));
+        }
+        Ok(Self { axes, h_over_r2: h.unwrap_or(1.0), cases })
+    }
+
+    /// The gel thickness over the indenter radius the table was made for.
+    pub fn h_over_r2(&self) -> f64 {
+        self.h_over_r2
+    }
+
+    /// gamma1 (large strain) / gamma1 (linear) at the groups `g`.
+    pub fn gamma1_ratio(&self, g: &Groups) -> Lookup {
+        self.lookup(g, |c| &c.gamma1)
+    }
+
+    /// The stuck twist ratio theta1 / twist (large strain over linear) at `g`.
+    pub fn twist_ratio(&self, g: &Groups) -> Lookup {
+        self.lookup(g, |c| &c.twist)
+    }
+
+    /// Tensor-product Lagrange interpolation through every node of each axis
+    /// (three or four per axis: the ratios bend with the Poisson's ratios near
+    /// incompressibility, which a straight line between nodes misses), at the
+    /// query clamped to the grid (the Poisson's ratios to 0.5).
+    fn lookup(&self, g: &Groups, pick: impl Fn(&Case) -> &Vec<(f64, f64)>) -> Lookup {
+        let q = [g.e2_over_e1.ln(), g.nu1, g.nu2];
+        let mut clamped = (g.h_over_r2 / self.h_over_r2 - 1.0).abs() > 0.05;
+        let mut weights: [Vec<f64>; 3] = Default::default();
+        for (i, axis) in self.axes.iter().enumerate() {
+            let (lo, hi) = (axis[0], axis[axis.len() - 1]);
+            let v = if q[i].is_finite() { q[i] } else { lo };
+            // Poisson's ratios follow the polynomial up to 0.5 (the gel's most
+            // likely values lie just above the last node, which the neo-Hookean
+            // reference cannot reach: a clamp there would put a kink in the
+            // model that holds a fit of nu1 on the node); flagged past 0.49.
+            let top = if i == 0 { hi } else { hi.max(0.5) };
+            if v < lo - 1e-9 || v > top + 1e-9 || (i > 0 && v > hi.max(NU_TRUSTED)) {
+                clamped = true;
+            }
+            let v = v.clamp(lo, top);
+            weights[i] = (0..axis.len())
+                .map(|k| {
+                    (0..axis.len()).filter(|&m| m != k).map(|m| (v - axis[m]) / (axis[k] - axis[m])).product::<f64>()
+                })
+                .collect();
+        }
+        let mut ratio = 0.0;
+        for case in &self.cases {
+            let w: f64 = (0..3)
+                .map(|i| {
+                    let k = self.axes[i].iter().position(|a| (a - case.key[i]).abs() < 1e-9).unwrap_or(0);
+                    weights[i][k]
+                })
+                .product();
+            if w == 0.0 {
+                continue;
+            }
+            let (r, out) = along(pick(case), g.delta_over_r2);
+            clamped |= out;
+            ratio += w * r;
+        }
+        Lookup { ratio, clamped }
+    }
+}
+
+/// How far past its last tabulated approach a case is held at its last value
+/// without a flag (delta/R2: the twist ratio is tabulated every second load
+/// step, 0.02 apart, and changes by a few parts in a thousand over that).
+const HOLD_BEYOND: f64 = 0.025;
+
+/// Poisson's ratio up to which a polynomial extension past the table's last
+/// node is not flagged.
+const NU_TRUSTED: f64 = 0.49;
+
+/// Linear interpolation along the approach; 1 at zero approach (linear
+/// elasticity is the limit), held at the last value beyond the table (flagged
+/// past [`HOLD_BEYOND`]).
+fn along(points: &[(f64, f64)], d: f64) -> (f64, bool) {
+    let Some(&(d_last, r_last)) = points.last() else {
+        return (1.0, true);
+    };
+    if d >= d_last {
+        return (r_last, d > d_last + HOLD_BEYOND);
+    }
+    let mut prev = (0.0, 1.0);
+    for &(x, r) in points {
+        if d <= x {
+            let t = if x > prev.0 { (d - prev.0) / (x - prev.0) } else { 1.0 };
+            return (prev.1 + t * (r - prev.1), false);
+        }
+        prev = (x, r);
+    }
+    (r_last, true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_builtin_table_reads_and_interpolates_between_its_cases() {
+        let t = LargeStrainTable::builtin().unwrap();
+        let g = Groups { e2_over_e1: 2.0, nu1: 0.4, nu2: 0.4, h_over_r2: 1.0, delta_over_r2: 0.2 };
+        let at = t.gamma1_ratio(&g);
+        assert!(!at.clamped && at.ratio.is_finite() && (at.ratio - 1.0).abs() < 0.3, "{at:?}");
+        // Zero approach is linear elasticity.
+        let zero = t.gamma1_ratio(&Groups { delta_over_r2: 0.0, ..g });
+        assert!((zero.ratio - 1.0).abs() < 1e-12);
+        // Between two grid moduli the ratio lies between theirs (the ratio falls
+        // with a stiffer indenter, which takes less of the approach).
+        let (lo, hi) = (
+            t.gamma1_ratio(&Groups { e2_over_e1: 1.0, ..g }).ratio,
+            t.gamma1_ratio(&Groups { e2_over_e1: 2.0, ..g }).ratio,
+        );
+        let mid = t.gamma1_ratio(&Groups { e2_over_e1: 2f64.sqrt(), ..g }).ratio;
+        assert!(lo > mid && mid > hi, "{lo} {mid} {hi}");
+        // Outside the table: flagged.
+        assert!(t.gamma1_ratio(&Groups { e2_over_e1: 50.0, ..g }).clamped);
+        assert!(t.gamma1_ratio(&Groups { h_over_r2: 0.4, ..g }).clamped);
+    }
+
+    #[test]
+    fn a_broken_table_is_refused_with_its_line() {
+        let text = "# c\nh\n1,0.4,0.4,1,0.1,1.01,0.05,\n2,0.4,0.4,1,x,1.0,0.05,\n";
+        let e = LargeStrainTable::parse(text).unwrap_err();
+        assert!(e.to_string().contains("line 4"), "{e}");
+    }
+}

@@ -1,0 +1,107 @@
+//! The declared layer's forward model in the fit (docs/physics.md,
+//! "Finite-element reference" and "Large strain"): the project's FE reference
+//! of a hemisphere on a bonded gel, with Coulomb friction in both sweeps, its
+//! fast frictionless form plus a deferred friction correction, and at large
+//! strain the tabulated ratios of the neo-Hookean reference.
+
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
+
+use sim::physics::Layer;
+use sim::recording::{Phase, Recording};
+
+use super::FitError;
+use super::full::{ModelParams, Prediction, fe_layer};
+
+/// Per-sample (gamma1 mm, theta1 deg) to add to the FE model's frictionless
+/// normal state to stand for the frictional one (a deferred correction: see
+/// [`friction_correction`]).
+pub(super) type Correction = Vec<(f64, f64)>;
+
+/// The normal contact in the FE model: followed with Coulomb friction along the
+/// approach (the model itself), or frictionless with each depth solved on its
+/// own (its fast form, hundreds of times cheaper; see [`friction_correction`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum NormalContact {
+    Frictional,
+    Frictionless,
+}
+
+/// The layered contact from the project's own FE reference (docs/physics.md,
+/// "Finite-element reference"): a hemisphere held at its flat face on a bonded gel,
+/// with Coulomb friction between them in both sweeps (one coefficient).
+pub(super) fn predict_fe(
+    rec: &Recording,
+    p: &ModelParams,
+    layer: Layer,
+    normal: NormalContact,
+) -> Result<Vec<Prediction>, FitError> {
+    let ind = rec.meta.indenter;
+    let fw = fem::forward::Forward::cached(layer.thickness_mm, ind.e_mpa, ind.nu, ind.r_mm)?;
+    if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
+        return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
+    }
+    let model = fw.model(p.e1_mpa, p.nu1);
+    let mu = p.contact_friction.unwrap_or(f64::INFINITY);
+    let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).collect();
+    let states: Vec<fem::ContactState> = match normal {
+        // The gel and the indenter grip each other while the stage presses (the
+        // same interface friction as in torsion), so the normal state depends on
+        // the path: it is followed through the recording's depths in small steps.
+        NormalContact::Frictional => {
+            let deepest = deltas.iter().copied().fold(0.0, f64::max);
+            model.normal_path(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?
+        }
+        NormalContact::Frictionless => {
+            let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
+            let mut out = Vec::with_capacity(deltas.len());
+            for &delta in &deltas {
+                let st = match solved.entry(delta.to_bits()) {
+                    Entry::Occupied(e) => e.into_mut(),
+                    Entry::Vacant(e) => e.insert(model.normal(delta)?),
+                };
+                out.push(st.clone());
+            }
+            out
+        }
+    };
+    let table = if p.large_strain { Some(fem::hyper::LargeStrainTable::builtin()?) } else { None };
+    let mut out = Vec::with_capacity(rec.samples.len());
+    for ((s, st), &delta) in rec.samples.iter().zip(&states).zip(&deltas) {
+        let theta1_deg = match s.phase {
+            Phase::Normal => 0.0,
+            Phase::Torsion => {
+                let twist = s.rot_deg.to_radians();
+                model.theta1_rad(st, twist.abs(), mu).map_or(0.0, |t| t.to_degrees() * twist.signum())
+            }
+        };
+        let (g1, t1) = match table {
+            Some(t) => {
+                let g = super::large_strain::groups(rec, p, layer, delta);
+                (t.gamma1_ratio(&g).ratio, t.twist_ratio(&g).ratio)
+            }
+            None => (1.0, 1.0),
+        };
+        let gamma1_mm = st.gamma1_mm * g1;
+        out.push(Prediction { gamma1_mm, theta1_deg: theta1_deg * t1, beta: (delta - gamma1_mm) / ind.r_mm });
+    }
+    Ok(out)
+}
+
+/// The frictional FE model minus its fast frictionless form at `p`, per sample:
+/// the fit iterates on the fast form plus this difference and refreshes it
+/// between passes (the difference changes little with the parameters, so the
+/// passes settle where the frictional model itself fits). `None` without an FE layer.
+pub(super) fn friction_correction(rec: &Recording, p: &ModelParams) -> Result<Option<Correction>, FitError> {
+    let Some(layer) = fe_layer(rec) else {
+        return Ok(None);
+    };
+    let exact = predict_fe(rec, p, layer, NormalContact::Frictional)?;
+    let fast = predict_fe(rec, p, layer, NormalContact::Frictionless)?;
+    Ok(Some(exact.iter().zip(&fast).map(|(e, f)| (e.gamma1_mm - f.gamma1_mm, e.theta1_deg - f.theta1_deg)).collect()))
+}
+
+/// Load steps from first touch to the deepest sample in the frictional normal
+/// path (from 30 to 120 steps gamma1 moves by at most 0.4 µm on the dev set's
+/// recordings, a fifth of their noise; docs/physics.md).
+const NORMAL_LOAD_STEPS: f64 = 60.0;
