@@ -6,6 +6,7 @@
 use crate::FemError;
 use crate::banded::{Banded, Factor};
 use crate::mesh::Mesh;
+use crate::quad::{self, QuadPoint};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Material {
@@ -32,29 +33,14 @@ const D_DEV: [[f64; 4]; 4] = [
 /// Element stiffness (8x8, dofs u_r, u_z per node) of one quad.
 fn element_stiffness(p: [[f64; 2]; 4], m: &Material) -> [[f64; 8]; 8] {
     let (mu, kb) = (m.shear(), m.bulk());
-    let xi_a = [-1.0, 1.0, 1.0, -1.0];
-    let eta_a = [-1.0, -1.0, 1.0, 1.0];
     let mut ke = [[0.0; 8]; 8];
     let mut add = |xi: f64, eta: f64, weight: f64, volumetric: bool| {
-        let n: [f64; 4] = std::array::from_fn(|a| 0.25 * (1.0 + xi * xi_a[a]) * (1.0 + eta * eta_a[a]));
-        let dxi: [f64; 4] = std::array::from_fn(|a| 0.25 * xi_a[a] * (1.0 + eta * eta_a[a]));
-        let deta: [f64; 4] = std::array::from_fn(|a| 0.25 * eta_a[a] * (1.0 + xi * xi_a[a]));
-        let (mut j11, mut j12, mut j21, mut j22) = (0.0, 0.0, 0.0, 0.0);
-        for a in 0..4 {
-            j11 += dxi[a] * p[a][0];
-            j12 += dxi[a] * p[a][1];
-            j21 += deta[a] * p[a][0];
-            j22 += deta[a] * p[a][1];
-        }
-        let det = j11 * j22 - j12 * j21;
-        let r: f64 = (0..4).map(|a| n[a] * p[a][0]).sum();
-        if det <= 0.0 || r <= 0.0 {
+        let Some(QuadPoint { n, grad, r, det }) = quad::at(&p, xi, eta) else {
             return;
-        }
+        };
         let mut b = [[0.0; 8]; 4];
         for a in 0..4 {
-            let dndr = (j22 * dxi[a] - j12 * deta[a]) / det;
-            let dndz = (-j21 * dxi[a] + j11 * deta[a]) / det;
+            let [dndr, dndz] = grad[a];
             b[0][2 * a] = dndr;
             b[1][2 * a + 1] = dndz;
             b[2][2 * a] = n[a] / r;
@@ -78,8 +64,7 @@ fn element_stiffness(p: [[f64; 2]; 4], m: &Material) -> [[f64; 8]; 8] {
             }
         }
     };
-    let g = 1.0 / 3f64.sqrt();
-    for (xi, eta) in [(-g, -g), (g, -g), (g, g), (-g, g)] {
+    for (xi, eta) in quad::gauss_2x2() {
         add(xi, eta, 1.0, false);
     }
     add(0.0, 0.0, 4.0, true);

@@ -19,6 +19,7 @@ pub mod elastic;
 pub mod forward;
 pub mod hyper;
 pub mod mesh;
+mod quad;
 pub mod torsion;
 
 pub use contact::{ContactState, TwoBodyContact};

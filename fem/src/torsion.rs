@@ -8,34 +8,17 @@
 use crate::FemError;
 use crate::banded::{Banded, Factor};
 use crate::mesh::Mesh;
+use crate::quad::{self, QuadPoint};
 
 /// Element stiffness (4x4) of one quad for unit shear modulus.
 fn element_stiffness(p: [[f64; 2]; 4]) -> [[f64; 4]; 4] {
-    let xi_a = [-1.0, 1.0, 1.0, -1.0];
-    let eta_a = [-1.0, -1.0, 1.0, 1.0];
-    let g = 1.0 / 3f64.sqrt();
     let mut ke = [[0.0; 4]; 4];
-    for (xi, eta) in [(-g, -g), (g, -g), (g, g), (-g, g)] {
-        let n: [f64; 4] = std::array::from_fn(|a| 0.25 * (1.0 + xi * xi_a[a]) * (1.0 + eta * eta_a[a]));
-        let dxi: [f64; 4] = std::array::from_fn(|a| 0.25 * xi_a[a] * (1.0 + eta * eta_a[a]));
-        let deta: [f64; 4] = std::array::from_fn(|a| 0.25 * eta_a[a] * (1.0 + xi * xi_a[a]));
-        let (mut j11, mut j12, mut j21, mut j22) = (0.0, 0.0, 0.0, 0.0);
-        for a in 0..4 {
-            j11 += dxi[a] * p[a][0];
-            j12 += dxi[a] * p[a][1];
-            j21 += deta[a] * p[a][0];
-            j22 += deta[a] * p[a][1];
-        }
-        let det = j11 * j22 - j12 * j21;
-        let r: f64 = (0..4).map(|a| n[a] * p[a][0]).sum();
-        if det <= 0.0 || r <= 0.0 {
+    for (xi, eta) in quad::gauss_2x2() {
+        let Some(QuadPoint { n, grad, r, det }) = quad::at(&p, xi, eta) else {
             continue;
-        }
+        };
         // Rows γ_rθ, γ_zθ.
-        let b: [[f64; 4]; 2] = [
-            std::array::from_fn(|a| (j22 * dxi[a] - j12 * deta[a]) / det - n[a] / r),
-            std::array::from_fn(|a| (-j21 * dxi[a] + j11 * deta[a]) / det),
-        ];
+        let b: [[f64; 4]; 2] = [std::array::from_fn(|a| grad[a][0] - n[a] / r), std::array::from_fn(|a| grad[a][1])];
         for x in 0..4 {
             for y in 0..4 {
                 ke[x][y] += r * det * (b[0][x] * b[0][y] + b[1][x] * b[1][y]);

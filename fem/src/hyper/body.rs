@@ -6,6 +6,7 @@ use crate::FemError;
 use crate::banded::{Banded, Factor};
 use crate::elastic::Material;
 use crate::mesh::Mesh;
+use crate::quad::{self, QuadPoint};
 
 /// The deformation gradient's five non-zero components in the physical
 /// cylindrical bases, in the order (rR, rZ, zR, zZ, θΘ); indices (current,
@@ -67,31 +68,16 @@ fn stress_tangent(f: &[f64; 5], mu: f64, bulk: f64, volumetric: bool, safe: bool
 fn element(p: [[f64; 2]; 4], u: [[f64; 2]; 4], m: &Material, safe: bool) -> Option<([f64; 8], [[f64; 8]; 8])> {
     let mu = m.e_mpa / (2.0 * (1.0 + m.nu));
     let bulk = m.e_mpa / (3.0 * (1.0 - 2.0 * m.nu));
-    let xi_a = [-1.0, 1.0, 1.0, -1.0];
-    let eta_a = [-1.0, -1.0, 1.0, 1.0];
     let mut fe = [0.0; 8];
     let mut ke = [[0.0; 8]; 8];
     let mut add = |xi: f64, eta: f64, weight: f64, volumetric: bool| -> Option<()> {
-        let n: [f64; 4] = std::array::from_fn(|a| 0.25 * (1.0 + xi * xi_a[a]) * (1.0 + eta * eta_a[a]));
-        let dxi: [f64; 4] = std::array::from_fn(|a| 0.25 * xi_a[a] * (1.0 + eta * eta_a[a]));
-        let deta: [f64; 4] = std::array::from_fn(|a| 0.25 * eta_a[a] * (1.0 + xi * xi_a[a]));
-        let (mut j11, mut j12, mut j21, mut j22) = (0.0, 0.0, 0.0, 0.0);
-        for a in 0..4 {
-            j11 += dxi[a] * p[a][0];
-            j12 += dxi[a] * p[a][1];
-            j21 += deta[a] * p[a][0];
-            j22 += deta[a] * p[a][1];
-        }
-        let det = j11 * j22 - j12 * j21;
-        let r: f64 = (0..4).map(|a| n[a] * p[a][0]).sum();
-        if det <= 0.0 || r <= 0.0 {
+        let Some(QuadPoint { n, grad, r, det }) = quad::at(&p, xi, eta) else {
             return Some(());
-        }
+        };
         // G maps the element's dofs (u_r, u_z per node) to the five F components.
         let mut g = [[0.0; 8]; 5];
         for a in 0..4 {
-            let dr = (j22 * dxi[a] - j12 * deta[a]) / det;
-            let dz = (-j21 * dxi[a] + j11 * deta[a]) / det;
+            let [dr, dz] = grad[a];
             g[0][2 * a] = dr;
             g[1][2 * a] = dz;
             g[2][2 * a + 1] = dr;
@@ -120,8 +106,7 @@ fn element(p: [[f64; 2]; 4], u: [[f64; 2]; 4], m: &Material, safe: bool) -> Opti
         }
         Some(())
     };
-    let q = 1.0 / 3f64.sqrt();
-    for (xi, eta) in [(-q, -q), (q, -q), (q, q), (-q, q)] {
+    for (xi, eta) in quad::gauss_2x2() {
         add(xi, eta, 1.0, false)?;
     }
     add(0.0, 0.0, 4.0, true)?;
@@ -343,32 +328,14 @@ impl HyperBody {
             }
         }
         let mut k = Banded::zeros(count, bw);
-        let xi_a = [-1.0, 1.0, 1.0, -1.0];
-        let eta_a = [-1.0, -1.0, 1.0, 1.0];
-        let q3 = 1.0 / 3f64.sqrt();
         for q in &self.mesh.quads {
             let p = q.map(|n| self.mesh.xy[n]);
             let ur = q.map(|n| self.u[n][0]);
-            for (xi, eta) in [(-q3, -q3), (q3, -q3), (q3, q3), (-q3, q3)] {
-                let n: [f64; 4] = std::array::from_fn(|a| 0.25 * (1.0 + xi * xi_a[a]) * (1.0 + eta * eta_a[a]));
-                let dxi: [f64; 4] = std::array::from_fn(|a| 0.25 * xi_a[a] * (1.0 + eta * eta_a[a]));
-                let deta: [f64; 4] = std::array::from_fn(|a| 0.25 * eta_a[a] * (1.0 + xi * xi_a[a]));
-                let (mut j11, mut j12, mut j21, mut j22) = (0.0, 0.0, 0.0, 0.0);
-                for a in 0..4 {
-                    j11 += dxi[a] * p[a][0];
-                    j12 += dxi[a] * p[a][1];
-                    j21 += deta[a] * p[a][0];
-                    j22 += deta[a] * p[a][1];
-                }
-                let det = j11 * j22 - j12 * j21;
-                let r0: f64 = (0..4).map(|a| n[a] * p[a][0]).sum();
-                if det <= 0.0 || r0 <= 0.0 {
+            for (xi, eta) in quad::gauss_2x2() {
+                let Some(QuadPoint { n, grad, r: r0, det }) = quad::at(&p, xi, eta) else {
                     continue;
-                }
+                };
                 let r: f64 = r0 + (0..4).map(|a| n[a] * ur[a]).sum::<f64>();
-                let grad: [[f64; 2]; 4] = std::array::from_fn(|a| {
-                    [(j22 * dxi[a] - j12 * deta[a]) / det, (-j21 * dxi[a] + j11 * deta[a]) / det]
-                });
                 let w = mu * r * r * r0 * det;
                 for x in 0..4 {
                     let Some(dx) = idx[q[x]] else { continue };
