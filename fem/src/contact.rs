@@ -9,6 +9,7 @@
 use std::f64::consts::PI;
 
 use crate::FemError;
+use crate::dense::{self, PrefixCholesky};
 use crate::elastic::{Body, SurfaceCompliance};
 
 /// One solved contact.
@@ -37,6 +38,8 @@ pub struct TwoBodyContact {
     r: Vec<f64>,
     g_gel: Vec<Vec<f64>>,
     g_sum: Vec<Vec<f64>>,
+    /// Cholesky factor of `g_sum`: the contact on the first k nodes at O(k²).
+    factor: PrefixCholesky,
 }
 
 /// How far each node at radii `r_mm` must close at platform approach
@@ -44,34 +47,6 @@ pub struct TwoBodyContact {
 fn approach_needed(delta_mm: f64, sphere_radius_mm: f64, r_mm: &[f64]) -> Vec<f64> {
     let big = sphere_radius_mm;
     r_mm.iter().map(|&r| delta_mm - (big - (big * big - r * r).max(0.0).sqrt())).collect()
-}
-
-/// Solve the dense system a x = b (Gaussian elimination with partial pivoting).
-pub(crate) fn dense_solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
-    let n = b.len();
-    for c in 0..n {
-        let p = (c..n).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
-        if a[p][c].abs() < 1e-300 {
-            return None;
-        }
-        a.swap(c, p);
-        b.swap(c, p);
-        for i in c + 1..n {
-            let f = a[i][c] / a[c][c];
-            if f != 0.0 {
-                for k in c..n {
-                    a[i][k] -= f * a[c][k];
-                }
-                b[i] -= f * b[c];
-            }
-        }
-    }
-    let mut x = vec![0.0; n];
-    for i in (0..n).rev() {
-        let s: f64 = (i + 1..n).map(|k| a[i][k] * x[k]).sum();
-        x[i] = (b[i] - s) / a[i][i];
-    }
-    Some(x)
 }
 
 impl TwoBodyContact {
@@ -93,7 +68,12 @@ impl TwoBodyContact {
         let g_gel: Vec<Vec<f64>> = (0..n).map(|j| g_gel_full[j][..n].to_vec()).collect();
         let g_sum =
             (0..n).map(|j| (0..n).map(|i| g_gel[j][i] + g_ind.as_ref().map_or(0.0, |g| g[j][i])).collect()).collect();
-        Ok(Self { radius_mm: indenter_radius_mm, r: r_gel[..n].to_vec(), g_gel, g_sum })
+        Ok(Self::assemble(indenter_radius_mm, r_gel[..n].to_vec(), g_gel, g_sum))
+    }
+
+    fn assemble(radius_mm: f64, r: Vec<f64>, g_gel: Vec<Vec<f64>>, g_sum: Vec<Vec<f64>>) -> Self {
+        let factor = PrefixCholesky::new(r.len(), |i, j| g_sum[j][i]);
+        Self { radius_mm, r, g_gel, g_sum, factor }
     }
 
     /// From compliance matrices already on common surface nodes at radii `r`
@@ -101,7 +81,7 @@ impl TwoBodyContact {
     pub fn from_compliances(r: Vec<f64>, g_gel: Vec<Vec<f64>>, g_ind: &[Vec<f64>], indenter_radius_mm: f64) -> Self {
         let n = r.len();
         let g_sum = (0..n).map(|j| (0..n).map(|i| g_gel[j][i] + g_ind[j][i]).collect()).collect();
-        Self { radius_mm: indenter_radius_mm, r, g_gel, g_sum }
+        Self::assemble(indenter_radius_mm, r, g_gel, g_sum)
     }
 
     pub fn radii(&self) -> &[f64] {
@@ -110,8 +90,68 @@ impl TwoBodyContact {
 
     /// The contact at platform approach `delta_mm`.
     pub fn solve(&self, delta_mm: f64) -> Result<ContactState, FemError> {
-        let n = self.r.len();
         let need = approach_needed(delta_mm, self.radius_mm, &self.r);
+        match self.solve_disc(delta_mm, &need) {
+            Some(st) => Ok(st),
+            None => self.solve_active_set(delta_mm, need),
+        }
+    }
+
+    /// The contact as a disc of the first k nodes (what a frictionless
+    /// axisymmetric contact is): k is walked from a Hertz-like guess until the
+    /// forces inside are compressive and no node outside passes through, each
+    /// try one solve on the factor's leading block. `None` when no disc
+    /// satisfies both, for the general active set to decide.
+    fn solve_disc(&self, delta_mm: f64, need: &[f64]) -> Option<ContactState> {
+        let n = self.r.len();
+        let overlap = need.iter().take_while(|&&d| d > 0.0).count();
+        let most = overlap.min(self.factor.len());
+        if most == 0 {
+            return None;
+        }
+        // Elastic contact reaches about 1/sqrt(2) of the overlap's radius (Hertz).
+        let mut k = ((overlap as f64) * std::f64::consts::FRAC_1_SQRT_2).round().clamp(1.0, most as f64) as usize;
+        let tol = 1e-12 * delta_mm.abs().max(1e-9);
+        let mut came_from = 0i8;
+        for _ in 0..=n {
+            let p = self.factor.solve_prefix(&need[..k])?;
+            if p.iter().any(|&v| v < 0.0) {
+                if came_from == 1 || k == 1 {
+                    return None;
+                }
+                came_from = -1;
+                k -= 1;
+                continue;
+            }
+            let enters = (k..n).any(|i| need[i] > (0..k).map(|j| self.g_sum[j][i] * p[j]).sum::<f64>() + tol);
+            if enters {
+                if came_from == -1 || k == most {
+                    return None;
+                }
+                came_from = 1;
+                k += 1;
+                continue;
+            }
+            let mut nodal_force = p;
+            nodal_force.resize(n, 0.0);
+            let gamma1: f64 = (0..k).map(|j| self.g_gel[j][0] * nodal_force[j]).sum();
+            let last = k - 1;
+            return Some(ContactState {
+                delta_mm,
+                force_n: 2.0 * PI * nodal_force.iter().sum::<f64>(),
+                gamma1_mm: gamma1,
+                gamma2_mm: delta_mm - gamma1,
+                contact_radius_mm: [self.r[last], self.r.get(last + 1).copied().unwrap_or(self.r[last])],
+                nodal_shear: vec![0.0; n],
+                nodal_force,
+            });
+        }
+        None
+    }
+
+    /// The general active set (any set of nodes in contact).
+    fn solve_active_set(&self, delta_mm: f64, need: Vec<f64>) -> Result<ContactState, FemError> {
+        let n = self.r.len();
         let mut active: Vec<bool> = need.iter().map(|&d| d > 0.0).collect();
         let mut p = vec![0.0; n];
         let mut passes_releasing = 0;
@@ -120,7 +160,7 @@ impl TwoBodyContact {
             let a: Vec<Vec<f64>> = idx.iter().map(|&i| idx.iter().map(|&j| self.g_sum[j][i]).collect()).collect();
             let b: Vec<f64> = idx.iter().map(|&i| need[i]).collect();
             let x =
-                if idx.is_empty() { Vec::new() } else { dense_solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
+                if idx.is_empty() { Vec::new() } else { dense::solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
             p.iter_mut().for_each(|v| *v = 0.0);
             for (k, &i) in idx.iter().enumerate() {
                 p[i] = x[k];
@@ -324,7 +364,7 @@ impl FrictionalContact {
                 }
             }
         }
-        let x = if m == 0 { Vec::new() } else { dense_solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
+        let x = if m == 0 { Vec::new() } else { dense::solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
         p.iter_mut().for_each(|v| *v = 0.0);
         q.iter_mut().for_each(|v| *v = 0.0);
         for (c, &i) in contact.iter().enumerate() {

@@ -9,7 +9,8 @@ use std::f64::consts::PI;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use crate::FemError;
-use crate::contact::{ContactState, FrictionalContact, TwoBodyContact, dense_solve};
+use crate::contact::{ContactState, FrictionalContact, TwoBodyContact};
+use crate::dense::{self, PrefixCholesky};
 use crate::elastic::{Body, Material, SurfaceCompliance};
 use crate::mesh::Mesh;
 use crate::torsion::TorsionBody;
@@ -112,6 +113,9 @@ pub struct Model {
     frictional: FrictionalContact,
     torsion_gel: Vec<Vec<f64>>,
     torsion_sum: Vec<Vec<f64>>,
+    /// Cholesky factor of `torsion_sum` off the axis (nodes 1..): the stuck core
+    /// of a twisted contact, nodes 1..=m, at O(m²).
+    torsion_factor: PrefixCholesky,
 }
 
 impl Forward {
@@ -165,8 +169,9 @@ impl Forward {
         let g1 = e1_mpa / (2.0 * (1.0 + nu1));
         let torsion_gel: Vec<Vec<f64>> =
             (0..n).map(|j| (0..n).map(|i| self.gel.torsion[j][i] / g1).collect()).collect();
-        let torsion_sum =
+        let torsion_sum: Vec<Vec<f64>> =
             (0..n).map(|j| (0..n).map(|i| torsion_gel[j][i] + self.ind_torsion[j][i]).collect()).collect();
+        let torsion_factor = PrefixCholesky::new(n.saturating_sub(1), |i, j| torsion_sum[j + 1][i + 1]);
         let contact = TwoBodyContact::from_compliances(
             self.gel.r[..n].to_vec(),
             gel.zz.clone(),
@@ -174,7 +179,7 @@ impl Forward {
             self.radius_mm,
         );
         let frictional = FrictionalContact::new(self.gel.r[..n].to_vec(), gel, &self.ind_normal, self.radius_mm);
-        Model { contact, frictional, torsion_gel, torsion_sum }
+        Model { contact, frictional, torsion_gel, torsion_sum, torsion_factor }
     }
 }
 
@@ -209,8 +214,9 @@ impl Model {
         for _ in 0..=nodes.len() {
             let stick: Vec<usize> = (0..nodes.len()).filter(|&k| !slip[k]).collect();
             // Stuck nodes: Σ_stick G T + Σ_slip G cap = θ r.
-            let a: Vec<Vec<f64>> =
-                stick.iter().map(|&k| stick.iter().map(|&l| self.torsion_sum[nodes[l]][nodes[k]]).collect()).collect();
+            let a = || -> Vec<Vec<f64>> {
+                stick.iter().map(|&k| stick.iter().map(|&l| self.torsion_sum[nodes[l]][nodes[k]]).collect()).collect()
+            };
             let b: Vec<f64> = stick
                 .iter()
                 .map(|&k| {
@@ -221,7 +227,17 @@ impl Model {
                             .sum::<f64>()
                 })
                 .collect();
-            let x = if stick.is_empty() { Vec::new() } else { dense_solve(a, b)? };
+            // The stuck nodes are the core out to the slip annulus: the factor's
+            // leading block; any other set by elimination.
+            let core = stick.iter().enumerate().all(|(m, &k)| m == k);
+            let x = match (stick.is_empty(), core) {
+                (true, _) => Vec::new(),
+                (false, true) => match self.torsion_factor.solve_prefix(&b) {
+                    Some(x) => x,
+                    None => dense::solve(a(), b)?,
+                },
+                (false, false) => dense::solve(a(), b)?,
+            };
             for (k, v) in t.iter_mut().enumerate() {
                 *v = if slip[k] { cap[k] } else { 0.0 };
             }

@@ -15,6 +15,7 @@
 
 pub mod banded;
 pub mod contact;
+mod dense;
 pub mod elastic;
 pub mod forward;
 pub mod hyper;

@@ -87,7 +87,7 @@ pub fn stick_ratio(g_gel: &[Vec<f64>], g_ind: &[Vec<f64>], r: &[f64], last: usiz
     }
     let a: Vec<Vec<f64>> = idx.iter().map(|&i| idx.iter().map(|&j| g_gel[j][i] + g_ind[j][i]).collect()).collect();
     let b: Vec<f64> = idx.iter().map(|&i| r[i]).collect();
-    let t = crate::contact::dense_solve(a, b)?;
+    let t = crate::dense::solve(a, b)?;
     // Gel surface twist u_i = Σ G_gel(i, j) T_j; theta1 = Σ w r u / Σ w r² over the contact.
     let mut num = 0.0;
     let mut den = 0.0;

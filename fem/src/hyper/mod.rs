@@ -25,7 +25,7 @@ pub use table::{Groups, LargeStrainTable, Lookup};
 
 use crate::FemError;
 use crate::banded::Factor;
-use crate::contact::dense_solve;
+use crate::dense;
 use crate::elastic::Material;
 use crate::mesh::Mesh;
 
@@ -346,7 +346,7 @@ impl LargeStrainContact {
             gone.iter().for_each(|&k| known[k] = -self.lambda[k]);
             let a: Vec<Vec<f64>> = idx.iter().map(|&k| idx.iter().map(|&l| coupling(k, l)).collect()).collect();
             let b: Vec<f64> = idx.iter().map(|&k| -lin_gap(k, &known)).collect();
-            let x = if idx.is_empty() { Vec::new() } else { dense_solve(a, b)? };
+            let x = if idx.is_empty() { Vec::new() } else { dense::solve(a, b)? };
             let mut dlam = known;
             for (m, &k) in idx.iter().enumerate() {
                 dlam[k] = x[m];
@@ -456,7 +456,7 @@ fn anderson(history: &mut Vec<(Vec<f64>, Vec<f64>)>, x: &[f64], f: &[f64]) -> Ve
     let scale = (0..m).map(|i| a[i][i]).fold(0.0f64, f64::max);
     (0..m).for_each(|i| a[i][i] += 1e-12 * scale + 1e-300);
     let b: Vec<f64> = (0..m).map(|i| dotv(&df[i], f)).collect();
-    let Some(gamma) = dense_solve(a, b) else {
+    let Some(gamma) = dense::solve(a, b) else {
         history.clear();
         return plain();
     };

@@ -4,7 +4,7 @@
 
 use super::{LargeState, LargeStrainContact};
 use crate::FemError;
-use crate::contact::dense_solve;
+use crate::dense;
 
 impl LargeStrainContact {
     /// theta1 (rad) for a platform twist `twist_rad` (monotone from 0) at the
@@ -67,7 +67,7 @@ impl LargeStrainContact {
                 let x = if stick.is_empty() {
                     Vec::new()
                 } else {
-                    dense_solve(a, b).ok_or(FemError::NotPositiveDefinite(0))?
+                    dense::solve(a, b).ok_or(FemError::NotPositiveDefinite(0))?
                 };
                 for k in 0..n {
                     m[k] = if slip[k] { cap[k] } else { 0.0 };

@@ -1,0 +1,155 @@
+//! Small dense systems of the condensed contact problems: Gaussian elimination
+//! for the general (frictional) ones, and a Cholesky factor whose leading blocks
+//! solve every prefix of the surface nodes (docs/physics.md, "Finite-element
+//! reference": a frictionless axisymmetric contact, and the stuck core of a
+//! twisted one, is the set of nodes from the axis out to its edge).
+
+/// Solve the dense system a x = b (Gaussian elimination with partial pivoting);
+/// `None` when a pivot vanishes.
+pub(crate) fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+    let n = b.len();
+    for c in 0..n {
+        let p = (c..n).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
+        if a[p][c].abs() < 1e-300 {
+            return None;
+        }
+        a.swap(c, p);
+        b.swap(c, p);
+        let (top, bottom) = a.split_at_mut(c + 1);
+        let pivot = &top[c];
+        for (k, row) in bottom.iter_mut().enumerate() {
+            let f = row[c] / pivot[c];
+            if f != 0.0 {
+                row[c..].iter_mut().zip(&pivot[c..]).for_each(|(x, y)| *x -= f * y);
+                b[c + 1 + k] -= f * b[c];
+            }
+        }
+    }
+    let mut x = vec![0.0; n];
+    for i in (0..n).rev() {
+        let s: f64 = a[i][i + 1..].iter().zip(&x[i + 1..]).map(|(u, v)| u * v).sum();
+        x[i] = (b[i] - s) / a[i][i];
+    }
+    Some(x)
+}
+
+/// The Cholesky factor L (row-major lower triangle) of a symmetric positive
+/// definite matrix. The factor of a leading principal block is the leading block
+/// of L, so one factorisation solves the system restricted to the first k
+/// unknowns for every k, each at O(k²).
+#[derive(Debug, Clone)]
+pub(crate) struct PrefixCholesky {
+    n: usize,
+    /// Row i holds L[i][0..=i] at offset i(i+1)/2.
+    l: Vec<f64>,
+}
+
+impl PrefixCholesky {
+    /// Factor the n x n matrix whose (i, j) entry is `at(i, j)` (only j <= i is
+    /// read). Rows past the first non-positive pivot are left out: `len()` tells
+    /// how many leading unknowns the factor can solve for.
+    pub(crate) fn new(n: usize, at: impl Fn(usize, usize) -> f64) -> Self {
+        let mut l = Vec::with_capacity(n * (n + 1) / 2);
+        let mut done = 0;
+        for i in 0..n {
+            let row0 = l.len();
+            let mut ok = true;
+            for j in 0..=i {
+                let rj = j * (j + 1) / 2;
+                let dot: f64 = (0..j).map(|k| l[row0 + k] * l[rj + k]).sum();
+                let v = at(i, j) - dot;
+                if j == i {
+                    if !(v > 0.0 && v.is_finite()) {
+                        ok = false;
+                        break;
+                    }
+                    l.push(v.sqrt());
+                } else {
+                    l.push(v / l[rj + j]);
+                }
+            }
+            if !ok {
+                l.truncate(row0);
+                break;
+            }
+            done = i + 1;
+        }
+        Self { n: done, l }
+    }
+
+    /// How many leading unknowns can be solved for.
+    pub(crate) fn len(&self) -> usize {
+        self.n
+    }
+
+    /// x with A[..k][..k] x = b, k = b.len() (at most `len()`).
+    pub(crate) fn solve_prefix(&self, b: &[f64]) -> Option<Vec<f64>> {
+        let k = b.len();
+        if k > self.n {
+            return None;
+        }
+        let row = |i: usize| &self.l[i * (i + 1) / 2..i * (i + 1) / 2 + i + 1];
+        let mut y = vec![0.0; k];
+        for i in 0..k {
+            let r = row(i);
+            let s: f64 = r[..i].iter().zip(&y[..i]).map(|(u, v)| u * v).sum();
+            y[i] = (b[i] - s) / r[i];
+        }
+        for i in (0..k).rev() {
+            let mut s = y[i];
+            for j in i + 1..k {
+                s -= row(j)[i] * y[j];
+            }
+            y[i] = s / row(i)[i];
+        }
+        Some(y)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A symmetric positive definite matrix with the decay of a surface compliance.
+    fn spd(n: usize) -> Vec<Vec<f64>> {
+        (0..n)
+            .map(|i| {
+                (0..n).map(|j| 1.0 / (1.0 + (i as f64 - j as f64).abs()) + if i == j { 0.5 } else { 0.0 }).collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn every_prefix_solves_as_elimination_does() {
+        let a = spd(12);
+        let f = PrefixCholesky::new(12, |i, j| a[i][j]);
+        assert_eq!(f.len(), 12);
+        for k in 1..=12 {
+            let b: Vec<f64> = (0..k).map(|i| (i as f64 * 0.7).sin() + 1.0).collect();
+            let sub: Vec<Vec<f64>> = a[..k].iter().map(|r| r[..k].to_vec()).collect();
+            let x = f.solve_prefix(&b).unwrap();
+            let y = solve(sub.clone(), b.clone()).unwrap();
+            for i in 0..k {
+                assert!((x[i] - y[i]).abs() < 1e-12, "k {k} i {i}: {} vs {}", x[i], y[i]);
+                let r: f64 = (0..k).map(|j| sub[i][j] * x[j]).sum();
+                assert!((r - b[i]).abs() < 1e-12);
+            }
+        }
+        assert!(f.solve_prefix(&[1.0; 13]).is_none());
+    }
+
+    #[test]
+    fn the_factor_stops_at_a_non_positive_pivot() {
+        let mut a = spd(6);
+        a[3][3] = -1.0;
+        let f = PrefixCholesky::new(6, |i, j| a[i][j]);
+        assert_eq!(f.len(), 3);
+    }
+
+    #[test]
+    fn elimination_pivots_and_refuses_a_singular_system() {
+        let x = solve(vec![vec![0.0, 2.0], vec![3.0, 1.0]], vec![4.0, 5.0]).unwrap();
+        assert!((x[0] - 1.0).abs() < 1e-15 && (x[1] - 2.0).abs() < 1e-15);
+        assert!(solve(vec![vec![1.0, 2.0], vec![2.0, 4.0]], vec![1.0, 1.0]).is_none());
+    }
+}
