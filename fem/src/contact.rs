@@ -7,6 +7,7 @@
 //! (small strain, small sliding).
 
 use std::f64::consts::PI;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use crate::FemError;
 use crate::dense::{self, PrefixCholesky};
@@ -40,6 +41,9 @@ pub struct TwoBodyContact {
     g_sum: Vec<Vec<f64>>,
     /// Cholesky factor of `g_sum`: the contact on the first k nodes at O(k²).
     factor: PrefixCholesky,
+    /// Nodes in contact at the last solve: where the next one starts looking
+    /// (a sweep's depths come in order).
+    last_disc: AtomicUsize,
 }
 
 /// How far each node at radii `r_mm` must close at platform approach
@@ -73,7 +77,7 @@ impl TwoBodyContact {
 
     fn assemble(radius_mm: f64, r: Vec<f64>, g_gel: Vec<Vec<f64>>, g_sum: Vec<Vec<f64>>) -> Self {
         let factor = PrefixCholesky::new(r.len(), |i, j| g_sum[j][i]);
-        Self { radius_mm, r, g_gel, g_sum, factor }
+        Self { radius_mm, r, g_gel, g_sum, factor, last_disc: AtomicUsize::new(0) }
     }
 
     /// From compliance matrices already on common surface nodes at radii `r`
@@ -109,8 +113,12 @@ impl TwoBodyContact {
         if most == 0 {
             return None;
         }
-        // Elastic contact reaches about 1/sqrt(2) of the overlap's radius (Hertz).
-        let mut k = ((overlap as f64) * std::f64::consts::FRAC_1_SQRT_2).round().clamp(1.0, most as f64) as usize;
+        // Elastic contact reaches about 1/sqrt(2) of the overlap's radius (Hertz),
+        // unless the last solve knows better.
+        let hertz = (overlap as f64) * std::f64::consts::FRAC_1_SQRT_2;
+        let last = self.last_disc.load(Ordering::Relaxed) as f64;
+        let guess = if last > 0.0 && (last - hertz).abs() < 0.25 * hertz { last } else { hertz };
+        let mut k = guess.round().clamp(1.0, most as f64) as usize;
         let tol = 1e-12 * delta_mm.abs().max(1e-9);
         let mut came_from = 0i8;
         for _ in 0..=n {
@@ -132,6 +140,7 @@ impl TwoBodyContact {
                 k += 1;
                 continue;
             }
+            self.last_disc.store(k, Ordering::Relaxed);
             let mut nodal_force = p;
             nodal_force.resize(n, 0.0);
             let gamma1: f64 = (0..k).map(|j| self.g_gel[j][0] * nodal_force[j]).sum();

@@ -95,12 +95,12 @@ impl PrefixCholesky {
             let s: f64 = r[..i].iter().zip(&y[..i]).map(|(u, v)| u * v).sum();
             y[i] = (b[i] - s) / r[i];
         }
+        // Lᵀ x = y by columns of Lᵀ, i.e. rows of L (contiguous).
         for i in (0..k).rev() {
-            let mut s = y[i];
-            for j in i + 1..k {
-                s -= row(j)[i] * y[j];
-            }
-            y[i] = s / row(i)[i];
+            let r = row(i);
+            y[i] /= r[i];
+            let xi = y[i];
+            y[..i].iter_mut().zip(&r[..i]).for_each(|(v, l)| *v -= l * xi);
         }
         Some(y)
     }

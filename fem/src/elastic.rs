@@ -181,11 +181,24 @@ impl SurfaceCompliance {
     /// `Σ_k w_k m_k / scale` on the leading `n` nodes, block by block (an
     /// interpolation between tables).
     pub fn combine(parts: &[(f64, &Self)], n: usize, scale: f64) -> Self {
-        let mix = |pick: &dyn Fn(&Self) -> &Vec<Vec<f64>>| -> Vec<Vec<f64>> {
-            (0..n)
-                .map(|j| (0..n).map(|i| parts.iter().map(|(w, m)| w * pick(m)[j][i]).sum::<f64>() / scale).collect())
-                .collect()
+        let mix = |pick: &dyn Fn(&Self) -> &Vec<Vec<f64>>| {
+            let blocks: Vec<(f64, &Vec<Vec<f64>>)> = parts.iter().map(|(w, m)| (*w, pick(m))).collect();
+            combine_block(&blocks, n, scale)
         };
         Self { rr: mix(&|m| &m.rr), rz: mix(&|m| &m.rz), zr: mix(&|m| &m.zr), zz: mix(&|m| &m.zz) }
     }
+}
+
+/// `Σ_k w_k m_k / scale` of column-major matrices on their leading `n` nodes.
+pub fn combine_block(parts: &[(f64, &Vec<Vec<f64>>)], n: usize, scale: f64) -> Vec<Vec<f64>> {
+    (0..n)
+        .map(|j| {
+            let mut col = vec![0.0; n];
+            for (w, m) in parts {
+                let f = w / scale;
+                col.iter_mut().zip(&m[j][..n]).for_each(|(c, v)| *c += f * v);
+            }
+            col
+        })
+        .collect()
 }

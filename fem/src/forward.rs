@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use crate::FemError;
 use crate::contact::{ContactState, FrictionalContact, TwoBodyContact};
 use crate::dense::{self, PrefixCholesky};
-use crate::elastic::{Body, Material, SurfaceCompliance};
+use crate::elastic::{Body, Material, SurfaceCompliance, combine_block};
 use crate::mesh::Mesh;
 use crate::torsion::TorsionBody;
 
@@ -103,14 +103,26 @@ pub struct Forward {
     gel: Arc<GelTables>,
     n: usize,
     radius_mm: f64,
-    ind_normal: SurfaceCompliance,
+    ind_normal: Arc<SurfaceCompliance>,
     ind_torsion: Vec<Vec<f64>>,
+}
+
+/// What the frictional contact of one parameter set is built from.
+struct FrictionalParts {
+    gel: Arc<GelTables>,
+    weights: Vec<f64>,
+    e1_mpa: f64,
+    indenter: Arc<SurfaceCompliance>,
+    radius_mm: f64,
 }
 
 /// One parameter set (E1, nu1) of the forward model.
 pub struct Model {
     contact: TwoBodyContact,
-    frictional: FrictionalContact,
+    /// The frictional contact, built on first use (the fit's fast form needs
+    /// only the normal block).
+    frictional: OnceLock<FrictionalContact>,
+    frictional_parts: FrictionalParts,
     torsion_gel: Vec<Vec<f64>>,
     torsion_sum: Vec<Vec<f64>>,
     /// Cholesky factor of `torsion_sum` off the axis (nodes 1..): the stuck core
@@ -155,8 +167,9 @@ impl Forward {
             .into_iter()
             .map(|c| c.into_iter().map(|v| v / g2).collect())
             .collect();
-        let ind_normal =
-            Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance_rz(usize::MAX);
+        let ind_normal = Arc::new(
+            Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance_rz(usize::MAX),
+        );
         Ok(Self { gel, n: rs.len(), radius_mm: indenter_r_mm, ind_normal, ind_torsion })
     }
 
@@ -164,26 +177,38 @@ impl Forward {
     pub fn model(&self, e1_mpa: f64, nu1: f64) -> Model {
         let n = self.n;
         let w = lagrange(&self.gel.nu, nu1.clamp(0.0, 0.5));
-        let parts: Vec<(f64, &SurfaceCompliance)> = w.iter().copied().zip(&self.gel.normal).collect();
-        let gel = SurfaceCompliance::combine(&parts, n, e1_mpa);
+        let zz: Vec<(f64, &Vec<Vec<f64>>)> = w.iter().copied().zip(self.gel.normal.iter().map(|m| &m.zz)).collect();
+        let gel_zz = combine_block(&zz, n, e1_mpa);
         let g1 = e1_mpa / (2.0 * (1.0 + nu1));
         let torsion_gel: Vec<Vec<f64>> =
             (0..n).map(|j| (0..n).map(|i| self.gel.torsion[j][i] / g1).collect()).collect();
         let torsion_sum: Vec<Vec<f64>> =
             (0..n).map(|j| (0..n).map(|i| torsion_gel[j][i] + self.ind_torsion[j][i]).collect()).collect();
         let torsion_factor = PrefixCholesky::new(n.saturating_sub(1), |i, j| torsion_sum[j + 1][i + 1]);
-        let contact = TwoBodyContact::from_compliances(
-            self.gel.r[..n].to_vec(),
-            gel.zz.clone(),
-            &self.ind_normal.zz,
-            self.radius_mm,
-        );
-        let frictional = FrictionalContact::new(self.gel.r[..n].to_vec(), gel, &self.ind_normal, self.radius_mm);
-        Model { contact, frictional, torsion_gel, torsion_sum, torsion_factor }
+        let contact =
+            TwoBodyContact::from_compliances(self.gel.r[..n].to_vec(), gel_zz, &self.ind_normal.zz, self.radius_mm);
+        let frictional_parts = FrictionalParts {
+            gel: self.gel.clone(),
+            weights: w,
+            e1_mpa,
+            indenter: self.ind_normal.clone(),
+            radius_mm: self.radius_mm,
+        };
+        Model { contact, frictional: OnceLock::new(), frictional_parts, torsion_gel, torsion_sum, torsion_factor }
     }
 }
 
 impl Model {
+    fn frictional(&self) -> &FrictionalContact {
+        self.frictional.get_or_init(|| {
+            let f = &self.frictional_parts;
+            let n = self.contact.radii().len();
+            let parts: Vec<(f64, &SurfaceCompliance)> = f.weights.iter().copied().zip(&f.gel.normal).collect();
+            let gel = SurfaceCompliance::combine(&parts, n, f.e1_mpa);
+            FrictionalContact::new(self.contact.radii().to_vec(), gel, &f.indenter, f.radius_mm)
+        })
+    }
+
     /// The normal contact at platform approach `delta_mm`.
     pub fn normal(&self, delta_mm: f64) -> Result<ContactState, FemError> {
         self.contact.solve(delta_mm)
@@ -193,7 +218,7 @@ impl Model {
     /// along a monotone approach through every entry of `deltas_mm` (a state per
     /// entry), in load steps of at most `max_step_mm`.
     pub fn normal_path(&self, deltas_mm: &[f64], mu: f64, max_step_mm: f64) -> Result<Vec<ContactState>, FemError> {
-        self.frictional.solve_path(deltas_mm, mu, max_step_mm)
+        self.frictional().solve_path(deltas_mm, mu, max_step_mm)
     }
 
     /// theta1 for a mount twist `twist_rad` (monotone from 0) at normal state `st`:
