@@ -1,6 +1,7 @@
 //! Fit timing on a ~200-sample recording: the paper's method and the full-model
 //! fit; and the full-model fit of a declared bonded layer (the FE model with
-//! friction) on a recording of the independent finite-element dev set.
+//! friction) on a recording of the independent finite-element dev set, at
+//! small and at large strain.
 
 use std::hint::black_box;
 
@@ -41,6 +42,14 @@ fn fits(c: &mut Criterion) {
     g.sample_size(10);
     g.bench_function(format!("{}_samples", layered.samples.len()), |b| {
         b.iter(|| fit_full(black_box(&layered), &opts.full, start))
+    });
+    // The large-strain layer model on a neo-Hookean recording of the dev set.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/fem-dev/nonlinear/tableI_2_E2-2.0_nu2-0.40.csv");
+    let large = sim::recording::Recording::read_path(&path).expect("dev-set recording");
+    let start = ModelParams { large_strain: true, ..start };
+    g.bench_function(format!("{}_samples_large_strain", large.samples.len()), |b| {
+        b.iter(|| fit_full(black_box(&large), &opts.full, start))
     });
     g.finish();
 }

@@ -473,3 +473,38 @@ impl FrictionalContact {
         Err(FemError::ContactNotSettled(limit))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::elastic::Material;
+    use crate::mesh::Mesh;
+
+    /// The disc search on the factor answers as the general active set does, on
+    /// an elastic hemisphere pressing a bonded gel from first touch to a contact
+    /// near the indenter's radius, in order and out of order (the search starts
+    /// from the last answer).
+    #[test]
+    fn the_disc_search_is_the_active_set_answer() {
+        let gel_mesh = Mesh::gel(12.0, 3.0, 0.15, 4.0, 1.0).unwrap();
+        let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * 3.0).collect();
+        let hemi = Mesh::hemisphere(3.0, &rs, 12).unwrap();
+        for nu in [0.3, 0.49] {
+            let gel = Body::new(gel_mesh.clone(), Material { e_mpa: 1.0, nu }).unwrap();
+            let ind = Body::new(hemi.clone(), Material { e_mpa: 3.0, nu: 0.4 }).unwrap();
+            let c = TwoBodyContact::new(&gel, Some(&ind), 3.0).unwrap();
+            let mut deltas: Vec<f64> = (1..=24).map(|k| 0.1 * k as f64).collect();
+            deltas.extend([0.05, 2.0, 0.7, 1.3]);
+            for &d in &deltas {
+                let need = approach_needed(d, 3.0, &c.r);
+                let disc = c.solve_disc(d, &need).expect("a disc answers a frictionless sphere");
+                let general = c.solve_active_set(d, need).unwrap();
+                assert_eq!(disc.contact_radius_mm, general.contact_radius_mm, "nu {nu} delta {d}");
+                let rel = |a: f64, b: f64| (a - b).abs() / b.abs().max(1e-12);
+                assert!(rel(disc.force_n, general.force_n) < 1e-9, "nu {nu} delta {d}");
+                assert!(rel(disc.gamma1_mm, general.gamma1_mm) < 1e-9, "nu {nu} delta {d}");
+                assert!(disc.nodal_force.iter().all(|&p| p >= 0.0));
+            }
+        }
+    }
+}
