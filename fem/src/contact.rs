@@ -143,19 +143,23 @@ impl TwoBodyContact {
             self.last_disc.store(k, Ordering::Relaxed);
             let mut nodal_force = p;
             nodal_force.resize(n, 0.0);
-            let gamma1: f64 = (0..k).map(|j| self.g_gel[j][0] * nodal_force[j]).sum();
-            let last = k - 1;
-            return Some(ContactState {
-                delta_mm,
-                force_n: 2.0 * PI * nodal_force.iter().sum::<f64>(),
-                gamma1_mm: gamma1,
-                gamma2_mm: delta_mm - gamma1,
-                contact_radius_mm: [self.r[last], self.r.get(last + 1).copied().unwrap_or(self.r[last])],
-                nodal_shear: vec![0.0; n],
-                nodal_force,
-            });
+            return Some(self.state(delta_mm, nodal_force, k - 1));
         }
         None
+    }
+
+    /// The solved contact from its nodal forces; `last` is the outermost node in contact.
+    fn state(&self, delta_mm: f64, nodal_force: Vec<f64>, last: usize) -> ContactState {
+        let gamma1: f64 = nodal_force.iter().zip(&self.g_gel).map(|(p, col)| col[0] * p).sum();
+        ContactState {
+            delta_mm,
+            force_n: 2.0 * PI * nodal_force.iter().sum::<f64>(),
+            gamma1_mm: gamma1,
+            gamma2_mm: delta_mm - gamma1,
+            contact_radius_mm: [self.r[last], self.r.get(last + 1).copied().unwrap_or(self.r[last])],
+            nodal_shear: vec![0.0; nodal_force.len()],
+            nodal_force,
+        }
     }
 
     /// The general active set (any set of nodes in contact).
@@ -191,17 +195,8 @@ impl TwoBodyContact {
             let tol = 1e-12 * delta_mm.abs().max(1e-9);
             let entering: Vec<usize> = (0..n).filter(|&i| !active[i] && need[i] > w[i] + tol).collect();
             if entering.is_empty() {
-                let gamma1: f64 = (0..n).map(|j| self.g_gel[j][0] * p[j]).sum();
                 let last = (0..n).rev().find(|&i| active[i]).unwrap_or(0);
-                return Ok(ContactState {
-                    delta_mm,
-                    force_n: 2.0 * PI * p.iter().sum::<f64>(),
-                    gamma1_mm: gamma1,
-                    gamma2_mm: delta_mm - gamma1,
-                    contact_radius_mm: [self.r[last], self.r.get(last + 1).copied().unwrap_or(self.r[last])],
-                    nodal_shear: vec![0.0; n],
-                    nodal_force: p,
-                });
+                return Ok(self.state(delta_mm, p, last));
             }
             for i in entering {
                 active[i] = true;
