@@ -317,3 +317,25 @@ fn flags_a_script_or_rig_file_would_drop_are_refused() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--rig") && err.contains("--e1-mpa"), "{err}");
 }
+
+/// A script may declare the sensor's gel layer (it goes into the recording for
+/// the fit), but the emulated rig simulates a half-space gel: running such a
+/// script on it is refused before anything moves, naming the key.
+#[test]
+fn a_declared_layer_is_refused_on_the_emulated_rig() {
+    let dir = tempfile::tempdir().unwrap();
+    let script = dir.path().join("layer.toml");
+    std::fs::write(&script, "[sensor]\nelastomer_r_mm = \"inf\"\nelastomer_thickness_mm = 5.0\n").unwrap();
+    let out = easycalib(&[
+        "run",
+        "--no-history",
+        "--script",
+        script.to_str().unwrap(),
+        "--out",
+        dir.path().join("run").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("elastomer_thickness_mm") && err.contains("half-space"), "{err}");
+    assert!(!dir.path().join("run").join("recording.csv").exists());
+}

@@ -96,6 +96,14 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
         let spec = cfg.to_spec().map_err(|e| CliError::bad_input(e.to_string()))?;
         return Ok(RigChoice { spec, truth: None, script: given_script.unwrap_or_default(), emulated: None });
     }
+    // The emulated rig's gel is a half-space (docs/physics.md): a declared
+    // layer would describe a gel it does not simulate, and the fit would model it.
+    if let Some(h) = given_script.as_ref().and_then(|s| s.sensor.elastomer_thickness_mm) {
+        return Err(CliError::bad_input(format!(
+            "the script declares a {h} mm gel layer ([sensor] elastomer_thickness_mm), but the emulated rig \
+             simulates a half-space gel: leave the layer out to run on it, or give a --rig file for a real rig"
+        )));
+    }
     let setup = sim_setup(SimSetupArgs {
         elastomer: &args.elastomer,
         script: script_path.as_deref().zip(given_script.as_ref()),

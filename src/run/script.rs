@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use sim::experiment::ExperimentSpec;
-use sim::physics::Body;
+use sim::physics::{Body, Layer, LayerBase};
 
 /// The built-in script, as `easycalib script --default` prints it.
 pub const DEFAULT_SCRIPT_TOML: &str = r#"# easycalib calibration script (TOML). Every key is optional; a missing key
@@ -24,6 +24,10 @@ r_mm = 5.0
 
 # The sensor: effective radius R1 of its elastomer (inf for flat) and an
 # optional name for the recording (the gauge's own description otherwise).
+# A gel layer from the sensor's datasheet goes here too and into the
+# recording, so the fit models it: elastomer_thickness_mm, elastomer_base
+# ("bonded" or "sliding"; bonded by default) and elastomer_thickness_tol_mm
+# (optional, one standard deviation). Absent: a half-space.
 [sensor]
 elastomer_r_mm = 33.0
 
@@ -178,6 +182,40 @@ pub struct SensorSection {
     #[serde(with = "radius")]
     pub elastomer_r_mm: f64,
     pub name: Option<String>,
+    /// The gel layer's thickness from the sensor's datasheet, mm (absent: a half-space).
+    pub elastomer_thickness_mm: Option<f64>,
+    /// How the layer sits on its window: `bonded` (default) or `sliding`.
+    pub elastomer_base: Option<String>,
+    /// The thickness's uncertainty, mm (one standard deviation).
+    pub elastomer_thickness_tol_mm: Option<f64>,
+}
+
+impl SensorSection {
+    /// The declared layer, checked: each fault names its key.
+    pub fn layer(&self) -> Result<Option<Layer>, ScriptError> {
+        let Some(h) = self.elastomer_thickness_mm else {
+            if self.elastomer_base.is_some() {
+                return Err(invalid("sensor.elastomer_base", "is given without sensor.elastomer_thickness_mm"));
+            }
+            if self.elastomer_thickness_tol_mm.is_some() {
+                return Err(invalid(
+                    "sensor.elastomer_thickness_tol_mm",
+                    "is given without sensor.elastomer_thickness_mm",
+                ));
+            }
+            return Ok(None);
+        };
+        positive("sensor.elastomer_thickness_mm", h)?;
+        let base = match self.elastomer_base.as_deref() {
+            None => LayerBase::Bonded,
+            Some(b) => LayerBase::parse(b).ok_or_else(|| {
+                invalid("sensor.elastomer_base", format!("must be \"bonded\" or \"sliding\", got \"{b}\""))
+            })?,
+        };
+        let layer = Layer { thickness_mm: h, base, thickness_tol_mm: self.elastomer_thickness_tol_mm };
+        layer.validate().map_err(|e| invalid("sensor.elastomer_thickness_tol_mm", e.to_string()))?;
+        Ok(Some(layer))
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -274,7 +312,13 @@ mod radius {
 
 impl Default for SensorSection {
     fn default() -> Self {
-        Self { elastomer_r_mm: sim::defaults::ELASTOMER_R_MM, name: None }
+        Self {
+            elastomer_r_mm: sim::defaults::ELASTOMER_R_MM,
+            name: None,
+            elastomer_thickness_mm: None,
+            elastomer_base: None,
+            elastomer_thickness_tol_mm: None,
+        }
     }
 }
 impl Default for ApproachSection {
@@ -391,6 +435,7 @@ impl Script {
         if r1.is_nan() || r1 <= 0.0 {
             return Err(invalid("sensor.elastomer_r_mm", format!("must be > 0 (or \"inf\"), got {r1}")));
         }
+        self.sensor.layer()?;
         self.validate_approach()?;
         self.validate_normal()?;
         self.validate_torsion()?;
@@ -609,6 +654,29 @@ mod tests {
         // And the serializer's output reads back to the same script.
         let again = Script::from_toml(&parsed.to_toml().unwrap()).unwrap();
         assert_eq!(again, parsed);
+    }
+
+    #[test]
+    fn the_sensors_gel_layer_is_declared_in_the_sensor_section() {
+        let s = Script::from_toml(
+            "[sensor]\nelastomer_r_mm = \"inf\"\nelastomer_thickness_mm = 5.0\nelastomer_thickness_tol_mm = 0.1\n",
+        )
+        .unwrap();
+        let layer = s.sensor.layer().unwrap().unwrap();
+        assert_eq!((layer.thickness_mm, layer.base, layer.thickness_tol_mm), (5.0, LayerBase::Bonded, Some(0.1)));
+        let again = Script::from_toml(&s.to_toml().unwrap()).unwrap();
+        assert_eq!(again, s);
+        assert_eq!(Script::default().sensor.layer().unwrap(), None);
+        for (text, key) in [
+            ("elastomer_thickness_mm = 0.0", "sensor.elastomer_thickness_mm"),
+            ("elastomer_thickness_mm = 5.0\nelastomer_base = \"glued\"", "sensor.elastomer_base"),
+            ("elastomer_base = \"bonded\"", "sensor.elastomer_base"),
+            ("elastomer_thickness_mm = 5.0\nelastomer_thickness_tol_mm = 6.0", "sensor.elastomer_thickness_tol_mm"),
+            ("elastomer_thickness_tol_mm = 0.1", "sensor.elastomer_thickness_tol_mm"),
+        ] {
+            let e = Script::from_toml(&format!("[sensor]\n{text}\n")).unwrap_err();
+            assert!(e.to_string().contains(key), "{text}: {e}");
+        }
     }
 
     #[test]

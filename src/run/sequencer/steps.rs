@@ -67,7 +67,8 @@ where
             sensor: Some(sanitize(self.script.sensor.name.as_deref().unwrap_or(&self.gauge.describe()))),
             indenter: self.script.indenter,
             elastomer_r_mm: self.script.sensor.elastomer_r_mm,
-            layer: None,
+            // Checked with the script before the run: a fault cannot reach here.
+            layer: self.script.sensor.layer().ok().flatten(),
             created: Some(crate::report::rfc3339_utc(SystemTime::now())),
             extra,
         };
