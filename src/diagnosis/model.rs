@@ -149,7 +149,7 @@ impl Candidate {
             // chi², which splits the landscape into basins. Strong creep at
             // short, medium and long retardation times (2, 8, 30 s) reaches them.
             Candidate::Viscoelastic => {
-                vec![&[0.1, 0.693_147_180_559_945_3], &[0.1, 2.079_441_541_679_835_9], &[0.1, 3.401_197_381_662_155_4]]
+                vec![&[0.1, std::f64::consts::LN_2], &[0.1, 2.079_441_541_679_835_9], &[0.1, 3.401_197_381_662_155_4]]
             }
             _ => Vec::new(),
         }
