@@ -18,8 +18,8 @@ fn dwell(rec: &Recording) -> Vec<(f64, f64)> {
 }
 
 /// docs/physics.md 2.3 and 2.9: during a hold after a load step, a creeping gel's gamma1 rises
-/// and saturates (retardation time tau), a drifting reading rises in a
-/// straight line (v), a clean rig's stays put.
+/// and saturates (retardation time tau), under a drifting frame it rises in a
+/// straight line (the gel's share of v), a clean rig's stays put.
 #[test]
 fn a_dwell_creeps_under_viscoelastic_and_drifts_linearly_under_thermal_drift() {
     let run = |profile: SimProfile| {
@@ -48,15 +48,18 @@ fn a_dwell_creeps_under_viscoelastic_and_drifts_linearly_under_thermal_drift() {
     assert!(early > 1e-3, "creep {early} mm over the first 20 s");
     assert!(late >= 0.0 && late < 0.05 * early, "creep {late} mm over the last 20 s vs {early}");
 
-    // Drift (v 0.2 um/s): the same rise in every 20 s, v x 20 s.
+    // Drift (v 0.2 um/s): the frame brings the indenter v x 20 s closer in every
+    // 20 s; the gel takes its share of that (the indenter the rest), the same
+    // in every window to within the contact's slight stiffening.
     let v = 2e-4;
     let drift = run(SimProfile {
         thermal_drift: Some(thermal_drift::Params { v_mm_per_s: v, vdot_mm_per_s2: 0.0 }),
         ..SimProfile::default()
     });
-    for (a, b) in [(0, 10), (10, 20), (20, 30)] {
-        let rise = drift[b].1 - drift[a].1;
-        assert!((rise - v * 20.0).abs() < 2e-5, "drift {rise} mm over samples {a}..{b}");
+    let rises: Vec<f64> = [(0, 10), (10, 20), (20, 30)].iter().map(|&(a, b)| drift[b].1 - drift[a].1).collect();
+    for r in &rises {
+        assert!(*r > 0.5 * v * 20.0 && *r < v * 20.0, "drift {r} mm over 20 s of {} mm", v * 20.0);
+        assert!((r / rises[0] - 1.0).abs() < 0.02, "a linear drift: {rises:?}");
     }
 }
 

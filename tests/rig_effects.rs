@@ -2,22 +2,27 @@
 //! APT drivers over pseudo-terminals, the simulated marker field, time
 //! accelerated), with one effect of the library given to the rig's contact by
 //! a sim profile, ten noise seeds each. The standard sweeps identify these
-//! three (docs/diagnosis.md); each is given at a size that biases the
+//! four (docs/diagnosis.md); each is given at a size that biases the
 //! calibration's E1 or nu1 by at least 2 % (the test prints the bias and
 //! checks it). The run's own diagnosis must name it in at least 9 of 10 seeds
 //! and bring E1 within 1 % and nu1 within 2 % of the rig's truth.
 //!
-//! Not here, and why (docs/diagnosis.md, "On the emulated rig"): frame
-//! compliance and sensor gain come out ambiguous and adhesion degenerate on
-//! the standard sweeps (issue 14's closed loop runs the experiment that tells
-//! them apart); thermal drift and viscoelastic creep are named at sizes below
-//! the 2 % bias, and left unexplained above it.
+//! Frame compliance and sensor gain are degenerate with E1 and nu1 on the
+//! standard sweeps (issue 14's closed loop runs the experiment that tells them
+//! apart): here the diagnosis must say so, ambiguous with the effect among the
+//! explanations it lists, and name nothing.
+//!
+//! Not here, and why (docs/diagnosis.md, "On the emulated rig"): adhesion and
+//! viscoelastic creep are left unexplained at sizes that bias the calibration
+//! by 2 %.
 
 #[path = "support/emulated.rs"]
 mod emulated;
 
 use emulated::{Outcome, run_seed};
-use sim::effects::{SimProfile, partial_slip, rotation_backlash, stage_backlash};
+use sim::effects::{
+    SimProfile, frame_compliance, partial_slip, rotation_backlash, sensor_gain, stage_backlash, thermal_drift,
+};
 
 const SEEDS: u64 = 10;
 
@@ -64,4 +69,45 @@ fn rotation_backlash_is_named_and_corrected_on_the_emulated_rig() {
 fn stage_backlash_is_named_and_corrected_on_the_emulated_rig() {
     let p = stage_backlash::Params { b_mm: 0.02, engaged: true };
     check("stage_backlash", SimProfile { stage_backlash: Some(p), ..Default::default() });
+}
+
+#[test]
+fn thermal_drift_is_named_and_corrected_on_the_emulated_rig() {
+    // 0.15 um/s of the frame: 0.03 mm more approach by the end of the sweeps.
+    let p = thermal_drift::Params { v_mm_per_s: 1.5e-4, vdot_mm_per_s2: 0.0 };
+    check("thermal_drift", SimProfile { thermal_drift: Some(p), ..Default::default() });
+}
+
+/// Seeds of the degenerate effects: the check is that nothing is falsely
+/// named, which five seeds show as well as ten at half the CI time.
+const DEGENERATE_SEEDS: u64 = 5;
+
+/// An effect E1/nu1 can stand in for on the standard sweeps: it biases the
+/// calibration, and the diagnosis lists it among explanations it cannot tell
+/// apart, names nothing and keeps the calibration's E1/nu1.
+fn check_ambiguous(effect: &str, profile: SimProfile) {
+    let runs: Vec<Outcome> = (1..=DEGENERATE_SEEDS).map(|seed| run_seed(seed, profile.clone())).collect();
+    for o in &runs {
+        println!("{effect}: {:4}  {:+8.2} {:+8.2}   {}: {}", o.seed, o.full.0, o.full.1, o.verdict, o.summary);
+    }
+    let mut bias: Vec<f64> = runs.iter().map(|o| o.full.0.abs().max(o.full.1.abs())).collect();
+    bias.sort_by(f64::total_cmp);
+    assert!(bias[bias.len() / 2] >= 2.0, "{effect} biases the calibration by only {:.2} %", bias[bias.len() / 2]);
+    for o in &runs {
+        assert!(o.named.is_empty(), "{effect} seed {}: named {:?}", o.seed, o.named);
+        assert_eq!(o.verdict, "ambiguous", "{effect} seed {}: {}", o.seed, o.summary);
+        assert!(o.summary.contains(effect), "{effect} seed {}: not listed: {}", o.seed, o.summary);
+    }
+}
+
+#[test]
+fn frame_compliance_is_reported_ambiguous_on_the_emulated_rig() {
+    let p = frame_compliance::Params { c_mm_per_n: 0.004 };
+    check_ambiguous("frame_compliance", SimProfile { frame_compliance: Some(p), ..Default::default() });
+}
+
+#[test]
+fn sensor_gain_is_reported_ambiguous_on_the_emulated_rig() {
+    let p = sensor_gain::Params { g: 0.99 };
+    check_ambiguous("sensor_gain", SimProfile { sensor_gain: Some(p), ..Default::default() });
 }

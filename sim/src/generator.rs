@@ -391,8 +391,9 @@ impl Continued {
 
 /// The commanded stage at which the rig's noise-free depth reading gives
 /// stage - gamma1 = `gamma2_target` at time `t`, found on copies of the rig so
-/// the probes leave no history. Effects that corrupt the reading (drift, gain,
-/// frame compliance, offset) therefore move the true torsion depth, as on a real rig.
+/// the probes leave no history. Effects that part stage - gamma1 from gamma2
+/// (drift, gain, frame compliance, offset) therefore move the true torsion
+/// depth, as on a real rig.
 fn torsion_stage(rig: &TrueRig, t: f64, gamma2_target: f64, top_stage: f64) -> Result<f64, GenerateError> {
     let measured = |stage: f64| -> Result<f64, GenerateError> {
         let mut probe = rig.clone();
@@ -509,7 +510,7 @@ mod tests {
             assert_eq!(s.gamma1_mm, r.gamma1_mm);
             assert_eq!(s.theta1_deg, r.theta1_deg);
         }
-        // The rig stops where its drifting reading says beta = 0.2, not at the true depth.
+        // The rig stops where stage - gamma1 says beta = 0.2, not at the true (drifted) depth.
         let first = rec.phase(Phase::Torsion).next().unwrap();
         assert!(((first.stage_mm - first.gamma1_mm) / 5.0 - 0.2).abs() < 2e-4);
         let i = rec.samples.iter().position(|s| s.phase == Phase::Torsion).unwrap();

@@ -138,10 +138,19 @@ impl Candidate {
 
     /// Further starts tried only when the usual ones leave the fit far above
     /// the noise (a thin layer: the baseline is far off and the path from a
-    /// thick-layer start runs into the model's no-solution region).
+    /// thick-layer start runs into the model's no-solution region; strong
+    /// creep, below).
     pub fn fallback_starts(self) -> Vec<&'static [f64]> {
         match self {
             Candidate::FiniteThickness => vec![&[0.3], &[0.6], &[1.0]],
+            // A creeping gel lets go of the indenter early on unloading (its
+            // surface recovers slower than the stage retracts): which samples
+            // still touch changes with rho and tau in steps, each a cliff of
+            // chi², which splits the landscape into basins. Strong creep at
+            // short, medium and long retardation times (2, 8, 30 s) reaches them.
+            Candidate::Viscoelastic => {
+                vec![&[0.1, std::f64::consts::LN_2], &[0.1, 2.079_441_541_679_835_9], &[0.1, 3.401_197_381_662_155_4]]
+            }
             _ => Vec::new(),
         }
     }

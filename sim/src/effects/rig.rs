@@ -4,10 +4,11 @@
 //! exactly what the simulator produces.
 //!
 //! Order of the chain for one reading at rig time t:
-//! stage command -> stage play (backlash) -> minus contact offset -> contact
-//! solve (layer, adhesion, frame compliance, or the viscoelastic history) ->
-//! sensor gain and drift on gamma1; mount command -> mount play -> torsion split
-//! (layer, rod correction at the contact's own radius, partial slip).
+//! stage command -> stage play (backlash) -> minus contact offset, plus the
+//! frame's thermal drift -> contact solve (layer, adhesion, frame compliance,
+//! or the viscoelastic history) -> sensor gain on gamma1; mount command ->
+//! mount play -> torsion split (layer, rod correction at the contact's own
+//! radius, partial slip).
 
 use std::f64::consts::PI;
 
@@ -90,7 +91,11 @@ pub struct TrueRig {
     q: f64,
     f_prev: f64,
     t_prev: Option<f64>,
+    /// Approach of the last reading (stage after play and offset, plus drift).
     last_s: Option<f64>,
+    /// Stage after play and offset of the last reading (a slip state lives
+    /// while the stage stands; the drift moves the contact under it).
+    last_stage: Option<f64>,
     last: Contact,
     slip: Option<(f64, SlipState)>,
     /// Viscoelastic torsion history: filtered torque, last torque, last time.
@@ -123,6 +128,7 @@ impl TrueRig {
             f_prev: 0.0,
             t_prev: None,
             last_s: None,
+            last_stage: None,
             last: Contact::default(),
             slip: None,
             tq: 0.0,
@@ -414,12 +420,17 @@ impl TrueRig {
             Some(p) => p.step(cmd.stage_mm),
             None => cmd.stage_mm,
         };
-        let s = stage - self.profile.contact_offset.map_or(0.0, |p| p.contact_offset_mm);
+        let stage = stage - self.profile.contact_offset.map_or(0.0, |p| p.contact_offset_mm);
+        // The frame's thermal expansion moves the indenter toward the gel
+        // (docs/physics.md 2.9): the approach itself drifts, and the contact
+        // with it, so the sensor sees a real contact of that approach.
+        let s = stage + self.profile.thermal_drift.map_or(0.0, |p| p.offset_mm(cmd.t_s));
         let history = self.profile.adhesion.is_some() || self.profile.viscoelastic.is_some();
-        let stage_changed = self.last_s != Some(s);
+        let approach_changed = self.last_s != Some(s);
+        let stage_changed = self.last_stage != Some(stage);
         let contact = if self.profile.viscoelastic.is_some() {
             self.solve_visco(s, cmd.t_s)?
-        } else if !history && !stage_changed {
+        } else if !history && !approach_changed {
             self.last
         } else {
             self.solve_elastic(s)?
@@ -428,11 +439,11 @@ impl TrueRig {
             self.slip = None;
         }
         self.last_s = Some(s);
+        self.last_stage = Some(stage);
         self.last = contact;
         let in_contact = contact.a > 0.0;
         let gain = self.profile.sensor_gain.map_or(1.0, |p| p.g);
-        let drift = self.profile.thermal_drift.map_or(0.0, |p| p.offset_mm(cmd.t_s));
-        let gamma1_read = if in_contact { gain * contact.gamma1 + drift } else { 0.0 };
+        let gamma1_read = if in_contact { gain * contact.gamma1 } else { 0.0 };
 
         let rot = match self.rot_play.as_mut() {
             Some(p) => p.step(cmd.rot_deg),
@@ -591,13 +602,21 @@ mod tests {
             ..Default::default()
         });
         assert!(f[60].gamma1_mm < clean[60].gamma1_mm - 0.01);
-        // Drift and gain act on the reading only.
+        // Drift moves the indenter: the contact is the clean one at the drifted
+        // approach (only part of it is the gel's), and it shows on the way back.
         let d = run(SimProfile {
             thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 1e-4, vdot_mm_per_s2: 0.0 }),
             ..Default::default()
         });
-        assert!((d[60].gamma1_mm - clean[60].gamma1_mm - 60.0e-4).abs() < 1e-12);
+        let m = NormalModel::new(p).unwrap();
+        let at = |s: f64| m.solve(s).unwrap();
+        assert!((d[60].gamma1_mm - at(3.0 + 60.0e-4).gamma1_mm).abs() < 1e-12);
+        assert!((d[60].gamma2_mm - at(3.0 + 60.0e-4).gamma2_mm).abs() < 1e-12);
+        let rise = d[60].gamma1_mm - clean[60].gamma1_mm;
+        assert!(rise > 0.5 * 60.0e-4 && rise < 60.0e-4, "{rise}");
+        assert!((d[90].gamma1_mm - at(1.5 + 90.0e-4).gamma1_mm).abs() < 1e-12);
         assert_eq!(d[0].gamma1_mm, 0.0);
+        // Gain acts on the reading only.
         let g = run(SimProfile { sensor_gain: Some(sensor_gain::Params { g: 1.02 }), ..Default::default() });
         assert!((g[60].gamma1_mm / clean[60].gamma1_mm - 1.02).abs() < 1e-12);
     }

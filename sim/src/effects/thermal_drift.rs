@@ -1,9 +1,12 @@
-//! `thermal_drift`: slow drift of the depth reading (docs/physics.md 2.9).
+//! `thermal_drift`: the frame's slow thermal drift (docs/physics.md 2.9).
 //!
-//! Model: while in contact gamma1_read = gamma1 + v t + vdot t^2 / 2 (t = the
-//! recording's time); the dead band still reads 0.
+//! Model: the indenter-to-gel distance drifts, so the true approach is
+//! delta = stage - offset + v t + vdot t^2 / 2 (t = the rig's time). The
+//! contact is the one of that approach (gel and indenter share the extra
+//! depth, the contact radius grows with it), and the sensor reads it as any
+//! other contact. Without contact the sensor reads 0.
 //!
-//! Shows as a linear trend in time at constant stage (the torsion hold), an
+//! Shows as a trend in time at constant stage (the torsion hold), an
 //! unload/load split growing with time, and a beta off by the accumulated drift.
 
 use serde::{Deserialize, Serialize};
@@ -12,18 +15,20 @@ use super::{EffectError, EffectInfo, Identifiability, ParamInfo, check};
 
 pub const INFO: EffectInfo = EffectInfo {
     name: "thermal_drift",
-    model: "gamma1_read = gamma1 + v t + vdot t^2/2 while in contact",
+    model: "approach = stage + v t + vdot t^2/2: the frame brings the indenter closer in time",
     params: &[
         ParamInfo { name: "v_mm_per_s", unit: "mm/s", min: -0.005, max: 0.005, typical: "-0.0005 to +0.0005 mm/s" },
         ParamInfo { name: "vdot_mm_per_s2", unit: "mm/s^2", min: -1e-4, max: 1e-4, typical: "small" },
     ],
-    signature: "gamma1 trends linearly in time at constant stage (torsion hold), load/unload split grows with time, at any load",
+    signature: "gamma1 trends in time at constant stage (torsion hold), load/unload split grows with time, at any load",
     identifiability: Identifiability::Good,
-    sentence: "the depth reading drifts slowly in time (warm-up of camera, lighting or frame)",
-    explanation: "While a sensor warms up, its camera, lighting and frame expand a little, and the depth it reports creeps \
-by a fraction of a micrometre per second. Over a run of a few minutes that adds up to micrometres, which is enough to \
-shift the indenter deformation the method relies on. Unlike creep of the gel, the drift is a straight line in time and \
-does not depend on how hard the indenter presses.",
+    sentence: "the rig's frame warms up and creeps, so the indenter presses a little deeper as time goes on",
+    explanation: "While motors, lights and the room warm the rig, its frame, stage and sensor mount expand a little, and \
+the distance between indenter and gel shrinks (or grows) by a fraction of a micrometre per second. Over a run of a few \
+minutes that adds up to micrometres of extra press that the stage never commanded: the contact really changes, and the \
+sensor sees it as it is. The calibration then pairs each stage position with a slightly deeper contact, which shifts \
+the indenter deformation the method relies on. Unlike creep of the gel, the drift goes on at the same rate whatever \
+the load, and it shows as a steady trend during holds.",
     separate_by: None,
 };
 
