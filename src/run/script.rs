@@ -454,13 +454,8 @@ impl Script {
         finite("approach.start_mm", a.start_mm)?;
         positive("approach.step_mm", a.step_mm)?;
         positive("approach.search_step_mm", a.search_step_mm)?;
+        // A refine step finer than step_mm is taken as step_mm (a script older than the key keeps working).
         positive("approach.refine_step_mm", a.refine_step_mm)?;
-        if a.refine_step_mm < a.step_mm {
-            return Err(invalid(
-                "approach.refine_step_mm",
-                format!("{} mm is finer than approach.step_mm {} mm", a.refine_step_mm, a.step_mm),
-            ));
-        }
         if a.search_step_mm < a.step_mm {
             return Err(invalid(
                 "approach.search_step_mm",

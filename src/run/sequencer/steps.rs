@@ -135,7 +135,7 @@ where
             if pts.last().is_some_and(|p| p.1 >= a.refine_to_gamma1_mm) {
                 break;
             }
-            let next = pos + a.refine_step_mm;
+            let next = pos + a.refine_step_mm.max(a.step_mm);
             if self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, next).is_err() {
                 break;
             }
@@ -149,7 +149,7 @@ where
         let provisional = line
             .or_else(|| contact_from_line(&pts, threshold))
             .unwrap_or(0.5 * (last_clear + pts[0].0))
-            .clamp(last_clear - a.refine_step_mm, pts[0].0);
+            .clamp(last_clear - a.refine_step_mm.max(a.step_mm), pts[0].0);
         // The first pass's readings were taken while the sensing was still
         // learning the contact's shape. The second pass is the normal sweep's
         // own start: it steps in by approach.step_mm from before the
