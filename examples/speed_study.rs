@@ -98,21 +98,30 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
+/// Issue 15's baseline: the default script before the issue's redesign, on
+/// the same emulated rig (truth, noise, seeds 1-10; docs/run.md, "The sweeps'
+/// design"): median rig time, s, and median 95 % interval widths, % of the
+/// value, of E1 and nu1.
+const BEFORE_RIG_S: f64 = 187.0;
+const BEFORE_CI_E1_PCT: f64 = 0.096;
+const BEFORE_CI_NU1_PCT: f64 = 0.329;
+
 fn print_table(rows: &[Row]) {
-    let names = ["homing", "approach", "normal", "torsion", "retract"];
+    let names = ["homing", "approach", "normal", "torsion", "experiments", "retract"];
     println!(
-        "seed  homing approach normal torsion retract   rig_s  wall_s  n    E1_err%  nu1_err%  ciE1%  ciNu1%  chi2/dof  verdict"
+        "seed  homing approach normal torsion  exper retract   rig_s  wall_s  n    E1_err%  nu1_err%  ciE1%  ciNu1%  chi2/dof  verdict"
     );
     for r in rows {
         let ph = |n: &str| r.phases.iter().find(|p| p.0 == n).map_or(0.0, |p| p.1);
         println!(
-            "{:4}  {:6.1} {:8.1} {:6.1} {:7.1} {:7.1}  {:6.1}  {:6.2}  {:3}  {:+8.3}  {:+8.3}  {:5.3}  {:6.3}  {:8.2}  {}",
+            "{:4}  {:6.1} {:8.1} {:6.1} {:7.1} {:6.1} {:7.1}  {:6.1}  {:6.2}  {:3}  {:+8.3}  {:+8.3}  {:5.3}  {:6.3}  {:8.2}  {}",
             r.seed,
             ph(names[0]),
             ph(names[1]),
             ph(names[2]),
             ph(names[3]),
             ph(names[4]),
+            ph(names[5]),
             r.rig_s,
             r.wall_s,
             r.samples,
@@ -134,6 +143,30 @@ fn print_table(rows: &[Row]) {
         m(|r| r.chi2_dof),
         rows.iter().map(|r| r.err.0.abs()).fold(0.0, f64::max),
         rows.iter().map(|r| r.err.1.abs()).fold(0.0, f64::max),
+    );
+    let phase_median =
+        |n: &str| median(rows.iter().map(|r| r.phases.iter().find(|p| p.0 == n).map_or(0.0, |p| p.1)).collect());
+    println!(
+        "median rig time per phase: {}",
+        names.iter().map(|n| format!("{n} {:.1} s", phase_median(n))).collect::<Vec<_>>().join(", ")
+    );
+    // Issue 15's bars, against the baseline.
+    let (rig, ci_e1, ci_nu1) = (m(|r| r.rig_s), m(|r| r.ci.0), m(|r| r.ci.1));
+    let within = rows.iter().filter(|r| r.err.0.abs() <= 1.0 && r.err.1.abs() <= 2.0).count();
+    let verdict = |ok: bool| if ok { "met" } else { "NOT MET" };
+    println!(
+        "before: median rig {BEFORE_RIG_S:.0} s, CI width E1 {BEFORE_CI_E1_PCT:.3} %, nu1 {BEFORE_CI_NU1_PCT:.3} %; \
+         now: median rig {rig:.1} s, CI width E1 {ci_e1:.3} %, nu1 {ci_nu1:.3} %"
+    );
+    println!("bar: median rig time <= 90 s: {} ({rig:.1} s)", verdict(rig <= 90.0));
+    println!(
+        "bar: E1 within 1 % and nu1 within 2 % of the truth in every seed: {} ({within} of {})",
+        verdict(within == rows.len()),
+        rows.len()
+    );
+    println!(
+        "bar: median interval widths no wider than before: {} (E1 {ci_e1:.3} vs {BEFORE_CI_E1_PCT:.3} %, nu1 {ci_nu1:.3} vs {BEFORE_CI_NU1_PCT:.3} %)",
+        verdict(ci_e1 <= BEFORE_CI_E1_PCT && ci_nu1 <= BEFORE_CI_NU1_PCT)
     );
     let count = |v: &str| rows.iter().filter(|r| r.verdict == v).count();
     println!(

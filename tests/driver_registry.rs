@@ -257,10 +257,10 @@ fn a_registered_third_stage_driver_runs_a_calibration_from_a_rig_file() {
         assert_eq!(r.outcome.status, RunStatus::Completed, "{:?}", r.outcome.status);
 
         // The loop stage ran the run: it is named in the recording, and the
-        // stage stands at the retract position.
+        // stage stands at the park position.
         let rec = Recording::read_path(&r.outcome.recording).unwrap();
         assert!(rec.meta.extra.iter().any(|(k, v)| k == "stage" && v.contains("LOOP-STAGE")), "{:?}", rec.meta.extra);
-        assert!((rig.pose().stage_mm - Script::default().limits.retract_mm).abs() < 1e-3, "{:?}", rig.pose());
+        assert!((rig.pose().stage_mm - Script::default().park_mm()).abs() < 1e-3, "{:?}", rig.pose());
         // And the calibration recovers the simulated elastomer as with the built-in drivers.
         let (truth, cal) = (rig.truth(), r.calibration.expect("fit"));
         assert!((cal.full.e1_mpa / truth.e1_mpa - 1.0).abs() < 0.01, "E1 {} vs {}", cal.full.e1_mpa, truth.e1_mpa);

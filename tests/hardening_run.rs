@@ -221,13 +221,14 @@ mod in_process {
         let mut lines = Vec::new();
         for n in 0..27 {
             let kind = ["sensor-lost", "datagrams", "rotation-cut"][n % 3];
-            // The default run records ~60 samples: anywhere in the sweeps.
+            // The default run records ~100 samples: anywhere in its first 60.
             let at = 2 + (lcg(&mut seed) * 56.0) as usize;
             let dir = tmp.path().join(format!("f{n}"));
             let (rows, announced, status, stage) = rt.block_on(trial(kind, at, &dir));
             lines.push(format!("{kind:11} at sample {at:3}: {rows} rows, stage {stage:.3} mm, {status:?}"));
             assert_eq!(rows, announced, "trial {n}: the recording holds every sample announced");
-            assert!(stage <= approach + 1e-6, "trial {n} ({kind}): stage left at {stage} mm");
+            // Out of contact: at most the approach start (a completed run parks there, to the count).
+            assert!(stage <= approach + 1e-4, "trial {n} ({kind}): stage left at {stage} mm");
             match (kind, &status) {
                 ("sensor-lost", RunStatus::Aborted(info)) => {
                     assert!(matches!(info.backoff, Backoff::To(p) if (p - retract).abs() < 1e-3), "{info:?}")

@@ -61,7 +61,9 @@ fn partial_slip_is_named_and_corrected_on_the_emulated_rig() {
 
 #[test]
 fn rotation_backlash_is_named_and_corrected_on_the_emulated_rig() {
-    let p = rotation_backlash::Params { b_deg: 0.15, engaged: true };
+    // Issue 15's torsion sweep averages most frames at the largest twists,
+    // where a lost motion of 0.15 deg biases nu1 by only 1.7-2.0 %: 0.2 deg.
+    let p = rotation_backlash::Params { b_deg: 0.2, engaged: true };
     check("rotation_backlash", SimProfile { rotation_backlash: Some(p), ..Default::default() });
 }
 

@@ -171,7 +171,7 @@ fn default_run_through_the_real_drivers_recovers_the_truth() {
         let branch = |d: Direction| rec.phase(Phase::Normal).filter(|s| s.dir == Some(d)).count();
         assert!(branch(Direction::Load) >= 10 && branch(Direction::Unload) >= 10);
         assert!(rec.phase(Phase::Normal).filter(|s| (0.2..=0.8).contains(&s.gamma1_mm)).count() >= 4);
-        assert_eq!(rec.phase(Phase::Torsion).count(), Script::default().twist_angles().len());
+        assert_eq!(rec.phase(Phase::Torsion).count(), Script::default().twist_samples());
         let again = calibrate(&rec, &FitOptions::default()).unwrap();
         assert_eq!((again.full.e1_mpa, again.full.nu1), (e1, nu1));
         assert!(rec.meta.extra.iter().any(|(k, v)| k == "sim_E1_MPa" && v.parse::<f64>().unwrap() == truth.e1_mpa));
@@ -204,10 +204,10 @@ fn default_run_through_the_real_drivers_recovers_the_truth() {
         assert!(std::fs::read_to_string(&files.markdown).unwrap().contains("| run | rig time"));
         assert!(std::fs::read_to_string(&files.torsion_svg).unwrap().starts_with("<svg"));
         check_run_diagnosis(&r, &events, &v, (e1, nu1));
-        // The run ended with the summary, and the stage is back at the retract position.
+        // The run ended with the summary, and the stage is parked out of contact.
         assert!(matches!(events.last(), Some(RunEvent::Finished { summary }) if summary.e1_mpa == Some(e1)));
         let pose = rig.pose();
-        assert!((pose.stage_mm - Script::default().limits.retract_mm).abs() < 1e-3, "{pose:?}");
+        assert!((pose.stage_mm - Script::default().park_mm()).abs() < 1e-3, "{pose:?}");
     });
 }
 

@@ -55,12 +55,13 @@ async fn full_default_run_recovers_the_truth() {
         .iter()
         .filter_map(|e| match e {
             RunEvent::StepStarted { index, phase, total, .. } => {
-                assert_eq!(*total, 7);
+                assert_eq!(*total, 8);
                 Some((*index, *phase))
             }
             _ => None,
         })
         .collect();
+    // The torsion sweep at the top of the loading branch, the unloading after it.
     let expect_phases = [
         RunPhase::Setup,
         RunPhase::Setup,
@@ -68,6 +69,7 @@ async fn full_default_run_recovers_the_truth() {
         RunPhase::Normal,
         RunPhase::Torsion,
         RunPhase::Torsion,
+        RunPhase::Normal,
         RunPhase::Retract,
     ];
     assert_eq!(steps, expect_phases.iter().copied().enumerate().collect::<Vec<_>>());
@@ -78,7 +80,7 @@ async fn full_default_run_recovers_the_truth() {
     assert_eq!(rec.samples.len(), out.samples);
     assert_eq!(samples_in(&events), out.samples);
     let n_torsion = rec.phase(Phase::Torsion).count();
-    assert_eq!(n_torsion, Script::default().twist_angles().len());
+    assert_eq!(n_torsion, Script::default().twist_samples());
     // Both branches of the normal sweep, and the paper's method's window (at
     // least 4 samples with gamma1 in 0.2-0.8 mm) covered.
     let branch = |d: Direction| rec.phase(Phase::Normal).filter(|s| s.dir == Some(d)).count();
@@ -131,8 +133,8 @@ async fn full_default_run_recovers_the_truth() {
     }
     // (About one event a sample and a move: ~60 samples since issue 15's design.)
     assert!(checked > 30, "{checked} progress events checked");
-    // The stage ended at the retract position.
-    assert_eq!(rig.state().stage_mm, Script::default().limits.retract_mm);
+    // The stage ended at the park position, out of contact.
+    assert_eq!(rig.state().stage_mm, Script::default().park_mm());
     eprintln!(
         "default run: {} samples, rig time {:.1} s (sweeps {:.1} s), wall {:.3} s, E1 {:.4} nu1 {:.4}",
         out.samples,

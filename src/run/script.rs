@@ -35,18 +35,19 @@ elastomer_r_mm = 33.0
 # the gamma1 noise from noise_readings untouched readings, then step in by
 # search_step_mm until gamma1 rises above contact_sigmas x noise (at least
 # contact_min_mm). The contact point is then refined: the stage steps on (at
-# most refine_steps steps of step_mm) until gamma1 reaches
+# most refine_steps steps of refine_step_mm) until gamma1 reaches
 # refine_to_gamma1_mm, and a line through the settled readings with gamma1 in
 # [refine_from_gamma1_mm, refine_to_gamma1_mm] is extrapolated to gamma1 = 0.
 # Those deep readings teach the sensing the contact's shape; the stage then
-# steps in again from just above that point, and the line through the settled
+# steps in again by step_mm from just above that point, and the line through the settled
 # readings below refine_from_gamma1_mm (where gamma1 bends least) gives the
 # contact point, and its uncertainty to the recording (every gamma2 of the
 # paper's method hangs on it). The normal sweep starts pre_contact_mm before
 # the contact.
 [approach]
 start_mm = 10.0
-search_step_mm = 0.25
+search_step_mm = 0.5
+refine_step_mm = 0.2
 step_mm = 0.05
 noise_readings = 20
 contact_sigmas = 6.0
@@ -57,40 +58,51 @@ refine_to_gamma1_mm = 0.5
 pre_contact_mm = 0.15
 
 # Normal sweep: step in by step_mm until the live depth
-# beta = gamma2 / R2 = (approach - gamma1) / R2 reaches target_beta, then step
-# back out through the same positions; repeated `repeats` times. Each sample
+# beta = gamma2 / R2 = (approach - gamma1) / R2 reaches target_beta (the last
+# step is shortened to land on it), then step back out by unload_step_mm to
+# the last stop in contact (0: through the loading positions); repeated `repeats` times. Each sample
 # averages `frames` settled frames (0: the settling's last two windows, see
-# [settle]). Fewer, longer samples save rig time at the same intervals, but
-# leave the fit's chi2 and the diagnosis fewer samples to judge by
-# (docs/run.md, "The sweeps' design"; examples/fast-script.toml). Where gamma1
-# lies in the paper's window (0.2-0.8 mm), the steps are window_step_mm
-# instead when that is finer: the paper's method fits only those samples
-# (0: the same steps everywhere).
+# [settle]). A move costs as much rig time as many frames, so the sweep takes
+# few, long samples (docs/run.md, "The sweeps' design"). Below gamma1 =
+# approach.refine_to_gamma1_mm the steps are approach.step_mm (they pin the
+# contact point), and where gamma1 lies in the paper's window (0.2-0.8 mm)
+# they are window_step_mm (the paper's method fits only those samples; 0: the
+# same steps everywhere); those samples take the settling's own frames.
 [normal]
-step_mm = 0.05
+step_mm = 1.3
 window_step_mm = 0.1
+unload_step_mm = 1.0
 target_beta = 0.2
 repeats = 1
-frames = 0
+frames = 30
 
 # Torsion sweep at target_beta: twist out to amplitude_deg in step_deg steps
-# and back to 0, each sample averaging `frames` settled frames. The torsion
-# samples carry most of what the fit knows of E1, and much of nu1.
+# and back to 0. The torsion samples carry most of what the fit knows of E1,
+# and much of nu1; a sample's information on the twist stiffness grows as the
+# square of its twist, so a stop at twist x averages
+# frames x (x / amplitude_deg)^frames_power settled frames (at least the
+# settling's own; frames_power 0: `frames` everywhere). Without experiment
+# steps or the closed loop, the sweep runs at the top of the loading branch,
+# before the unloading.
 [torsion]
 amplitude_deg = 8.0
-step_deg = 0.2
-frames = 0
+step_deg = 2.0
+frames = 200
+frames_power = 3.0
 
 # Soft limits, checked before every move. Inside [stage_min_mm, start_mm] the
 # indenter is clear of the sensor; deeper, a move is refused if gamma1 could
 # exceed max_gamma1_mm. Twist is limited to +-max_twist_deg from the torsion
-# start. On abort the stage backs off to retract_mm.
+# start. On abort the stage backs off to retract_mm; a completed run leaves
+# it at park_mm (inside the clear zone; default approach.start_mm, where the
+# next run's approach starts).
 [limits]
 stage_min_mm = 0.0
 stage_max_mm = 24.0
 max_gamma1_mm = 5.0
 max_twist_deg = 10.0
 retract_mm = 0.0
+# park_mm = 10.0
 
 # Adaptive settling after every move: read until the mean of the last
 # `readings` readings differs from the mean of the `readings` before by at most
@@ -101,6 +113,10 @@ readings = 2
 tol_gamma1_mm = 0.001
 tol_theta1_deg = 0.01
 timeout_s = 5.0
+# A stop that averages more frames than this records them as consecutive
+# samples of at most this many: replicates at one place, the same information,
+# and more residuals to judge the fit by (0: one sample a stop).
+max_sample_frames = 10
 
 # Real-time limits: one sensor read, the sensor dropout (consecutive read
 # timeouts adding up to this abort the run), one move, one homing.
@@ -222,8 +238,10 @@ impl SensorSection {
 #[serde(default, deny_unknown_fields)]
 pub struct ApproachSection {
     pub start_mm: f64,
-    /// Step of the search for first contact, mm (the refinement steps by `step_mm`).
+    /// Step of the search for first contact, mm.
     pub search_step_mm: f64,
+    /// Step of the first refinement pass, mm (the second steps by `step_mm`).
+    pub refine_step_mm: f64,
     pub step_mm: f64,
     pub noise_readings: usize,
     pub contact_sigmas: f64,
@@ -241,6 +259,8 @@ pub struct NormalSection {
     /// Step while gamma1 is in the paper's window (fit::regression::PAPER_WINDOW_MM),
     /// mm, when finer than `step_mm`; 0: `step_mm` everywhere.
     pub window_step_mm: f64,
+    /// Step of the unloading branch, mm; 0: the loading positions in reverse.
+    pub unload_step_mm: f64,
     pub target_beta: f64,
     pub repeats: u32,
     /// Settled frames averaged into each sample (0: the settling's last two windows).
@@ -252,8 +272,10 @@ pub struct NormalSection {
 pub struct TorsionSection {
     pub amplitude_deg: f64,
     pub step_deg: f64,
-    /// Settled frames averaged into each sample (0: the settling's last two windows).
+    /// Settled frames averaged into a sample at the full amplitude (0: the settling's last two windows).
     pub frames: usize,
+    /// A sample at twist x averages `frames` (x / amplitude)^frames_power frames (0: `frames` everywhere).
+    pub frames_power: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -264,6 +286,9 @@ pub struct LimitsSection {
     pub max_gamma1_mm: f64,
     pub max_twist_deg: f64,
     pub retract_mm: f64,
+    /// Where a completed run leaves the stage (None: `approach.start_mm`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub park_mm: Option<f64>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -273,6 +298,8 @@ pub struct SettleSection {
     pub tol_gamma1_mm: f64,
     pub tol_theta1_deg: f64,
     pub timeout_s: f64,
+    /// Frames of one sample at most; a stop averaging more records several (0: one sample a stop).
+    pub max_sample_frames: usize,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -325,7 +352,8 @@ impl Default for ApproachSection {
     fn default() -> Self {
         Self {
             start_mm: 10.0,
-            search_step_mm: 0.25,
+            search_step_mm: 0.5,
+            refine_step_mm: 0.2,
             step_mm: 0.05,
             noise_readings: 20,
             contact_sigmas: 6.0,
@@ -339,22 +367,29 @@ impl Default for ApproachSection {
 }
 impl Default for NormalSection {
     fn default() -> Self {
-        Self { step_mm: 0.05, window_step_mm: 0.1, target_beta: 0.2, repeats: 1, frames: 0 }
+        Self { step_mm: 1.3, window_step_mm: 0.1, unload_step_mm: 1.0, target_beta: 0.2, repeats: 1, frames: 30 }
     }
 }
 impl Default for TorsionSection {
     fn default() -> Self {
-        Self { amplitude_deg: 8.0, step_deg: 0.2, frames: 0 }
+        Self { amplitude_deg: 8.0, step_deg: 2.0, frames: 200, frames_power: 3.0 }
     }
 }
 impl Default for LimitsSection {
     fn default() -> Self {
-        Self { stage_min_mm: 0.0, stage_max_mm: 24.0, max_gamma1_mm: 5.0, max_twist_deg: 10.0, retract_mm: 0.0 }
+        Self {
+            stage_min_mm: 0.0,
+            stage_max_mm: 24.0,
+            max_gamma1_mm: 5.0,
+            max_twist_deg: 10.0,
+            retract_mm: 0.0,
+            park_mm: None,
+        }
     }
 }
 impl Default for SettleSection {
     fn default() -> Self {
-        Self { readings: 2, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0 }
+        Self { readings: 2, tol_gamma1_mm: 0.001, tol_theta1_deg: 0.01, timeout_s: 5.0, max_sample_frames: 10 }
     }
 }
 impl Default for TimeoutsSection {
@@ -464,6 +499,8 @@ impl Script {
         finite("approach.start_mm", a.start_mm)?;
         positive("approach.step_mm", a.step_mm)?;
         positive("approach.search_step_mm", a.search_step_mm)?;
+        // A refine step finer than step_mm is taken as step_mm (a script older than the key keeps working).
+        positive("approach.refine_step_mm", a.refine_step_mm)?;
         if a.search_step_mm < a.step_mm {
             return Err(invalid(
                 "approach.search_step_mm",
@@ -536,6 +573,20 @@ impl Script {
                 format!("must be 0 (off) or at least {MIN_STEP_MM} mm, got {}", n.window_step_mm),
             ));
         }
+        if !(n.unload_step_mm == 0.0 || (n.unload_step_mm.is_finite() && n.unload_step_mm >= MIN_STEP_MM)) {
+            return Err(invalid(
+                "normal.unload_step_mm",
+                format!("must be 0 (the loading positions) or at least {MIN_STEP_MM} mm, got {}", n.unload_step_mm),
+            ));
+        }
+        if n.unload_step_mm > 0.0
+            && (self.limits.stage_max_mm - self.limits.stage_min_mm) / n.unload_step_mm > MAX_STEPS
+        {
+            return Err(invalid(
+                "normal.unload_step_mm",
+                format!("more than {MAX_STEPS:.0} steps across the stage window"),
+            ));
+        }
         if n.repeats == 0 || n.repeats > 100 {
             return Err(invalid("normal.repeats", format!("must be 1..=100, got {}", n.repeats)));
         }
@@ -555,6 +606,9 @@ impl Script {
         }
         if t.frames > MAX_READINGS {
             return Err(invalid("torsion.frames", format!("must be <= {MAX_READINGS}, got {}", t.frames)));
+        }
+        if !(t.frames_power.is_finite() && (0.0..=4.0).contains(&t.frames_power)) {
+            return Err(invalid("torsion.frames_power", format!("must lie in [0, 4], got {}", t.frames_power)));
         }
         Ok(())
     }
@@ -581,6 +635,17 @@ impl Script {
                 ));
             }
         }
+        if let Some(park) = l.park_mm
+            && !(park.is_finite() && l.stage_min_mm <= park && park <= a.start_mm)
+        {
+            return Err(invalid(
+                "limits.park_mm",
+                format!(
+                    "{park} mm lies outside the clear zone [{}, {}] mm (stage_min_mm to approach.start_mm)",
+                    l.stage_min_mm, a.start_mm
+                ),
+            ));
+        }
         if l.retract_mm > a.start_mm {
             return Err(invalid(
                 "limits.retract_mm",
@@ -603,6 +668,12 @@ impl Script {
             return Err(invalid("settle.readings", format!("must be 1..=100, got {}", s.readings)));
         }
         positive("settle.tol_gamma1_mm", s.tol_gamma1_mm)?;
+        if s.max_sample_frames > MAX_READINGS {
+            return Err(invalid(
+                "settle.max_sample_frames",
+                format!("must be <= {MAX_READINGS}, got {}", s.max_sample_frames),
+            ));
+        }
         positive("settle.tol_theta1_deg", s.tol_theta1_deg)?;
         positive("settle.timeout_s", s.timeout_s)?;
         let o = &self.timeouts;
@@ -635,6 +706,38 @@ impl Script {
     pub fn dropout_reads(&self) -> u32 {
         (self.timeouts.sensor_dropout_s / self.timeouts.read_s).ceil().max(1.0) as u32
     }
+    /// Where a completed run leaves the stage: `limits.park_mm`, else `approach.start_mm`.
+    pub fn park_mm(&self) -> f64 {
+        self.limits.park_mm.unwrap_or(self.approach.start_mm)
+    }
+
+    /// Settled frames of a torsion sample at `twist_deg` from the start (0: the settling's own).
+    pub fn twist_frames(&self, twist_deg: f64) -> usize {
+        let t = &self.torsion;
+        if t.frames_power == 0.0 {
+            return t.frames;
+        }
+        let share = (twist_deg.abs() / t.amplitude_deg).min(1.0).powf(t.frames_power);
+        (t.frames as f64 * share).round() as usize
+    }
+
+    /// The frames of the samples one stop averaging `frames` records: parts
+    /// of at most `settle.max_sample_frames` (near equal), or `[frames]`
+    /// when that is 0 or `frames` fits.
+    pub fn sample_parts(&self, frames: usize) -> Vec<usize> {
+        let max = self.settle.max_sample_frames;
+        if max == 0 || frames <= max {
+            return vec![frames];
+        }
+        let parts = frames.div_ceil(max);
+        (0..parts).map(|i| frames / parts + usize::from(i < frames % parts)).collect()
+    }
+
+    /// Samples the torsion sweep records (its stops' replicates counted).
+    pub fn twist_samples(&self) -> usize {
+        self.twist_angles().iter().map(|a| self.sample_parts(self.twist_frames(*a)).len()).sum()
+    }
+
     /// Twist positions of the torsion sweep relative to its start: out, then back to 0.
     pub fn twist_angles(&self) -> Vec<f64> {
         let n = (self.torsion.amplitude_deg / self.torsion.step_deg).round().max(1.0) as usize;
@@ -743,9 +846,35 @@ mod tests {
 
     #[test]
     fn twist_angles_go_out_and_back() {
-        let s =
-            Script { torsion: TorsionSection { amplitude_deg: 1.0, step_deg: 0.25, frames: 0 }, ..Default::default() };
+        let s = Script {
+            torsion: TorsionSection { amplitude_deg: 1.0, step_deg: 0.25, frames: 0, frames_power: 0.0 },
+            ..Default::default()
+        };
         assert_eq!(s.twist_angles(), vec![0.0, 0.25, 0.5, 0.75, 1.0, 0.75, 0.5, 0.25, 0.0]);
         assert_eq!(Script::default().dropout_reads(), 4);
+    }
+
+    #[test]
+    fn torsion_frames_grow_with_twist_and_long_stops_split_into_replicates() {
+        let s = Script::default();
+        // 200 (x / 8 deg)^3 frames: the settling's own at 2 deg, 25 at 4, 84 at 6, 200 at 8.
+        let frames: Vec<usize> = [0.0, 2.0, 4.0, 6.0, 8.0].iter().map(|x| s.twist_frames(*x)).collect();
+        assert_eq!(frames, [0, 3, 25, 84, 200]);
+        // At most 10 frames a sample, the parts near equal, none lost.
+        assert_eq!(s.sample_parts(25), vec![9, 8, 8]);
+        assert_eq!(s.sample_parts(84).iter().sum::<usize>(), 84);
+        assert_eq!(s.sample_parts(200), vec![10; 20]);
+        assert_eq!(s.sample_parts(7), vec![7]);
+        // 0, 2, 4, 6, 8, 6, 4, 2, 0 deg.
+        assert_eq!(s.twist_samples(), 1 + 1 + 3 + 9 + 20 + 9 + 3 + 1 + 1);
+        // Frames the same everywhere with power 0, one sample a stop without a maximum.
+        let even = Script {
+            torsion: TorsionSection { frames_power: 0.0, ..s.torsion },
+            settle: SettleSection { max_sample_frames: 0, ..s.settle },
+            ..s.clone()
+        };
+        assert_eq!(even.twist_frames(2.0), 200);
+        assert_eq!(even.sample_parts(200), vec![200]);
+        assert_eq!(even.twist_samples(), even.twist_angles().len());
     }
 }

@@ -95,6 +95,9 @@ pub struct AptConfig {
     pub expect_models: Vec<String>,
     /// `(max velocity, acceleration)` in user units to set at connect.
     pub velocity: Option<(f64, f64)>,
+    /// Homing velocity in user units per second, set before each homing
+    /// (None: the unit's own home parameters).
+    pub home_velocity: Option<f64>,
     /// How long to wait for the reply to a request.
     pub reply_timeout: Duration,
     /// How often to send MOT_ACK_DCSTATUSUPDATE while the driver is active.
@@ -108,13 +111,16 @@ pub struct AptConfig {
 }
 
 impl AptConfig {
-    /// KDC101 driving a Z825B (25 mm travel), 2.3 mm/s and 4 mm/s² (A.7).
+    /// KDC101 driving a Z825B (25 mm travel), 2.3 mm/s and 4 mm/s² (A.7);
+    /// it homes at the same 2.3 mm/s (a homing at the unit's default creeps
+    /// to the retracted limit for seconds longer).
     pub fn kdc101_z825b() -> Self {
         Self {
             scale: Scale::kdc101_z8(),
             travel: (0.0, 25.0),
             expect_models: vec!["KDC101".into(), "TDC001".into()],
             velocity: Some((2.3, 4.0)),
+            home_velocity: Some(2.3),
             reply_timeout: Duration::from_secs(1),
             keepalive: Duration::from_millis(900),
             poll_period: Duration::from_millis(200),
@@ -129,12 +135,15 @@ impl AptConfig {
     }
 
     /// K10CR1 rotation mount, 10 °/s and 20 °/s² (A.7); soft travel ±360°.
+    /// Its home parameters are left as they are: it homes at 5 °/s at most,
+    /// the factory value, which its manual advises keeping.
     pub fn k10cr1() -> Self {
         Self {
             scale: Scale::k10cr1(),
             travel: (-360.0, 360.0),
             expect_models: vec!["K10CR1".into(), "K10CR2".into()],
             velocity: Some((10.0, 20.0)),
+            home_velocity: None,
             ..Self::kdc101_z825b()
         }
     }
@@ -262,6 +271,7 @@ pub async fn probe_on<T: AsyncRead + AsyncWrite + Unpin + Send>(
     let cfg = AptConfig {
         expect_models: Vec::new(),
         velocity: None,
+        home_velocity: None,
         reply_timeout: timeout,
         // No keep-alive during a probe: only HW_REQ_INFO goes out.
         keepalive: Duration::MAX,

@@ -1,7 +1,7 @@
 //! Byte-exact transaction scripts against an in-memory pipe: the test
 //! plays the unit, reading exactly what the driver must write.
 use super::*;
-use crate::apt::codec::{AptMessage, AptMessage as M, HOST, HwInfo, StatusPayload, encode, status};
+use crate::apt::codec::{AptMessage, AptMessage as M, HOST, HomeParams, HwInfo, StatusPayload, encode, status};
 use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream, duplex};
 
 fn hex(s: &str) -> Vec<u8> {
@@ -162,4 +162,21 @@ async fn stop_returns_once_the_unit_stands_still() {
     let st = stage.last_status().unwrap();
     assert!(!st.moving);
     assert_eq!(stage.config().scale.to_counts(st.position).unwrap(), 181_000);
+}
+
+#[tokio::test]
+async fn homing_sets_the_home_velocity_first_and_keeps_the_units_other_home_parameters() {
+    let (mut stage, mut dev) = connected().await;
+    let unit = async {
+        // MOT_REQ_HOMEPARAMS; the unit answers its own: reverse, switch 1, 1 mm/s, offset 0.1 mm.
+        expect(&mut dev, "41 04 01 00 50 01").await;
+        let own = HomeParams { chan: 1, direction: 2, limit_switch: 1, velocity: 772_981, offset: 3_455 };
+        reply(&mut dev, &M::MotGetHomeParams(own)).await;
+        // MOT_SET_HOMEPARAMS with 2.3 mm/s (1 777 857, A.6), the rest as the unit had it; then MOVE_HOME.
+        expect(&mut dev, "40 04 0E 00 D0 01 01 00 02 00 01 00 C1 20 1B 00 7F 0D 00 00").await;
+        expect(&mut dev, "43 04 01 00 50 01").await;
+        reply(&mut dev, &M::MotMoveHomed { chan: 1 }).await;
+    };
+    let (homed, ()) = tokio::join!(stage.home(Duration::from_secs(5)), unit);
+    homed.unwrap();
 }

@@ -384,11 +384,38 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> AptLink<T> {
     }
 
     pub async fn home(&mut self, timeout: Duration) -> Result<(), AptError> {
+        if let Some(v) = self.cfg.home_velocity {
+            self.set_home_velocity(v).await?;
+        }
         self.arrive_at = None;
         self.begin(PendingKind::Home, Some(0));
         let chan = self.cfg.chan;
         self.send(&AptMessage::MotMoveHome { chan }).await?;
         self.wait(timeout, "MOT_MOVE_HOMED").await.map(|_| ())
+    }
+
+    /// Read the unit's home parameters and, if its homing velocity is not
+    /// `v` (user units per second), write them back with `v`: direction,
+    /// limit switch and offset stay the unit's.
+    pub async fn set_home_velocity(&mut self, v: f64) -> Result<(), AptError> {
+        let chan = self.cfg.chan;
+        let mut p = self
+            .request(&AptMessage::MotReqHomeParams { chan }, "MOT_GET_HOMEPARAMS", |m| match m {
+                AptMessage::MotGetHomeParams(p) => Some(*p),
+                _ => None,
+            })
+            .await?;
+        let want = self
+            .cfg
+            .scale
+            .velocity_to_device(v)
+            .map_err(|source| AptError::Setting { what: "home velocity", source })?;
+        if p.velocity != want {
+            p.velocity = want;
+            p.chan = u16::from(chan);
+            self.send(&AptMessage::MotSetHomeParams(p)).await?;
+        }
+        Ok(())
     }
 
     pub async fn stop(&mut self) -> Result<(), AptError> {

@@ -467,7 +467,12 @@ impl Unit {
             M::MotReqJogParams { .. } => out.push(M::MotGetJogParams(self.jog)),
             M::MotSetLimSwitchParams(p) => self.lim = LimSwitchParams { chan: 1, ..p },
             M::MotReqLimSwitchParams { .. } => out.push(M::MotGetLimSwitchParams(self.lim)),
-            M::MotSetHomeParams(p) => self.home = HomeParams { chan: 1, ..p },
+            M::MotSetHomeParams(p) => {
+                // The next homing runs at the velocity set (within the motor's limit).
+                let v = scale.velocity_from_device(p.velocity);
+                self.with_axis(|ax, _| ax.set_home_velocity(v));
+                self.home = HomeParams { chan: 1, ..p };
+            }
             M::MotReqHomeParams { .. } => out.push(M::MotGetHomeParams(self.home)),
             M::MotSetGenMoveParams { backlash, .. } => self.backlash_counts = backlash,
             M::MotReqGenMoveParams { .. } => {

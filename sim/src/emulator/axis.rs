@@ -285,6 +285,14 @@ impl Axis {
         }
     }
 
+    /// Homing velocity (a controller's SET_HOMEPARAMS), at most the axis'
+    /// maximum velocity; non-positive or non-finite values are ignored.
+    pub fn set_home_velocity(&mut self, v: f64) {
+        if v.is_finite() && v > 0.0 {
+            self.cfg.home_velocity = v.min(self.cfg.max_velocity);
+        }
+    }
+
     /// Home offset distance: after finding the switch the axis moves this far
     /// forward and zeroes its counter there. A rotation mount homes on a
     /// switch but turns both ways from its zero.

@@ -6,6 +6,11 @@
 use super::*;
 use sim::experiment::{dwell_count, reload_path, reversal_angles, sweep_angles};
 
+/// Frames an experiment's sample averages: the settling's own. The sweeps'
+/// `frames` are sized for their few long stops; an experiment's samples
+/// follow its path closely, one settled sample a step.
+const EXPERIMENT_FRAMES: usize = 0;
+
 impl<S, R, G> Sequencer<S, R, G>
 where
     S: LinearStage + Identify,
@@ -20,7 +25,7 @@ where
         let hold = self.stage_mm;
         match spec {
             ExperimentSpec::Dwell { hold_s, every_s } => {
-                let frames = self.script.normal.frames;
+                let frames = EXPERIMENT_FRAMES;
                 let t_start = self.clock.t_last;
                 for i in 0..dwell_count(hold_s, every_s) {
                     self.track.cursor = Cursor::Experiment { left: to_go };
@@ -40,7 +45,7 @@ where
                 for (pos, dir) in reload_path(hold, contact, fraction, steps, cycles) {
                     self.track.cursor = Cursor::Experiment { left: to_go };
                     self.move_stage(pos, "reload experiment").await?;
-                    let r = self.settle_frames(self.script.normal.frames).await?;
+                    let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
                     self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
                     to_go = to_go.saturating_sub(1);
                 }
@@ -139,7 +144,7 @@ where
         for &(angle, dir) in angles {
             self.track.cursor = Cursor::Experiment { left: *to_go };
             self.move_mount(self.twist_zero + angle, "twist experiment").await?;
-            let r = self.settle_frames(self.script.torsion.frames).await?;
+            let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
             self.record(Phase::Torsion, hold, r, None, Some(dir), Some(label))?;
             *to_go = to_go.saturating_sub(1);
         }

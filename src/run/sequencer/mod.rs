@@ -69,7 +69,6 @@ enum Cursor {
     Setup,
     Load {
         rep: u32,
-        k: usize,
         beta: f64,
     },
     Unload {
@@ -135,6 +134,27 @@ pub struct Sequencer<S, R, G> {
     /// The recording's metadata, once written (the closed loop diagnoses the samples so far with it).
     meta: Option<Metadata>,
     adaptive: Vec<AdaptiveStep>,
+    /// The contact while the normal sweep's first samples place it (their
+    /// recording waits for the header, which declares the contact).
+    pending: Option<PendingContact>,
+}
+
+/// The approach's provisional contact, awaiting the sweep's shallow samples.
+#[derive(Debug)]
+struct PendingContact {
+    /// gamma1 above which a reading is in contact, mm.
+    threshold: f64,
+    /// The first pass's contact uncertainty, if the sweep's samples cannot place it.
+    fallback_sd: Option<f64>,
+    held: Vec<Held>,
+}
+
+/// A settled sample held back until the contact is placed.
+#[derive(Debug)]
+struct Held {
+    stage_mm: f64,
+    reading: GaugeReading,
+    rep: Option<u32>,
 }
 
 /// The sensor's reading noise: measured at rest before the approach, and
@@ -168,8 +188,64 @@ struct Tracking {
     cursor: Cursor,
     /// Load samples of the first normal sweep, once it ended.
     loads_rep0: Option<usize>,
-    /// Rig time and sample count when the normal sweep began.
-    sweep_start: Option<(f64, usize)>,
+    /// Rig time when the normal sweep began.
+    sweep_start: Option<f64>,
+    /// What moves and frames cost in rig time, as measured (for the estimate of time left).
+    costs: Costs,
+    /// Growth of gamma1 with the approach over the first refinement pass's deepest readings.
+    gamma1_ratio: Option<f64>,
+}
+
+/// Rig time of moves and frames as the run measures them: a move's time runs
+/// from the last reading before it to the first after it; short moves are
+/// limited by acceleration, so their time grows as the square root of the
+/// distance.
+#[derive(Debug, Default)]
+struct Costs {
+    /// (rig time before, mount?, distance) of the move whose end is not yet read.
+    open_move: Option<(f64, bool, f64)>,
+    /// (sum of move times, sum of sqrt(distance)): stage, mount.
+    stage: (f64, f64),
+    mount: (f64, f64),
+    /// Sum and count of the intervals between consecutive readings.
+    frame: (f64, u32),
+    last_read_s: Option<f64>,
+}
+
+impl Costs {
+    fn note_move(&mut self, t_s: f64, mount: bool, distance: f64) {
+        self.open_move = (distance > 0.0).then_some((t_s, mount, distance));
+    }
+
+    fn note_read(&mut self, t_s: f64) {
+        if let Some(prev) = self.last_read_s {
+            let dt = t_s - prev;
+            if dt > 0.0 && dt < 0.2 && self.open_move.is_none() {
+                self.frame.0 += dt;
+                self.frame.1 += 1;
+            }
+        }
+        self.last_read_s = Some(t_s);
+        if let Some((t0, mount, d)) = self.open_move.take() {
+            let acc = if mount { &mut self.mount } else { &mut self.stage };
+            acc.0 += (t_s - t0).max(0.0);
+            acc.1 += d.sqrt();
+        }
+    }
+
+    /// Rig time per frame, s.
+    fn frame_s(&self) -> Option<f64> {
+        (self.frame.1 >= 10).then(|| self.frame.0 / self.frame.1 as f64)
+    }
+
+    /// Rig time of a move of `distance` (mm or degrees), s; the mount's
+    /// unmeasured yet: a move of a twentieth of the stage's rate.
+    fn move_s(&self, mount: bool, distance: f64) -> Option<f64> {
+        let per = |a: (f64, f64)| (a.1 > 0.0).then(|| a.0 / a.1);
+        let c =
+            if mount { per(self.mount).or_else(|| per(self.stage).map(|c| c / 20f64.sqrt())) } else { per(self.stage) };
+        c.map(|c| c * distance.abs().sqrt())
+    }
 }
 
 /// The message a caught panic carried (`&str` or `String` payloads), or
@@ -230,9 +306,17 @@ where
             pause_requested: false,
             consecutive_timeouts: 0,
             last_fit: None,
-            track: Tracking { step_index: 0, cursor: Cursor::Setup, loads_rep0: None, sweep_start: None },
+            track: Tracking {
+                step_index: 0,
+                cursor: Cursor::Setup,
+                loads_rep0: None,
+                sweep_start: None,
+                costs: Costs::default(),
+                gamma1_ratio: None,
+            },
             meta: None,
             adaptive: Vec::new(),
+            pending: None,
         })
     }
 
@@ -276,7 +360,14 @@ where
     }
 
     fn total_steps(&self) -> usize {
-        6 + self.script.normal.repeats as usize + self.script.experiment.len()
+        6 + self.script.normal.repeats as usize + self.script.experiment.len() + usize::from(self.torsion_at_top())
+    }
+
+    /// The torsion sweep runs at the top of the last loading branch (the
+    /// unloading after it) unless experiment steps or the closed loop follow
+    /// it: they start at the torsion depth.
+    fn torsion_at_top(&self) -> bool {
+        self.script.experiment.is_empty() && !self.script.adaptive.enabled
     }
 
     fn emit(&self, ev: RunEvent) {
@@ -354,24 +445,38 @@ where
         self.mark_phase("approach").await?;
         self.approach(rest).await?;
         let reps = self.script.normal.repeats;
-        let mut crossing = None;
+        let at_top = self.torsion_at_top();
+        let mut path = Vec::new();
         for rep in 0..reps {
             self.step(3 + rep as usize, format!("normal sweep {}/{}", rep + 1, reps), RunPhase::Normal);
             if rep == 0 {
                 self.mark_phase("normal").await?;
             }
             self.device_status().await?;
-            crossing = Some(self.normal_sweep(rep).await?);
+            path = self.normal_load(rep).await?;
+            if !(at_top && rep + 1 == reps) {
+                self.normal_unload(rep, &path).await?;
+            }
         }
-        let base = 3 + reps as usize;
-        self.step(base, "return to torsion depth", RunPhase::Torsion);
+        let mut base = 3 + reps as usize;
         self.mark_phase("torsion").await?;
-        let crossing =
-            crossing.ok_or_else(|| Halt { culprit: Culprit::Procedure, message: "no normal sweep ran".into() })?;
-        self.torsion_depth(crossing).await?;
+        if at_top {
+            self.step(base, "hold the torsion depth", RunPhase::Torsion);
+            self.hold_depth(&path).await?;
+        } else {
+            self.step(base, "return to torsion depth", RunPhase::Torsion);
+            let crossing = self.load_crossing_of(&path)?;
+            self.torsion_depth(crossing).await?;
+        }
         self.step(base + 1, "torsion sweep", RunPhase::Torsion);
         self.device_status().await?;
         self.torsion_sweep().await?;
+        if at_top {
+            base += 1;
+            self.step(base + 1, format!("normal unload {reps}/{reps}"), RunPhase::Normal);
+            self.mark_phase("normal").await?;
+            self.normal_unload(reps - 1, &path).await?;
+        }
         let experiments = self.script.experiment.clone();
         if !experiments.is_empty() {
             self.mark_phase("experiments").await?;

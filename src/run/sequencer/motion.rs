@@ -21,6 +21,9 @@ where
         self.gamma1_bound_mm = self.guard.gamma1_bound(from, self.gamma1_bound_mm, target);
         self.last_inward_mm = if from.is_finite() { (target - from).max(0.0) } else { 0.0 };
         let timeout = self.script.move_timeout();
+        if from.is_finite() {
+            self.track.costs.note_move(self.clock.t_last, false, (target - from).abs());
+        }
         let moved =
             drive(&mut self.stage, target, timeout, &mut self.stage_mm, &mut self.controls, &mut self.pause_requested)
                 .await;
@@ -38,6 +41,9 @@ where
             return Err(self.safety(context, v));
         }
         let timeout = self.script.move_timeout();
+        if self.mount_deg.is_finite() {
+            self.track.costs.note_move(self.clock.t_last, true, (target - self.mount_deg).abs());
+        }
         let moved =
             drive(&mut self.mount, target, timeout, &mut self.mount_deg, &mut self.controls, &mut self.pause_requested)
                 .await;
@@ -90,6 +96,13 @@ where
     /// Stop everything, back the stage off, say what happened.
     pub(super) async fn abort(&mut self, halt: Halt) -> AbortInfo {
         self.log(LogLevel::Error, format!("{}: {}", halt.culprit.as_str(), halt.message));
+        // Samples held while the sweep's start placed the contact are kept
+        // too: the header with the contact as far as they place it.
+        if self.pending.is_some()
+            && let Err(e) = self.place_contact()
+        {
+            self.log(LogLevel::Warn, format!("held samples not written: {}", e.message));
+        }
         if let Err(e) = self.stage.stop().await {
             self.log(LogLevel::Warn, format!("{} stop: {e}", self.stage_name));
         }

@@ -95,16 +95,20 @@ pub struct PhaseTime {
     pub rig_time_s: f64,
 }
 
-/// Durations between phase marks; the last phase runs to `end_s`.
+/// Durations between phase marks; the last phase runs to `end_s`. A phase
+/// marked more than once (the normal sweep's unloading after a torsion sweep
+/// at its top) is summed, in the order of its first mark.
 pub(super) fn phase_times(marks: &[(&'static str, f64)], end_s: f64) -> Vec<PhaseTime> {
-    marks
-        .iter()
-        .enumerate()
-        .map(|(i, &(phase, t))| {
-            let next = marks.get(i + 1).map_or(end_s, |m| m.1);
-            PhaseTime { phase, rig_time_s: (next - t).max(0.0) }
-        })
-        .collect()
+    let mut out: Vec<PhaseTime> = Vec::new();
+    for (i, &(phase, t)) in marks.iter().enumerate() {
+        let next = marks.get(i + 1).map_or(end_s, |m| m.1);
+        let d = (next - t).max(0.0);
+        match out.iter_mut().find(|p| p.phase == phase) {
+            Some(p) => p.rig_time_s += d,
+            None => out.push(PhaseTime { phase, rig_time_s: d }),
+        }
+    }
+    out
 }
 
 /// What a run leaves behind. The caller fits the recording.

@@ -71,6 +71,7 @@ where
     pub(super) fn note_reading(&mut self, r: &GaugeReading) {
         let t0 = *self.clock.t0.get_or_insert(r.t_s);
         self.clock.t_last = (r.t_s - t0).max(self.clock.t_last);
+        self.track.costs.note_read(self.clock.t_last);
         self.gamma1_mm = r.gamma1_mm;
         self.gamma1_bound_mm = self.gamma1_bound_mm.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
     }
@@ -95,8 +96,8 @@ where
         // Two means of n noisy readings differ by ~sigma sqrt(2/n): never demand less than 3 of that.
         let se = (2.0 / n as f64).sqrt();
         let (live_g, live_t) = self.noise.live.unwrap_or((0.0, 0.0));
-        let tol_g = s.tol_gamma1_mm.max(3.0 * self.noise.gamma1_mm.max(live_g) * se);
-        let tol_t = s.tol_theta1_deg.max(3.0 * self.noise.theta1_deg.max(live_t) * se);
+        let floor_g = self.noise.gamma1_mm.max(live_g);
+        let floor_t = self.noise.theta1_deg.max(live_t);
         let mut buf: Vec<GaugeReading> = Vec::new();
         let mut t_start = None;
         loop {
@@ -106,6 +107,17 @@ where
             buf.push(r);
             if buf.len() >= 3 * n {
                 let k = buf.len();
+                // Before the run knows the noise (the rest readings of a
+                // sensor with a dead band are exact zeros, and none has
+                // settled in contact yet), the readings' own (successive
+                // differences: insensitive to a slow drift) set the
+                // tolerance: a fixed one below the noise would hold a small
+                // contact until the timeout.
+                let (here_g, here_t) = diff_noise(&buf[k - 3 * n..]);
+                let noise_g = if floor_g > 0.0 { floor_g } else { here_g };
+                let noise_t = if floor_t > 0.0 { floor_t } else { here_t };
+                let tol_g = s.tol_gamma1_mm.max(3.0 * noise_g * se);
+                let tol_t = s.tol_theta1_deg.max(3.0 * noise_t * se);
                 let m3 = mean(&buf[k - n..]);
                 let m2 = mean(&buf[k - 2 * n..k - n]);
                 let m1 = mean(&buf[k - 3 * n..k - 2 * n]);
@@ -152,11 +164,7 @@ where
         if rs.len() < 3 {
             return;
         }
-        let sd = |f: fn(&GaugeReading) -> f64| {
-            let v = rs.windows(2).map(|w| (f(&w[1]) - f(&w[0])).powi(2)).sum::<f64>() / (rs.len() - 1) as f64;
-            (v / 2.0).sqrt()
-        };
-        let (g, t) = (sd(|r| r.gamma1_mm), sd(|r| r.theta1_deg));
+        let (g, t) = diff_noise(rs);
         self.noise.live = Some(match self.noise.live {
             None => (g, t),
             Some((g0, t0)) => ((0.9 * g0 * g0 + 0.1 * g * g).sqrt(), (0.9 * t0 * t0 + 0.1 * t * t).sqrt()),
@@ -201,6 +209,20 @@ pub(super) fn mean(xs: &[GaugeReading]) -> GaugeReading {
     m.theta1_sd_deg = of_mean(|r| r.theta1_sd_deg);
     m.gamma1_common_sd_mm = (shared > 0.0).then_some(shared);
     m
+}
+
+/// The standard deviation of one reading of gamma1 and of theta1 from the
+/// successive differences of `rs` (a slow drift hardly enters them); zero
+/// with fewer than two readings.
+pub(super) fn diff_noise(rs: &[GaugeReading]) -> (f64, f64) {
+    if rs.len() < 2 {
+        return (0.0, 0.0);
+    }
+    let sd = |f: fn(&GaugeReading) -> f64| {
+        let v = rs.windows(2).map(|w| (f(&w[1]) - f(&w[0])).powi(2)).sum::<f64>() / (rs.len() - 1) as f64;
+        (v / 2.0).sqrt()
+    };
+    (sd(|r| r.gamma1_mm), sd(|r| r.theta1_deg))
 }
 
 pub(super) fn std_dev(xs: impl Iterator<Item = f64> + Clone) -> f64 {

@@ -102,7 +102,13 @@ where
         let mut pos = a.start_mm;
         let mut last_clear = pos;
         loop {
-            let next = pos + a.search_step_mm;
+            // A step the soft limits would refuse (a reading right after a
+            // move may lag it by the whole move) is halved, down to step_mm.
+            let mut step = a.search_step_mm;
+            while step > a.step_mm && self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos + step).is_err() {
+                step = (0.5 * step).max(a.step_mm);
+            }
+            let next = pos + step;
             if !self.guard.stage_in_travel(next) {
                 return Err(Halt {
                     culprit: Culprit::Procedure,
@@ -124,14 +130,13 @@ where
         }
         // Refine: settled readings deeper in, where the grid resolves the
         // contact, and a line through them back to gamma1 = 0.
-        let mut pts = Vec::new();
-        let first = self.settle().await?;
-        pts.push((pos, first.gamma1_mm));
+        // Settled (its two readings may lag the move), the first point in contact.
+        let mut pts = vec![(pos, self.settle().await?.gamma1_mm)];
         for _ in 0..a.refine_steps {
             if pts.last().is_some_and(|p| p.1 >= a.refine_to_gamma1_mm) {
                 break;
             }
-            let next = pos + a.step_mm;
+            let next = pos + a.refine_step_mm.max(a.step_mm);
             if self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, next).is_err() {
                 break;
             }
@@ -145,70 +150,76 @@ where
         let provisional = line
             .or_else(|| contact_from_line(&pts, threshold))
             .unwrap_or(0.5 * (last_clear + pts[0].0))
-            .clamp(last_clear - a.step_mm, pts[0].0);
+            .clamp(last_clear - a.refine_step_mm.max(a.step_mm), pts[0].0);
         // The first pass's readings were taken while the sensing was still
-        // learning the contact's shape; the second pass's stand alone when
-        // there are enough of them.
-        let second = self.reapproach(provisional).await?;
-        let second: Vec<_> = second.into_iter().filter(|p| p.1 > threshold).collect();
-        let shallow = second.iter().filter(|p| p.1 < a.refine_from_gamma1_mm).count();
-        let found = if shallow >= 2 { contact_from_eq22(&second) } else { None };
+        // learning the contact's shape. The second pass is the normal sweep's
+        // own start: it steps in by approach.step_mm from before the
+        // provisional contact, and its shallow samples place the contact
+        // (held back from the recording until then, `PendingContact`).
+        let fallback_sd = if line.is_some() { contact_uncertainty(&window, threshold) } else { None };
+        self.contact_mm = Some(provisional);
+        // How fast gamma1 grows with the approach over the pass (for the estimate of time left).
+        self.track.gamma1_ratio = match pts.as_slice() {
+            [p, .., q] if q.0 > p.0 => Some((q.1 - p.1) / (q.0 - p.0)).filter(|r| r.is_finite() && *r > 0.0),
+            _ => None,
+        };
+        self.pending = Some(PendingContact { threshold, fallback_sd, held: Vec::new() });
+        self.log(LogLevel::Info, format!("provisional contact at stage {provisional:.4} mm"));
+        let start = (provisional - a.pre_contact_mm).max(self.guard.limits().stage_min_mm);
+        self.move_stage(start, "to the normal sweep start").await?;
+        Ok(())
+    }
+
+    /// Place the contact from the held samples of the sweep's start (the
+    /// paper's depth relation through the settled points in contact, Eq. 22,
+    /// when at least two are shallow), write the recording's header, and
+    /// record the held samples against it. The provisional contact stands
+    /// when they cannot place it.
+    pub(super) fn place_contact(&mut self) -> Step<()> {
+        let Some(p) = self.pending.take() else { return Ok(()) };
+        let a = self.script.approach;
+        let pts: Vec<(f64, f64, Option<f64>)> = p
+            .held
+            .iter()
+            .filter(|h| h.reading.gamma1_mm > p.threshold)
+            .map(|h| (h.stage_mm, h.reading.gamma1_mm, h.reading.gamma1_sd_mm))
+            .collect();
+        let shallow = pts.iter().filter(|q| q.1 < a.refine_from_gamma1_mm).count();
+        let found = if shallow >= 2 { contact_from_eq22(&pts) } else { None };
+        let provisional = self.contact_mm.unwrap_or(self.stage_mm);
         let (contact, contact_sd_mm) = match found {
             Some((c, sd)) => (c, Some(sd)),
-            _ => (provisional, if line.is_some() { contact_uncertainty(&window, threshold) } else { None }),
+            None => (provisional, p.fallback_sd),
         };
         self.contact_mm = Some(contact);
         let sd_text = contact_sd_mm.map(|sd| format!(" (± {:.1} um)", sd * 1e3)).unwrap_or_default();
         self.log(LogLevel::Info, format!("first contact at stage {contact:.4} mm{sd_text}"));
         self.start_recording(contact_sd_mm)?;
-        // Back off to the normal sweep's start (the same direction of travel as loading follows).
-        let start = (contact - a.pre_contact_mm).max(self.guard.limits().stage_min_mm);
-        self.move_stage(start, "back to the normal sweep start").await?;
+        for h in p.held {
+            self.record(Phase::Normal, h.stage_mm, h.reading, h.rep, Some(Direction::Load), None)?;
+        }
         Ok(())
     }
 
-    /// Step in again from just above `provisional`, now that the sensing has
-    /// learnt the contact's place and shape on the deep readings
-    /// (docs/sensing.md, "Small contacts"): the settled (stage, gamma1,
-    /// standard error) readings up to `refine_to_gamma1_mm`. The shallow ones
-    /// pin the contact point; on the way the sensing learns the contact's
-    /// curvature at the sizes the sweep's first samples have.
-    async fn reapproach(&mut self, provisional: f64) -> Step<Vec<(f64, f64, Option<f64>)>> {
-        let a = self.script.approach;
-        let mut pos = (provisional - a.step_mm).max(self.guard.limits().stage_min_mm);
-        self.move_stage(pos, "above the contact").await?;
-        let mut pts = Vec::new();
-        for _ in 0..a.refine_steps {
-            let next = pos + a.step_mm;
-            if self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, next).is_err() {
-                break;
-            }
-            self.move_stage(next, "contact refinement").await?;
-            pos = next;
-            let r = self.settle().await?;
-            pts.push((pos, r.gamma1_mm, r.gamma1_sd_mm));
-            if r.gamma1_mm >= a.refine_to_gamma1_mm {
-                break;
-            }
-        }
-        Ok(pts)
-    }
-
-    /// One load/unload cycle. Returns the two load points around the target
-    /// depth: ((stage_mm, beta) before, (stage_mm, beta) at/after).
-    pub(super) async fn normal_sweep(&mut self, rep: u32) -> Step<((f64, f64), (f64, f64))> {
-        let contact = self.contact_mm.unwrap_or(self.stage_mm);
+    /// The loading branch of one normal sweep: step in until the measured
+    /// depth beta reaches the target (the last step shortened to land on
+    /// it). Returns the (stage_mm, gamma1_mm) of its samples.
+    pub(super) async fn normal_load(&mut self, rep: u32) -> Step<Vec<(f64, f64)>> {
         let n = self.script.normal;
+        let a = self.script.approach;
         let r2 = self.script.indenter.r_mm;
-        let start = (contact - self.script.approach.pre_contact_mm).max(self.guard.limits().stage_min_mm);
+        let contact0 = self.contact_mm.unwrap_or(self.stage_mm);
+        let start = (contact0 - a.pre_contact_mm).max(self.guard.limits().stage_min_mm);
         let mut path: Vec<(f64, f64)> = Vec::new();
-        let mut k = 0usize;
         let mut pos = start;
         if self.track.sweep_start.is_none() {
-            self.track.sweep_start = Some((self.clock.t_last, self.samples.len()));
+            self.track.sweep_start = Some(self.clock.t_last);
         }
+        let tol = DEPTH_TOLERANCE * n.target_beta;
         loop {
-            let beta_now = path.last().map(|p| p.1).unwrap_or(0.0);
+            let contact = self.contact_mm.unwrap_or(contact0);
+            let beta_of = |p: &(f64, f64)| ((p.0 - contact) - p.1) / r2;
+            let beta_now = path.last().map(beta_of).unwrap_or(0.0);
             if let Err(v) = self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos) {
                 return Err(self.safety(
                     &format!(
@@ -220,42 +231,187 @@ where
                 ));
             }
             self.move_stage(pos, "normal sweep").await?;
-            let r = self.settle_frames(n.frames).await?;
+            // Past the paper's window the samples average `frames`; the
+            // contact and window stretches take the settling's own.
+            let coarse = path.last().is_some_and(|p| p.1 >= crate::fit::regression::PAPER_WINDOW_MM[1]);
+            let frames = if coarse { n.frames } else { 0 };
+            let r = if let Some(p) = self.pending.as_ref() {
+                let threshold = p.threshold;
+                if path.is_empty() {
+                    // The sweep's first stop follows the move back out of the
+                    // first pass's deepest contact: the elastomer recovers
+                    // slowest from there; a settling more before it counts.
+                    self.settle().await?;
+                }
+                let r = self.settle().await?;
+                // The sweep must start out of contact, or its samples cannot
+                // place the contact: a provisional contact placed too deep
+                // moves the start back.
+                if path.is_empty() && r.gamma1_mm > threshold {
+                    let back = (pos - a.pre_contact_mm.max(a.step_mm) * 2.0).max(self.guard.limits().stage_min_mm);
+                    if back < pos && pos - back > 0.0 && contact0 - back < MAX_START_BACK_MM {
+                        self.log(
+                            LogLevel::Info,
+                            format!(
+                                "gamma1 {:.4} mm at the sweep's start {pos:.4} mm: starting from {back:.4} mm",
+                                r.gamma1_mm
+                            ),
+                        );
+                        pos = back;
+                        continue;
+                    }
+                }
+                let last = r.gamma1_mm >= a.refine_to_gamma1_mm || path.len() + 1 >= a.refine_steps.max(4) * 2;
+                if let Some(p) = self.pending.as_mut() {
+                    p.held.push(Held { stage_mm: pos, reading: r, rep: Some(rep) });
+                }
+                if last {
+                    self.place_contact()?;
+                }
+                r
+            } else {
+                self.sample(Phase::Normal, pos, frames, Some(rep), Some(Direction::Load)).await?
+            };
+            let contact = self.contact_mm.unwrap_or(contact0);
             let beta = ((pos - contact) - r.gamma1_mm) / r2;
-            self.track.cursor = Cursor::Load { rep, k, beta };
-            self.record(Phase::Normal, pos, r, Some(rep), Some(Direction::Load), None)?;
-            path.push((pos, beta));
-            if beta >= n.target_beta {
+            self.track.cursor = Cursor::Load { rep, beta };
+            self.progress();
+            path.push((pos, r.gamma1_mm));
+            if beta >= n.target_beta - tol && self.pending.is_none() {
                 break;
             }
-            pos += next_load_step(&n, pos - contact, r.gamma1_mm);
-            k += 1;
+            let approach = pos - contact;
+            let mut step = next_load_step(&n, approach, r.gamma1_mm);
+            if r.gamma1_mm < a.refine_to_gamma1_mm {
+                step = step.min(a.step_mm);
+            }
+            // Land on the target: the depth grows along the stage at the
+            // slope of the last two samples (gamma2 over the approach).
+            if let [.., p0, p1] = path.as_slice() {
+                let slope = (beta_of(p1) - beta_of(p0)) / (p1.0 - p0.0);
+                if slope > 0.0 && beta + slope * step > n.target_beta + tol {
+                    step = step.min(((n.target_beta - beta) / slope + 0.5 * tol / slope).max(a.step_mm));
+                }
+            }
+            pos += step;
         }
         if rep == 0 {
             self.track.loads_rep0 = Some(path.len());
         }
+        let contact = self.contact_mm.unwrap_or(contact0);
+        let top = path.last().copied().unwrap_or((start, 0.0));
         self.log(
             LogLevel::Info,
             format!(
                 "normal sweep {}: beta {:.4} reached at stage {:.4} mm",
                 rep + 1,
-                path.last().map(|p| p.1).unwrap_or(0.0),
-                path.last().map(|p| p.0).unwrap_or(0.0)
+                ((top.0 - contact) - top.1) / r2,
+                top.0
             ),
         );
-        let crossing = match path.as_slice() {
-            [.., a, b] => (*a, *b),
-            [b] => ((start, 0.0), *b),
-            [] => unreachable_path()?,
+        Ok(path)
+    }
+
+    /// The unloading branch: from the top of `path` back out, by
+    /// `normal.unload_step_mm` to the last stop in contact (0: through the
+    /// loading positions, to the sweep's start).
+    pub(super) async fn normal_unload(&mut self, rep: u32, path: &[(f64, f64)]) -> Step<()> {
+        let n = self.script.normal;
+        let Some(&(top, _)) = path.last() else { return unreachable_path() };
+        let start = path.first().map_or(top, |p| p.0);
+        let back: Vec<f64> = if n.unload_step_mm > 0.0 {
+            // Stops in contact only: one out of it reads nothing the fit can use.
+            let contact = self.contact_mm.unwrap_or(start);
+            let count = ((top - start) / n.unload_step_mm).ceil().max(1.0) as usize;
+            (1..=count).map(|i| top - i as f64 * n.unload_step_mm).filter(|p| *p > contact).collect()
+        } else {
+            path.iter().rev().skip(1).map(|p| p.0).collect()
         };
-        let back: Vec<f64> = path.iter().rev().skip(1).map(|p| p.0).collect();
         for (i, pos) in back.iter().enumerate() {
             self.track.cursor = Cursor::Unload { rep, left: back.len() - i };
             self.move_stage(*pos, "normal unload").await?;
-            let r = self.settle_frames(n.frames).await?;
-            self.record(Phase::Normal, *pos, r, Some(rep), Some(Direction::Unload), None)?;
+            self.sample(Phase::Normal, *pos, n.frames, Some(rep), Some(Direction::Unload)).await?;
         }
-        Ok(crossing)
+        Ok(())
+    }
+
+    /// Settle at a stop and record what it reads: `frames` settled frames
+    /// (0: the settling's own), as consecutive samples of at most
+    /// `settle.max_sample_frames` each (replicates at one stop: the same
+    /// information, more residuals to judge the fit by). Returns the mean of
+    /// them all.
+    pub(super) async fn sample(
+        &mut self,
+        phase: Phase,
+        stage_abs: f64,
+        frames: usize,
+        rep: Option<u32>,
+        dir: Option<Direction>,
+    ) -> Step<GaugeReading> {
+        let parts = self.script.sample_parts(frames);
+        let mut all = Vec::with_capacity(parts.len());
+        let rest = if parts.len() == 1 {
+            let first = self.settle_frames(parts[0]).await?;
+            self.record(phase, stage_abs, first, rep, dir, None)?;
+            all.push(first);
+            &parts[1..]
+        } else {
+            // A long stop: its samples start after the settling, whose
+            // windows may still carry what relaxation the tolerance allows.
+            self.settle().await?;
+            &parts[..]
+        };
+        for &f in rest {
+            let mut rs = Vec::with_capacity(f);
+            while rs.len() < f {
+                self.checkpoint().await?;
+                rs.push(self.read().await?);
+            }
+            let m = mean(&rs);
+            self.record(phase, stage_abs, m, rep, dir, None)?;
+            all.push(m);
+        }
+        Ok(mean(&all))
+    }
+
+    /// At the top of the loading branch, when the torsion sweep follows it
+    /// there: keep the depth if it is within tolerance of the target, else
+    /// correct it on the readings.
+    pub(super) async fn hold_depth(&mut self, path: &[(f64, f64)]) -> Step<()> {
+        self.track.cursor = Cursor::Depth;
+        let target = self.script.normal.target_beta;
+        let contact = self.contact_mm.unwrap_or(self.stage_mm);
+        let r2 = self.script.indenter.r_mm;
+        let beta_of = |p: &(f64, f64)| ((p.0 - contact) - p.1) / r2;
+        let crossing = match path {
+            [.., a, b] => ((a.0, beta_of(a)), (b.0, beta_of(b))),
+            _ => return unreachable_path(),
+        };
+        let mut beta = crossing.1.1;
+        if (beta - target).abs() > DEPTH_TOLERANCE * target {
+            beta = self.seek_depth(crossing, target, 4).await?;
+        }
+        self.torsion_beta = Some(beta);
+        self.log(
+            LogLevel::Info,
+            format!("holding beta {beta:.4} at stage {:.4} mm for the torsion sweep", self.stage_mm),
+        );
+        Ok(())
+    }
+
+    /// The two load points around the target depth: ((stage_mm, beta) before, (stage_mm, beta) at/after).
+    pub(super) fn load_crossing_of(&self, path: &[(f64, f64)]) -> Step<((f64, f64), (f64, f64))> {
+        let contact = self.contact_mm.unwrap_or(self.stage_mm);
+        let r2 = self.script.indenter.r_mm;
+        let at = |p: &(f64, f64)| (p.0, ((p.0 - contact) - p.1) / r2);
+        match path {
+            [.., a, b] => Ok((at(a), at(b))),
+            [b] => {
+                let start = (contact - self.script.approach.pre_contact_mm).max(self.guard.limits().stage_min_mm);
+                Ok(((start, 0.0), at(b)))
+            }
+            [] => unreachable_path(),
+        }
     }
 
     pub(super) async fn torsion_depth(&mut self, crossing: ((f64, f64), (f64, f64))) -> Step<()> {
@@ -292,7 +448,7 @@ where
             let r = self.settle().await?;
             beta = ((pos - contact) - r.gamma1_mm) / r2;
             // Good to a quarter of a percent of the target, or as good as the step allows.
-            if (beta - target).abs() <= 0.0025 * target {
+            if (beta - target).abs() <= DEPTH_TOLERANCE * target {
                 break;
             }
             pos += ((target - beta) / slope).clamp(-step, step);
@@ -310,16 +466,15 @@ where
             self.track.cursor = Cursor::Twist { left: angles.len() - i };
             let target = self.twist_zero + angle;
             self.move_mount(target, "torsion sweep").await?;
-            let r = self.settle_frames(self.script.torsion.frames).await?;
             let dir = if i <= half { Direction::Load } else { Direction::Unload };
-            self.record(Phase::Torsion, hold, r, None, Some(dir), None)?;
+            self.sample(Phase::Torsion, hold, self.script.twist_frames(*angle), None, Some(dir)).await?;
         }
         Ok(())
     }
 
+    /// Out of contact to the park position (inside the clear zone), the mount back to the twist zero.
     pub(super) async fn retract(&mut self) -> Step<()> {
-        let retract = self.script.limits.retract_mm;
-        self.move_stage(retract, "retract").await?;
+        self.move_stage(self.script.park_mm(), "retract").await?;
         if (self.mount_deg - self.twist_zero).abs() > 1e-9 {
             self.move_mount(self.twist_zero, "retract").await?;
         }
@@ -339,6 +494,12 @@ pub(super) fn next_load_step(n: &crate::run::script::NormalSection, approach_mm:
     let next = gamma1_mm * (1.0 + n.step_mm / approach_mm);
     if next >= lo && gamma1_mm < hi { n.window_step_mm.min(n.step_mm) } else { n.step_mm }
 }
+
+/// How far before the provisional contact the normal sweep may start, mm.
+const MAX_START_BACK_MM: f64 = 2.0;
+
+/// How close to the target depth the torsion sweep is held, as a fraction of it.
+pub(super) const DEPTH_TOLERANCE: f64 = 0.0025;
 
 pub(super) fn unreachable_path<T>() -> Step<T> {
     Err(Halt { culprit: Culprit::Procedure, message: "normal sweep recorded no load point".into() })

@@ -82,3 +82,13 @@ fn loading_steps_finely_where_the_papers_window_is() {
     let fine = crate::run::script::NormalSection { step_mm: 0.05, ..n };
     assert_eq!(next_load_step(&fine, 1.0, 0.75), 0.05);
 }
+
+#[test]
+fn phase_times_sum_a_phase_marked_twice_in_the_order_of_its_first_mark() {
+    // The normal sweep's unloading after a torsion sweep at its top is marked `normal` again.
+    let marks =
+        [("homing", 0.0), ("approach", 30.0), ("normal", 36.0), ("torsion", 52.0), ("normal", 73.0), ("retract", 86.0)];
+    let t = super::outcome::phase_times(&marks, 88.0);
+    let got: Vec<(&str, f64)> = t.iter().map(|p| (p.phase, p.rig_time_s)).collect();
+    assert_eq!(got, [("homing", 30.0), ("approach", 6.0), ("normal", 29.0), ("torsion", 21.0), ("retract", 2.0)]);
+}
