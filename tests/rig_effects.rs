@@ -75,8 +75,11 @@ fn stage_backlash_is_named_and_corrected_on_the_emulated_rig() {
 
 #[test]
 fn thermal_drift_is_named_and_corrected_on_the_emulated_rig() {
-    // 0.15 um/s of the frame: 0.03 mm more approach by the end of the sweeps.
-    let p = thermal_drift::Params { v_mm_per_s: 1.5e-4, vdot_mm_per_s2: 0.0 };
+    // 2.5 um/s of the frame: about 0.2 mm more approach by the end of a run.
+    // The issue-15 sweeps take half the rig time and twist at the top of the
+    // loading branch: 0.15 um/s, which biased the step-by-step design by
+    // 3.2 %, moves nu1 by 0.2 % here (docs/diagnosis.md).
+    let p = thermal_drift::Params { v_mm_per_s: 2.5e-3, vdot_mm_per_s2: 0.0 };
     check("thermal_drift", SimProfile { thermal_drift: Some(p), ..Default::default() });
 }
 

@@ -129,6 +129,31 @@ fn segment_residuals(rec: &Recording, pred: &[Reading], seg: &Segment) -> (Vec<f
     out
 }
 
+/// `rs` (one per sample of `seg` with a residual, as [`segment_residuals`]
+/// gives them) averaged over each stop: consecutive samples at the same stage
+/// position and twist.
+fn stop_means(rec: &Recording, pred: &[Reading], seg: &Segment, rs: &[f64]) -> Vec<f64> {
+    let keys: Vec<(u64, u64)> = seg
+        .idx
+        .iter()
+        .filter(|&&i| residual(rec, pred, i, seg.quantity).is_some())
+        .map(|&i| (rec.samples[i].stage_mm.to_bits(), rec.samples[i].rot_deg.to_bits()))
+        .collect();
+    let mut out: Vec<f64> = Vec::new();
+    let mut count = 0.0;
+    for (k, &r) in rs.iter().enumerate() {
+        if k > 0 && keys.get(k) == keys.get(k - 1) {
+            let last = out.len() - 1;
+            out[last] = (out[last] * count + r) / (count + 1.0);
+            count += 1.0;
+        } else {
+            out.push(r);
+            count = 1.0;
+        }
+    }
+    out
+}
+
 /// Per-sample residuals (observed - model) in reading units: gamma1 mm, theta1 deg.
 /// `None` where there is nothing to compare (dead band on both sides; theta1 in the normal phase).
 pub fn residual(rec: &Recording, pred: &[Reading], i: usize, q: Quantity) -> Option<f64> {
@@ -361,7 +386,9 @@ pub fn assess(rec: &Recording, pred: &[Reading], seg: &Segment, floor: Floor) ->
     }
     let chi2: f64 = rs.iter().map(|r| (r / sigma).powi(2)).sum();
     let cz = excess_z(chi2, n, floor.dof);
-    let rz = runs_z(&rs);
+    // Samples recorded at one stop (a long stop's consecutive replicates)
+    // share that stop's error, so the signs' test counts stops, not samples.
+    let rz = runs_z(&stop_means(rec, pred, seg, &rs));
     let mean = raw.iter().sum::<f64>() / n as f64;
     let rms = (raw.iter().map(|r| r * r).sum::<f64>() / n as f64).sqrt();
     let lag1 = {
