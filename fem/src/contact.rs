@@ -46,6 +46,27 @@ pub struct TwoBodyContact {
     last_disc: AtomicUsize,
 }
 
+/// A solved contact on surface nodes at radii `r`: `last` is the outermost
+/// node in contact, the forces are per radian.
+fn solved(
+    delta_mm: f64,
+    gamma1_mm: f64,
+    r: &[f64],
+    last: usize,
+    nodal_force: Vec<f64>,
+    nodal_shear: Vec<f64>,
+) -> ContactState {
+    ContactState {
+        delta_mm,
+        force_n: 2.0 * PI * nodal_force.iter().sum::<f64>(),
+        gamma1_mm,
+        gamma2_mm: delta_mm - gamma1_mm,
+        contact_radius_mm: [r[last], r.get(last + 1).copied().unwrap_or(r[last])],
+        nodal_force,
+        nodal_shear,
+    }
+}
+
 /// How far each node at radii `r_mm` must close at platform approach
 /// `delta_mm`: the approach less the exact sphere's height above its tip there.
 fn approach_needed(delta_mm: f64, sphere_radius_mm: f64, r_mm: &[f64]) -> Vec<f64> {
@@ -151,15 +172,8 @@ impl TwoBodyContact {
     /// The solved contact from its nodal forces; `last` is the outermost node in contact.
     fn state(&self, delta_mm: f64, nodal_force: Vec<f64>, last: usize) -> ContactState {
         let gamma1: f64 = nodal_force.iter().zip(&self.g_gel).map(|(p, col)| col[0] * p).sum();
-        ContactState {
-            delta_mm,
-            force_n: 2.0 * PI * nodal_force.iter().sum::<f64>(),
-            gamma1_mm: gamma1,
-            gamma2_mm: delta_mm - gamma1,
-            contact_radius_mm: [self.r[last], self.r.get(last + 1).copied().unwrap_or(self.r[last])],
-            nodal_shear: vec![0.0; nodal_force.len()],
-            nodal_force,
-        }
+        let shear = vec![0.0; nodal_force.len()];
+        solved(delta_mm, gamma1, &self.r, last, nodal_force, shear)
     }
 
     /// The general active set (any set of nodes in contact).
@@ -309,15 +323,7 @@ impl FrictionalContact {
         let n = self.r.len();
         let gamma1: f64 = (0..n).map(|j| self.gel.zz[j][0] * p[j] - self.gel.zr[j][0] * q[j]).sum();
         let last = (0..n).rev().find(|&i| p[i] > 0.0).unwrap_or(0);
-        ContactState {
-            delta_mm,
-            force_n: 2.0 * PI * p.iter().sum::<f64>(),
-            gamma1_mm: gamma1,
-            gamma2_mm: delta_mm - gamma1,
-            contact_radius_mm: [self.r[last], self.r.get(last + 1).copied().unwrap_or(self.r[last])],
-            nodal_force: p.to_vec(),
-            nodal_shear: q.to_vec(),
-        }
+        solved(delta_mm, gamma1, &self.r, last, p.to_vec(), q.to_vec())
     }
 
     /// The forces of the current active set: normal forces `p` on the nodes in
