@@ -113,6 +113,40 @@ impl TwoBodyContact {
         &self.r
     }
 
+    /// The contact's edge in `st`, between its outermost node in contact and
+    /// the next one out, continuous in the approach (the outermost node jumps by
+    /// a mesh spacing as nodes touch down). With the nodes in contact held, the
+    /// forces and gaps are linear in the approach: the outermost node's force
+    /// came from zero at δ_in and the next node's gap closes at δ_out, and the
+    /// edge moves linearly from the one node to the other between them
+    /// (docs/physics.md, "Finite-element reference"). Radial friction forces
+    /// are left out of the gap: they move it by far less than the mesh spacing.
+    pub fn contact_edge_mm(&self, st: &ContactState) -> f64 {
+        let r = &self.r;
+        let Some(last) = (0..r.len()).rev().find(|&i| st.nodal_force[i] > 0.0) else {
+            return 0.0;
+        };
+        let next = last + 1;
+        if next >= r.len() || next > self.factor.len() {
+            return r[last];
+        }
+        // Forces per unit approach with this disc in contact.
+        let Some(x) = self.factor.solve_prefix(&vec![1.0; next]) else {
+            return r[last];
+        };
+        let delta = st.delta_mm;
+        let need = approach_needed(delta, self.radius_mm, &r[next..=next])[0];
+        let gap = (0..next).map(|j| self.g_sum[j][next] * st.nodal_force[j]).sum::<f64>() - need;
+        let closing = 1.0 - (0..next).map(|j| self.g_sum[j][next] * x[j]).sum::<f64>();
+        let (rising, p_last) = (x[last], st.nodal_force[last]);
+        if !(rising > 0.0 && closing > 0.0) {
+            return r[last];
+        }
+        let (d_in, d_out) = (delta - p_last / rising, delta + gap.max(0.0) / closing);
+        let f = if d_out > d_in { ((delta - d_in) / (d_out - d_in)).clamp(0.0, 1.0) } else { 1.0 };
+        r[last] + f * (r[next] - r[last])
+    }
+
     /// The contact at platform approach `delta_mm`.
     pub fn solve(&self, delta_mm: f64) -> Result<ContactState, FemError> {
         let need = approach_needed(delta_mm, self.radius_mm, &self.r);

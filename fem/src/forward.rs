@@ -15,11 +15,13 @@ use crate::elastic::{Body, Material, SurfaceCompliance, combine_block};
 use crate::mesh::Mesh;
 use crate::torsion::TorsionBody;
 
-/// Element size at the contact, mm, and the gel's radius in thicknesses (wide
-/// enough to stand for the unbounded layer the analysis assumes: < 0.7 % in force
-/// between 3 and 12 thicknesses at a/h = 0.6).
+/// Element size at the contact, mm, and the gel's radius in thicknesses. A real
+/// gel is a few thicknesses wide with a free rim, and the rim matters: at a/h
+/// 0.8 a 40 mm wide 5 mm gel reads gamma1 0.3 % under a 30 mm one, several µm
+/// at depth. Three thicknesses is the EasyCalib reference sensor's gel (30 mm
+/// across, 5 mm thick; docs/physics.md, "Finite-element reference").
 const FINE_MM: f64 = 0.06;
-const GEL_RADIUS_IN_H: f64 = 4.0;
+const GEL_RADIUS_IN_H: f64 = 3.0;
 /// Poisson's ratios at which the gel is tabulated (Chebyshev points on [0, 0.5]).
 const NU_NODES: usize = 9;
 
@@ -222,9 +224,11 @@ impl Model {
     }
 
     /// theta1 for a mount twist `twist_rad` (monotone from 0) at normal state `st`:
-    /// the contact sticks where |τ| < mu p and slips at mu p beyond (Coulomb;
-    /// `mu = inf` sticks everywhere). theta1 is the area-weighted least-squares
-    /// twist of the gel's surface over the contact.
+    /// the contact sticks where the tangential traction is inside Coulomb's cone,
+    /// |(τ_r, τ_θ)| < mu p, and slips on it beyond, the radial part τ_r being the
+    /// press's friction (`mu = inf` sticks everywhere). theta1 is the
+    /// area-weighted least-squares twist of the gel's surface over the contact
+    /// (see [`contact_twist`]).
     pub fn theta1_rad(&self, st: &ContactState, twist_rad: f64, mu: f64) -> Option<f64> {
         let r = self.contact.radii();
         let last = (0..r.len()).rev().find(|&i| st.nodal_force[i] > 0.0)?;
@@ -233,7 +237,19 @@ impl Model {
         if nodes.is_empty() {
             return None;
         }
-        let cap: Vec<f64> = nodes.iter().map(|&i| mu * st.nodal_force[i]).collect();
+        // Coulomb bounds the whole tangential traction: a node already carrying
+        // radial friction from the press has only the rest of its cone left for
+        // the twist (docs/physics.md, "Finite-element reference").
+        let cap: Vec<f64> = nodes
+            .iter()
+            .map(|&i| {
+                if mu.is_infinite() {
+                    return f64::INFINITY;
+                }
+                let radial = st.nodal_shear.get(i).copied().unwrap_or(0.0);
+                ((mu * st.nodal_force[i]).powi(2) - radial * radial).max(0.0).sqrt()
+            })
+            .collect();
         let mut slip = vec![false; nodes.len()];
         let mut t = vec![0.0; nodes.len()];
         for _ in 0..=nodes.len() {
@@ -278,16 +294,43 @@ impl Model {
                 slip[k] = true;
             }
         }
-        let mut num = 0.0;
-        let mut den = 0.0;
-        for &i in &nodes {
-            let u: f64 = nodes.iter().enumerate().map(|(l, &j)| self.torsion_gel[j][i] * t[l]).sum();
-            let lo = 0.5 * (r[i - 1] + r[i]);
-            let hi = if i == last { r[i] } else { 0.5 * (r[i] + r[i + 1]) };
-            let w = 0.5 * (hi * hi - lo * lo);
-            num += w * r[i] * u;
-            den += w * r[i] * r[i];
-        }
-        Some(num / den)
+        // The gel's twist displacement at every node out to the first one
+        // outside the contact (its surface moves there too).
+        let outer = (last + 1).min(r.len() - 1);
+        let u: Vec<f64> =
+            (0..=outer)
+                .map(|i| {
+                    if i == 0 {
+                        0.0
+                    } else {
+                        nodes.iter().enumerate().map(|(l, &j)| self.torsion_gel[j][i] * t[l]).sum()
+                    }
+                })
+                .collect();
+        contact_twist(&r[..=outer], &u, self.contact.contact_edge_mm(st))
     }
+}
+
+/// theta1 as the sensor takes it: the least-squares twist of the surface's
+/// twist displacement `u` (at radii `r`, linear between them) over the disc of
+/// radius `edge_mm`, area-weighted: ∫ u r² dr / ∫ r³ dr over [0, edge].
+fn contact_twist(r: &[f64], u: &[f64], edge_mm: f64) -> Option<f64> {
+    // Three-point Gauss–Legendre on each piece: exact for u r² with u linear.
+    const X: [f64; 3] = [-0.774_596_669_241_483_4, 0.0, 0.774_596_669_241_483_4];
+    const W: [f64; 3] = [5.0 / 9.0, 8.0 / 9.0, 5.0 / 9.0];
+    let mut num = 0.0;
+    for k in 0..r.len().saturating_sub(1) {
+        let (a, b) = (r[k], r[k + 1].min(edge_mm));
+        if b <= a {
+            break;
+        }
+        let slope = (u[k + 1] - u[k]) / (r[k + 1] - r[k]);
+        let (mid, half) = (0.5 * (a + b), 0.5 * (b - a));
+        for (x, w) in X.iter().zip(W) {
+            let rr = mid + half * x;
+            num += w * half * (u[k] + slope * (rr - r[k])) * rr * rr;
+        }
+    }
+    let den = edge_mm.powi(4) / 4.0;
+    (den > 0.0).then_some(num / den)
 }

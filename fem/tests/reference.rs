@@ -140,3 +140,27 @@ fn frictional_contact_reduces_to_its_limits() {
         }
     }
 }
+
+/// theta1 is the twist averaged over the contact disc, and at a 10° twist the
+/// slipping rim lags the core, so the average moves about 1 % per mesh spacing
+/// of edge. The edge must therefore move continuously as nodes touch down: an
+/// average taken out to the outermost node in contact jumped by 0.04° at each
+/// touch-down here (and made false minima for the fit); the interpolated edge
+/// leaves a smooth curve (docs/physics.md, "Finite-element reference").
+#[test]
+fn theta1_moves_continuously_as_nodes_touch_down() {
+    let model = fem::forward::Forward::cached(5.0, 2.0, 0.4, 5.0).unwrap().model(1.0, 0.48);
+    let twist = 10f64.to_radians();
+    let mut outermost = Vec::new();
+    let mut theta_deg = Vec::new();
+    for k in 0..=60 {
+        let st = model.normal(1.40 + 0.002 * k as f64).unwrap();
+        outermost.push(st.nodal_force.iter().rposition(|&p| p > 0.0).unwrap());
+        theta_deg.push(model.theta1_rad(&st, twist, 0.4).unwrap().to_degrees());
+    }
+    // The sweep crosses touch-downs, or the check could not fail.
+    assert!(outermost.windows(2).any(|w| w[1] > w[0]), "no node touched down: {outermost:?}");
+    let worst = theta_deg.windows(3).map(|w| (w[2] - 2.0 * w[1] + w[0]).abs()).fold(0.0, f64::max);
+    println!("theta1 at 10°: {:.4}..{:.4}°, largest second difference {worst:.5}°", theta_deg[0], theta_deg[60]);
+    assert!(worst < 0.003, "theta1 jumps by {worst}° as a node touches down");
+}

@@ -73,7 +73,7 @@ fn predict_with(
         return match correction {
             None => predict_fe(rec, p, layer, NormalContact::Frictional),
             Some(c) => predict_fe(rec, p, layer, NormalContact::Frictionless).map(|mut pred| {
-                for (q, (dg, dt)) in pred.iter_mut().zip(c) {
+                for (q, (dg, dt)) in pred.iter_mut().zip(c.at(p)) {
                     q.gamma1_mm += dg;
                     q.theta1_deg += dt;
                 }

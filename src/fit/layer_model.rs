@@ -15,8 +15,31 @@ use super::full::{ModelParams, Prediction, fe_layer};
 
 /// Per-sample (gamma1 mm, theta1 deg) to add to the FE model's frictionless
 /// normal state to stand for the frictional one (a deferred correction: see
-/// [`friction_correction`]).
-pub(super) type Correction = Vec<(f64, f64)>;
+/// [`friction_correction`]), linear in the parameters about where it was taken.
+pub(super) struct Correction {
+    /// E1, nu1, z0 and friction where it was taken.
+    at: Vec<f64>,
+    base: Vec<(f64, f64)>,
+    /// Its derivative in each of those parameters, per sample.
+    slope: Vec<Vec<(f64, f64)>>,
+}
+
+impl Correction {
+    /// The correction at `p`, per sample.
+    pub(super) fn at(&self, p: &ModelParams) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let moved: Vec<f64> = physical(p).iter().zip(&self.at).map(|(v, a)| v - a).collect();
+        self.base.iter().enumerate().map(move |(i, &(g, t))| {
+            self.slope.iter().zip(&moved).fold((g, t), |(g, t), (d, m)| (g + d[i].0 * m, t + d[i].1 * m))
+        })
+    }
+}
+
+/// E1, nu1, z0 and (when fitted) the friction coefficient.
+fn physical(p: &ModelParams) -> Vec<f64> {
+    let mut v = vec![p.e1_mpa, p.nu1, p.contact_offset_mm];
+    v.extend(p.contact_friction);
+    v
+}
 
 /// The normal contact in the FE model: followed with Coulomb friction along the
 /// approach (the model itself), or frictionless with each depth solved on its
@@ -88,17 +111,47 @@ pub(super) fn predict_fe(
     Ok(out)
 }
 
-/// The frictional FE model minus its fast frictionless form at `p`, per sample:
-/// the fit iterates on the fast form plus this difference and refreshes it
-/// between passes (the difference changes little with the parameters, so the
-/// passes settle where the frictional model itself fits). `None` without an FE layer.
+/// The frictional FE model minus its fast frictionless form at `p`, per sample,
+/// with its derivatives in the parameters: the fit iterates on the fast form
+/// plus this difference and refreshes it between passes. The derivatives
+/// matter: friction acts on the data mostly through the difference, so with a
+/// frozen difference the passes stall where the fast form alone is flat (on
+/// our own noisy frictional recordings E1 came out 1-2 % low, the friction
+/// 0.51 for 0.4; docs/physics.md). `None` without an FE layer.
 pub(super) fn friction_correction(rec: &Recording, p: &ModelParams) -> Result<Option<Correction>, FitError> {
     let Some(layer) = fe_layer(rec) else {
         return Ok(None);
     };
-    let exact = predict_fe(rec, p, layer, NormalContact::Frictional)?;
-    let fast = predict_fe(rec, p, layer, NormalContact::Frictionless)?;
-    Ok(Some(exact.iter().zip(&fast).map(|(e, f)| (e.gamma1_mm - f.gamma1_mm, e.theta1_deg - f.theta1_deg)).collect()))
+    let diff = |q: &ModelParams| -> Result<Vec<(f64, f64)>, FitError> {
+        let exact = predict_fe(rec, q, layer, NormalContact::Frictional)?;
+        let fast = predict_fe(rec, q, layer, NormalContact::Frictionless)?;
+        Ok(exact.iter().zip(&fast).map(|(e, f)| (e.gamma1_mm - f.gamma1_mm, e.theta1_deg - f.theta1_deg)).collect())
+    };
+    let at = physical(p);
+    let base = diff(p)?;
+    let mut slope = Vec::with_capacity(at.len());
+    for j in 0..at.len() {
+        // Steps well above the path's own discretisation, inside the range.
+        let step = match j {
+            0 => 1e-3 * at[0],
+            1 if at[1] + 2e-3 > 0.5 => -2e-3,
+            1 => 2e-3,
+            2 => 2e-4,
+            _ => 0.02 * at[3],
+        };
+        let mut v = at.clone();
+        v[j] += step;
+        let q = ModelParams {
+            e1_mpa: v[0],
+            nu1: v[1],
+            contact_offset_mm: v[2],
+            contact_friction: v.get(3).copied(),
+            large_strain: p.large_strain,
+        };
+        let moved = diff(&q)?;
+        slope.push(moved.iter().zip(&base).map(|(m, b)| ((m.0 - b.0) / step, (m.1 - b.1) / step)).collect());
+    }
+    Ok(Some(Correction { at, base, slope }))
 }
 
 /// Load steps from first touch to the deepest sample in the frictional normal
