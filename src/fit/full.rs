@@ -441,7 +441,7 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result
     let mut res = None;
     let mut correction = None;
     for pass in 0..MAX_PASSES {
-        correction = friction_correction(rec, &params)?;
+        correction = friction_correction(rec, &params, correction.as_ref())?;
         let x0 = to_internal(&params);
         let out = lm::minimize(
             |x, r| weighted_residuals(rec, &from_internal(x, &start), correction.as_ref(), &sigma, r),
@@ -563,7 +563,7 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<(DMatrix<f64>, 
     let mut phys = vec![params.e1_mpa, params.nu1, params.contact_offset_mm];
     phys.extend(params.contact_friction);
     let np = phys.len();
-    let correction = if passes.corrected { friction_correction(rec, params)? } else { None };
+    let correction = if passes.corrected { friction_correction(rec, params, None)? } else { None };
     let mut r0 = Vec::new();
     weighted_residuals(rec, params, correction.as_ref(), sig, &mut r0);
     let m = r0.len();

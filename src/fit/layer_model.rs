@@ -118,7 +118,15 @@ pub(super) fn predict_fe(
 /// frozen difference the passes stall where the fast form alone is flat (on
 /// our own noisy frictional recordings E1 came out 1-2 % low, the friction
 /// 0.51 for 0.4; docs/physics.md). `None` without an FE layer.
-pub(super) fn friction_correction(rec: &Recording, p: &ModelParams) -> Result<Option<Correction>, FitError> {
+///
+/// The derivatives change slowly: a correction taken again near `previous`
+/// (E1 within 0.5 %, nu1 within 0.005, friction within 10 %) keeps its derivatives and refreshes only the difference itself (the
+/// passes' cost is then one frictional path each, not five).
+pub(super) fn friction_correction(
+    rec: &Recording,
+    p: &ModelParams,
+    previous: Option<&Correction>,
+) -> Result<Option<Correction>, FitError> {
     let Some(layer) = fe_layer(rec) else {
         return Ok(None);
     };
@@ -129,6 +137,15 @@ pub(super) fn friction_correction(rec: &Recording, p: &ModelParams) -> Result<Op
     };
     let at = physical(p);
     let base = diff(p)?;
+    let near = |c: &&Correction| {
+        c.at.len() == at.len()
+            && (c.at[0] / at[0] - 1.0).abs() < 5e-3
+            && (c.at[1] - at[1]).abs() < 5e-3
+            && c.at.get(3).zip(at.get(3)).is_none_or(|(a, b)| (a / b - 1.0).abs() < 0.1)
+    };
+    if let Some(prev) = previous.filter(near) {
+        return Ok(Some(Correction { at, base, slope: prev.slope.clone() }));
+    }
     let mut slope = Vec::with_capacity(at.len());
     for j in 0..at.len() {
         // Steps well above the path's own discretisation, inside the range.
