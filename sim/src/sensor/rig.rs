@@ -120,7 +120,8 @@ impl RigSensor {
                     r.contact_radius_mm,
                     r.theta1_deg.to_radians(),
                 )
-                .with_nu1(self.cfg.setup.pair().elastomer.nu),
+                .with_nu1(self.cfg.setup.pair().elastomer.nu)
+                .with_punch(r.gamma1_punch_mm),
             ),
             Ok(_) => None,
             Err(_) => {
