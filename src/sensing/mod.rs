@@ -39,6 +39,47 @@ const MID_CONTACT_PITCHES: f64 = 1.15;
 /// are tried).
 const PUNCH_CHI2: f64 = 16.0;
 
+/// Resolved contacts up to this many pitches wide are probed for a punch
+/// (beyond, the edge lies among markers far from the centre the probe
+/// does not weigh).
+const PROBE_PITCHES: f64 = 2.5;
+
+/// Whether a resolved contact of depth `gamma1` (read by its paraboloid,
+/// right whatever the punch) at `centre` shows a punch beyond chance: the
+/// tied punch field fits the markers within three radii better than Hertz's
+/// field of that depth with a = sqrt(gamma1 / c) by more than [`PUNCH_CHI2`].
+fn adhesion_probe(
+    frame: &SensorFrame,
+    centre: [f64; 2],
+    c: f64,
+    gamma1: f64,
+    radius: f64,
+    cfg: &SensingConfig,
+) -> bool {
+    let Some(noise) = cfg.marker_noise_mm.map(|n| n.0).filter(|n| *n > 0.0) else {
+        return false;
+    };
+    let reach = 3.0 * radius;
+    let pts: Vec<[f64; 3]> = frame
+        .positions
+        .iter()
+        .zip(&frame.displacements)
+        .filter(|(p, _)| dist2(xy(p), centre) <= reach * reach)
+        .map(|(p, d)| [p[0], p[1], -d[2]])
+        .collect();
+    let Some((p, kept)) = punch_stage(&pts, centre, c, gamma1, cfg) else {
+        return false;
+    };
+    let a = (gamma1 / c).sqrt();
+    let hertz: f64 = pts
+        .iter()
+        .zip(&kept)
+        .filter(|(_, k)| **k)
+        .map(|(q, _)| (q[2] - gamma1 * fit::hertz_shape((q[0] - centre[0]).hypot(q[1] - centre[1]) / a)).powi(2))
+        .sum();
+    p.punch < 0.0 && (hertz - p.sse) / (noise * noise) > PUNCH_CHI2
+}
+
 /// Settings of the frame processing.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct SensingConfig {
@@ -94,6 +135,14 @@ pub struct SensingConfig {
     /// these instead, unless its residuals are clearly larger (a field the
     /// model does not follow). [`FrameEstimator`] learns them.
     pub marker_noise_mm: Option<(f64, f64)>,
+    /// The gel is known to be tacky (this run's frames showed adhesive
+    /// contacts, [`FrameEstimator`] counts them): a small contact at the
+    /// known centre is then always fitted with the punch term, not only when
+    /// one frame's markers ask for it (docs/sensing.md, "Adhesive contacts").
+    pub adhesive: bool,
+    /// Probe resolved contacts at the known centre for a punch
+    /// ([`FrameEstimator`] asks while it has not decided `adhesive`).
+    pub probe_adhesion: bool,
 }
 
 /// A frame whose own noise estimate exceeds the pooled one by more than this
@@ -136,6 +185,8 @@ impl Default for SensingConfig {
             contact_curvature_per_mm: None,
             contact_centre_mm: None,
             marker_noise_mm: None,
+            adhesive: false,
+            probe_adhesion: false,
         }
     }
 }
@@ -177,6 +228,12 @@ pub struct Measurement {
     /// the contact, or a contact over 1.15 pitches was fitted at a known
     /// centre with its radius free. What [`FrameEstimator`] learns from.
     pub contact_curvature_per_mm: Option<(f64, f64)>,
+    /// The flat-punch part of gamma1 (mm, < 0) when the frame was read as an
+    /// adhesive contact, else `None`.
+    pub punch_mm: Option<f64>,
+    /// The frame's markers showed a flat punch beyond chance: read with it,
+    /// or (a resolved contact, read by its paraboloid) probed for one.
+    pub adhesive: bool,
     /// RMS residual of the quadratic fit, mm.
     pub gamma1_residual_mm: f64,
     /// RMS tangential residual of the stick markers after the rotation, mm.
@@ -305,6 +362,10 @@ struct Depth {
     dof: usize,
     /// The paraboloid's curvature -2 c3 = gamma1 / a^2 and its standard error.
     curvature: Option<(f64, f64)>,
+    /// The punch part of gamma1 when read as an adhesive contact.
+    punch: Option<f64>,
+    /// The markers showed a punch beyond chance (read with it, or probed).
+    adhesive: bool,
 }
 
 /// Quadratic fit, re-centred on its own peak with a window shrunk or grown
@@ -369,6 +430,8 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
             noise_sd: qf_noise,
             dof: qf_dof,
             curvature,
+            punch: None,
+            adhesive: false,
         });
     }
     best.ok_or(SensingError::TooFewMarkers { index, stage: "quadratic fit", found: 0, needed: 7 })
@@ -468,7 +531,7 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
     // a contact of a pitch or two the markers sit at one or two radii, where
     // depth and curvature trade off; docs/sensing.md).
     let punch = match curvature {
-        Curvature::Known { per_mm, .. } if fixed_centre && (poor || rejected >= 2) => {
+        Curvature::Known { per_mm, .. } if fixed_centre && (cfg.adhesive || poor || rejected >= 2) => {
             punch_stage(&pts, hf.centre, per_mm, hf.gamma1, cfg).filter(|(p, kept)| {
                 // Both fields on the markers the punch kept.
                 let hertz: f64 = pts
@@ -480,7 +543,9 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
                         (q[2] - hf.gamma1 * fit::hertz_shape(r / hf.radius)).powi(2)
                     })
                     .sum();
-                p.punch < 0.0 && chi2(hertz - p.sse) > PUNCH_CHI2
+                // On a gel known to be tacky the punch is the model: kept
+                // whenever it pulls; else only beyond chance.
+                p.punch < 0.0 && (cfg.adhesive || chi2(hertz - p.sse) > PUNCH_CHI2)
             })
         }
         _ => None,
@@ -506,6 +571,8 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
             noise_sd,
             dof,
             curvature: None,
+            punch: Some(p.punch),
+            adhesive: true,
         });
     }
     // A contact over about a pitch and a sixth, at a known centre, holds
@@ -541,6 +608,8 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
         noise_sd: hf.noise_sd,
         dof: hf.dof,
         curvature,
+        punch: None,
+        adhesive: false,
     })
 }
 
@@ -591,7 +660,15 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
             None => quad?,
         }
     } else {
-        quad?
+        let d = quad?;
+        // A resolved contact reads its depth right whatever the punch; while
+        // the run has not decided whether the gel is tacky, it is asked too.
+        match (cfg.probe_adhesion, cfg.contact_curvature_per_mm, cfg.contact_centre_mm) {
+            (true, Some((c, _)), Some(at)) if c > 0.0 && d.radius < PROBE_PITCHES * pitch => {
+                Depth { adhesive: adhesion_probe(frame, at, c, d.gamma1, d.radius.max(pitch), cfg), ..d }
+            }
+            _ => d,
+        }
     };
     let Depth {
         gamma1,
@@ -605,6 +682,8 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
         curvature,
         noise_sd,
         dof,
+        punch,
+        adhesive,
         ..
     } = depth;
     // The errors with the pooled marker noise (the tie's part is not noise).
@@ -683,6 +762,8 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
         rotation_noise_mm: rotation_noise,
         rotation_dof,
         contact_curvature_per_mm: curvature,
+        punch_mm: punch,
+        adhesive,
         contact_centre_mm: centre,
         contact_radius_mm: radius,
         gamma1_residual_mm: depth_rms,
