@@ -209,6 +209,10 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
     if let Ok(Err(e)) = display_result {
         eprintln!("warning: the display failed: {e}");
     }
+    // A profile's effect the simulated sensor could not draw everywhere.
+    if let Some(w) = emulated.as_ref().and_then(|rig| rig.note_effect_failures(result.report.as_ref())) {
+        eprintln!("warning: {w}");
+    }
     drop(emulated);
     report(args, &result, truth)?;
     // The display is gone: the verdict with the summary (on stderr beside JSON).

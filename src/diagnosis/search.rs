@@ -190,6 +190,33 @@ fn sensor_gain_degeneracy(model: &Model, last: &Fitted) -> Option<Degenerate> {
     })
 }
 
+/// A single sample's chi² above this, and above [`CLIFF_SHARE`] of the
+/// fit's whole chi², is a cliff: a sample the model puts on the wrong side
+/// of losing contact (one such sample costs ~10^4 on a creeping gel).
+const CLIFF_CHI2: f64 = 400.0;
+const CLIFF_SHARE: f64 = 0.2;
+
+/// Whether the usual starts of `add` left every fit far above the noise in
+/// the way its fallback starts are for: a thin layer's far-off baseline
+/// (any misfit), a creeping gel's contact cliff (one sample holding a large
+/// share of chi²; an other effect's misfit, spread over many samples, does
+/// not send creep through its fallback starts).
+fn needs_fallback(add: Candidate, results: &[Fitted]) -> bool {
+    let Some(best) = results.iter().min_by(|a, b| a.chi2.total_cmp(&b.chi2)) else {
+        return true;
+    };
+    if results.iter().any(|b| b.s2 < 1.5) {
+        return false;
+    }
+    match add {
+        Candidate::Viscoelastic => {
+            let worst = best.residuals.iter().map(|r| r * r).fold(0.0, f64::max);
+            worst >= CLIFF_CHI2 && worst >= CLIFF_SHARE * best.chi2
+        }
+        _ => true,
+    }
+}
+
 /// Fit with a candidate on top of `from`'s parameters: from a typical amount
 /// of the effect and from next to none, keeping the better (a typical start
 /// can stall in a local minimum; next to none starts from the baseline's cost).
@@ -204,7 +231,7 @@ pub(crate) fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fit
     let all: Vec<&[f64]> = add.starts().into_iter().chain(fallback.iter().copied()).collect();
     let n_usual = all.len() - fallback.len();
     for (tried, st) in all.into_iter().enumerate() {
-        if tried >= n_usual && results.iter().any(|b| b.s2 < 1.5) {
+        if tried >= n_usual && !needs_fallback(add, &results) {
             break;
         }
         let mut x = from.x.clone();

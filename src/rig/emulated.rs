@@ -86,7 +86,39 @@ impl EmulatedRig {
         let drain = tokio::spawn(async move { while ev_rx.recv().await.is_some() {} });
         let result = super::run_calibration(req, ev_tx, ctl_rx).await;
         let _ = drain.await;
+        if let Ok(r) = &result
+            && let Some(w) = self.note_effect_failures(r.report.as_ref())
+        {
+            eprintln!("warning: {w}");
+        }
         result
+    }
+
+    /// When the simulated sensor drew the clean contact for some frames
+    /// because the set-up's effect model failed there (gross slip, a
+    /// contact beyond the model's range), the warning to give: appended to
+    /// the run's report.md (when there is one) and returned for stderr.
+    /// `None` when the run saw every effect it was given.
+    pub fn note_effect_failures(&self, report: Option<&crate::report::ReportFiles>) -> Option<String> {
+        let n = self.effect_failures();
+        if n == 0 {
+            return None;
+        }
+        let w = format!(
+            "the emulated rig's effect model failed on {n} sensor frame(s) and drew the clean contact there: \
+the recording does not carry all of the profile's effect"
+        );
+        if let Some(files) = report {
+            use std::io::Write;
+            let appended = std::fs::OpenOptions::new()
+                .append(true)
+                .open(&files.markdown)
+                .and_then(|mut f| writeln!(f, "\n## Simulator\n\nWarning: {w}."));
+            if let Err(e) = appended {
+                return Some(format!("{w} (not written to {}: {e})", files.markdown.display()));
+            }
+        }
+        Some(w)
     }
 
     /// The simulated elastomer's true E1 and nu1: the set-up's, as it was given.

@@ -272,6 +272,10 @@ pub struct FrameEstimator {
     /// The curvature at the last radius, with the radius bin and the count of
     /// binned estimates it was computed for: kept while neither moves much.
     near: Option<NearCurvature>,
+    /// Frames read as adhesive contacts beyond chance so far.
+    adhesive_frames: usize,
+    /// Frames measured while probing for adhesion.
+    probes: usize,
 }
 
 /// A curvature computed at a radius bin with so many binned estimates.
@@ -281,6 +285,15 @@ struct NearCurvature {
     binned: usize,
     curvature: Option<(f64, f64)>,
 }
+
+/// Frames read as adhesive beyond chance (each a chi-square drop of 16 for
+/// one parameter; a clean run shows none) before the gel is taken as tacky
+/// and every small contact at the known centre is fitted with the punch.
+const ADHESIVE_FRAMES: usize = 10;
+
+/// Frames measured with the probe for adhesion on (a run's approach and the
+/// start of its sweep), after which a gel not shown tacky is taken as not.
+const MAX_PROBES: usize = 600;
 
 /// New estimates a cached curvature outlives (a few percent of a full window).
 const NEAR_STALE: usize = 8;
@@ -294,6 +307,8 @@ impl FrameEstimator {
             tangential_noise: NoisePool::default(),
             last_radius_mm: None,
             near: None,
+            adhesive_frames: 0,
+            probes: 0,
         }
     }
 
@@ -345,6 +360,8 @@ impl FrameEstimator {
             contact_curvature_per_mm: self.current_curvature(),
             contact_centre_mm: self.centre(),
             marker_noise_mm: self.marker_noise(),
+            adhesive: self.cfg.adhesive || self.adhesive_frames >= ADHESIVE_FRAMES,
+            probe_adhesion: self.adhesive_frames < ADHESIVE_FRAMES && self.probes < MAX_PROBES,
             ..self.cfg
         };
         let m = match measure(frame, &cfg) {
@@ -355,6 +372,12 @@ impl FrameEstimator {
             }
         };
         self.last_radius_mm = Some(m.contact_radius_mm);
+        if m.adhesive {
+            self.adhesive_frames += 1;
+        }
+        if cfg.probe_adhesion {
+            self.probes += 1;
+        }
         self.normal_noise.add(m.depth_noise_mm, m.depth_dof);
         self.tangential_noise.add(m.rotation_noise_mm, m.rotation_dof);
         if let Some((c, sd)) = m.contact_curvature_per_mm {

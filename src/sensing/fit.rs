@@ -3,7 +3,7 @@
 //! stuck markers about the contact centre. Both reject outlier markers by a
 //! robust (median-based) scale and refit.
 
-use nalgebra::{Matrix2, Matrix4, SMatrix, SVector, U4, Vector4};
+use nalgebra::{Matrix2, Matrix4, SMatrix, SVector, U4, Vector2, Vector4};
 
 use crate::numerics::lm::{self, LmError, LmOptions, NormalEquations, Problem, Strategy};
 use crate::numerics::stats::{MAD_TO_SIGMA, median, rms};
@@ -668,4 +668,109 @@ mod tests {
         assert!((fit.theta - theta).abs() < 1e-12, "{}", fit.theta);
         assert!(!fit.kept[3] && fit.kept.iter().filter(|&&k| !k).count() == 1);
     }
+}
+
+/// Normalised flat-punch normal field w(r) / w(0) at rho = r / a: 1 inside,
+/// (2/pi) asin(1/rho) outside (docs/sensing.md, "Adhesive contacts").
+pub fn punch_shape(rho: f64) -> f64 {
+    if rho <= 1.0 { 1.0 } else { std::f64::consts::FRAC_2_PI * (1.0 / rho).asin() }
+}
+
+/// An adhesive (JKR) contact fitted at a known centre with a known
+/// curvature: what [`fit_tied_punch`] found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PunchFit {
+    /// Peak depth, mm (the Hertz part c a^2 plus the punch part).
+    pub gamma1: f64,
+    /// Contact radius, mm.
+    pub radius: f64,
+    /// The punch part of gamma1, mm (<= 0).
+    pub punch: f64,
+    /// Sum of squared residuals over the kept markers, mm^2.
+    pub sse: f64,
+    /// Standard error of gamma1 for unit marker noise (times the noise: mm).
+    pub gamma1_sd_per_noise: f64,
+}
+
+/// The JKR field at a known centre with a known curvature c: Hertz's field
+/// of depth c a^2 plus a flat punch's of depth p = gamma1 - c a^2 at the same
+/// radius a. Inside the contact it is gamma1 - c r^2 / 2 whatever p is; the
+/// punch shows outside, where the field falls off more steeply than
+/// Hertz's. Two unknowns, gamma1 and p (a = sqrt((gamma1 - p) / c)); p = 0
+/// is the tied Hertz fit. Damped Gauss-Newton from p = 0 and from a punch of
+/// a third of the depth, p held <= 0 (an adhesive edge pulls; it never
+/// pushes). `None` when degenerate.
+pub fn fit_tied_punch(pts: &[[f64; 3]], kept: &[bool], centre: [f64; 2], c: f64, gamma1: f64) -> Option<PunchFit> {
+    if !(c > 0.0 && gamma1 > 0.0) {
+        return None;
+    }
+    let model = |g: f64, p: f64, r: f64| {
+        let h = g - p;
+        let rho = r * (c / h).sqrt();
+        h * hertz_shape(rho) + p * punch_shape(rho)
+    };
+    let radii: Vec<(f64, f64)> = pts
+        .iter()
+        .zip(kept)
+        .filter(|(_, k)| **k)
+        .map(|(q, _)| ((q[0] - centre[0]).hypot(q[1] - centre[1]), q[2]))
+        .collect();
+    if radii.len() < 4 {
+        return None;
+    }
+    let sse = |g: f64, p: f64| radii.iter().map(|&(r, z)| (z - model(g, p, r)).powi(2)).sum::<f64>();
+    let normal = |g: f64, p: f64| -> (Matrix2<f64>, Vector2<f64>) {
+        let h = 1e-7 * g.abs().max(1e-3);
+        let mut jtj = Matrix2::zeros();
+        let mut jtr = Vector2::zeros();
+        for &(r, z) in &radii {
+            let jg = (model(g + h, p, r) - model(g - h, p, r)) / (2.0 * h);
+            let jp = (model(g, p + h, r) - model(g, p - h, r)) / (2.0 * h);
+            let j = Vector2::new(jg, jp);
+            jtj += j * j.transpose();
+            jtr += j * (z - model(g, p, r));
+        }
+        (jtj, jtr)
+    };
+    let descend = |g0: f64, p0: f64| -> Option<(f64, f64, f64)> {
+        let (mut g, mut p) = (g0, p0);
+        let mut cost = sse(g, p);
+        let mut lambda = 1e-3;
+        for _ in 0..40 {
+            let (jtj, jtr) = normal(g, p);
+            let mut damped = jtj;
+            damped[(0, 0)] *= 1.0 + lambda;
+            damped[(1, 1)] *= 1.0 + lambda;
+            let step = damped.try_inverse()? * jtr;
+            let (g1, p1) = (g + step[0], (p + step[1]).min(0.0));
+            let c1 = if g1 > 0.0 && g1 - p1 > 0.0 { sse(g1, p1) } else { f64::INFINITY };
+            if c1 < cost {
+                let done = cost - c1 <= 1e-10 * cost.max(1e-18);
+                (g, p, cost) = (g1, p1, c1);
+                lambda = (lambda * 0.3).max(1e-9);
+                if done {
+                    break;
+                }
+            } else {
+                lambda *= 10.0;
+                if lambda > 1e8 {
+                    break;
+                }
+            }
+        }
+        Some((g, p, cost))
+    };
+    let (g, p, cost) = [descend(gamma1, 0.0), descend(gamma1, -0.3 * gamma1)]
+        .into_iter()
+        .flatten()
+        .min_by(|x, y| x.2.total_cmp(&y.2))?;
+    let radius = ((g - p) / c).sqrt();
+    let sd = normal(g, p).0.try_inverse()?[(0, 0)].sqrt();
+    (g.is_finite() && radius.is_finite() && sd.is_finite()).then_some(PunchFit {
+        gamma1: g,
+        radius,
+        punch: p,
+        sse: cost,
+        gamma1_sd_per_noise: sd,
+    })
 }

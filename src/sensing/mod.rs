@@ -26,11 +26,59 @@ use serde::Serialize;
 pub use estimator::{CurvatureLearner, FrameEstimator};
 use fit::{Curvature, fit_hertz, fit_quadratic, fit_rotation, paraboloid_errors};
 
-use crate::numerics::stats::median;
+use crate::numerics::stats::{MAD_TO_SIGMA, median};
 
 /// Contacts at least this many marker pitches wide, fitted at a known centre,
 /// also measure their curvature with the radius free (docs/sensing.md).
 const MID_CONTACT_PITCHES: f64 = 1.15;
+
+/// A small contact is read as adhesive (Hertz plus a flat punch) only when
+/// the punch lowers the markers' chi-square by more than this (one more
+/// parameter, held to one side: a clean contact's frames pass it about three
+/// times in a hundred thousand, and only those whose tied fit is already poor
+/// are tried).
+const PUNCH_CHI2: f64 = 16.0;
+
+/// Resolved contacts up to this many pitches wide are probed for a punch
+/// (beyond, the edge lies among markers far from the centre the probe
+/// does not weigh).
+const PROBE_PITCHES: f64 = 2.5;
+
+/// Whether a resolved contact of depth `gamma1` (read by its paraboloid,
+/// right whatever the punch) at `centre` shows a punch beyond chance: the
+/// tied punch field fits the markers within three radii better than Hertz's
+/// field of that depth with a = sqrt(gamma1 / c) by more than [`PUNCH_CHI2`].
+fn adhesion_probe(
+    frame: &SensorFrame,
+    centre: [f64; 2],
+    c: f64,
+    gamma1: f64,
+    radius: f64,
+    cfg: &SensingConfig,
+) -> bool {
+    let Some(noise) = cfg.marker_noise_mm.map(|n| n.0).filter(|n| *n > 0.0) else {
+        return false;
+    };
+    let reach = 3.0 * radius;
+    let pts: Vec<[f64; 3]> = frame
+        .positions
+        .iter()
+        .zip(&frame.displacements)
+        .filter(|(p, _)| dist2(xy(p), centre) <= reach * reach)
+        .map(|(p, d)| [p[0], p[1], -d[2]])
+        .collect();
+    let Some((p, kept)) = punch_stage(&pts, centre, c, gamma1, cfg) else {
+        return false;
+    };
+    let a = (gamma1 / c).sqrt();
+    let hertz: f64 = pts
+        .iter()
+        .zip(&kept)
+        .filter(|(_, k)| **k)
+        .map(|(q, _)| (q[2] - gamma1 * fit::hertz_shape((q[0] - centre[0]).hypot(q[1] - centre[1]) / a)).powi(2))
+        .sum();
+    p.punch < 0.0 && (hertz - p.sse) / (noise * noise) > PUNCH_CHI2
+}
 
 /// Settings of the frame processing.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -87,6 +135,14 @@ pub struct SensingConfig {
     /// these instead, unless its residuals are clearly larger (a field the
     /// model does not follow). [`FrameEstimator`] learns them.
     pub marker_noise_mm: Option<(f64, f64)>,
+    /// The gel is known to be tacky (this run's frames showed adhesive
+    /// contacts, [`FrameEstimator`] counts them): a small contact at the
+    /// known centre is then always fitted with the punch term, not only when
+    /// one frame's markers ask for it (docs/sensing.md, "Adhesive contacts").
+    pub adhesive: bool,
+    /// Probe resolved contacts at the known centre for a punch
+    /// ([`FrameEstimator`] asks while it has not decided `adhesive`).
+    pub probe_adhesion: bool,
 }
 
 /// A frame whose own noise estimate exceeds the pooled one by more than this
@@ -129,6 +185,8 @@ impl Default for SensingConfig {
             contact_curvature_per_mm: None,
             contact_centre_mm: None,
             marker_noise_mm: None,
+            adhesive: false,
+            probe_adhesion: false,
         }
     }
 }
@@ -170,6 +228,12 @@ pub struct Measurement {
     /// the contact, or a contact over 1.15 pitches was fitted at a known
     /// centre with its radius free. What [`FrameEstimator`] learns from.
     pub contact_curvature_per_mm: Option<(f64, f64)>,
+    /// The flat-punch part of gamma1 (mm, < 0) when the frame was read as an
+    /// adhesive contact, else `None`.
+    pub punch_mm: Option<f64>,
+    /// The frame's markers showed a flat punch beyond chance: read with it,
+    /// or (a resolved contact, read by its paraboloid) probed for one.
+    pub adhesive: bool,
     /// RMS residual of the quadratic fit, mm.
     pub gamma1_residual_mm: f64,
     /// RMS tangential residual of the stick markers after the rotation, mm.
@@ -298,6 +362,10 @@ struct Depth {
     dof: usize,
     /// The paraboloid's curvature -2 c3 = gamma1 / a^2 and its standard error.
     curvature: Option<(f64, f64)>,
+    /// The punch part of gamma1 when read as an adhesive contact.
+    punch: Option<f64>,
+    /// The markers showed a punch beyond chance (read with it, or probed).
+    adhesive: bool,
 }
 
 /// Quadratic fit, re-centred on its own peak with a window shrunk or grown
@@ -362,9 +430,45 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
             noise_sd: qf_noise,
             dof: qf_dof,
             curvature,
+            punch: None,
+            adhesive: false,
         });
     }
     best.ok_or(SensingError::TooFewMarkers { index, stage: "quadratic fit", found: 0, needed: 7 })
+}
+
+/// The tied JKR fit ([`fit_tied_punch`]) over `pts`, its outliers rejected
+/// by the same robust scale as the other fits and the fit repeated: the fit
+/// and the markers it kept.
+fn punch_stage(
+    pts: &[[f64; 3]],
+    centre: [f64; 2],
+    c: f64,
+    gamma1: f64,
+    cfg: &SensingConfig,
+) -> Option<(fit::PunchFit, Vec<bool>)> {
+    let mut kept = vec![true; pts.len()];
+    let mut fit = fit::fit_tied_punch(pts, &kept, centre, c, gamma1)?;
+    for _ in 0..3 {
+        let resid: Vec<f64> = pts
+            .iter()
+            .map(|q| {
+                let r = (q[0] - centre[0]).hypot(q[1] - centre[1]);
+                let rho = r / fit.radius;
+                let h = fit.gamma1 - fit.punch;
+                (q[2] - h * fit::hertz_shape(rho) - fit.punch * fit::punch_shape(rho)).abs()
+            })
+            .collect();
+        let mut kr: Vec<f64> = resid.iter().zip(&kept).filter(|(_, k)| **k).map(|(e, _)| *e).collect();
+        let limit = (cfg.outlier_sigmas * MAD_TO_SIGMA * median(&mut kr)).max(cfg.outlier_floor_mm);
+        let next: Vec<bool> = resid.iter().map(|e| *e <= limit).collect();
+        if next == kept || next.iter().filter(|&&b| b).count() < 5 {
+            break;
+        }
+        kept = next;
+        fit = fit::fit_tied_punch(pts, &kept, centre, c, fit.gamma1)?;
+    }
+    Some((fit, kept))
 }
 
 /// Hertz-field fit over the markers within about three contact radii.
@@ -406,11 +510,78 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
             let score = |h: &fit::HertzFit| h.rms * (pts.len() as f64 / h.kept.iter().filter(|&&b| b).count() as f64);
             score(x).total_cmp(&score(y))
         })?;
+    // An adhesive contact (JKR) is Hertz's field plus a flat punch's: the
+    // same inside, steeper outside. With the curvature and centre known, a
+    // tied fit that leaves more than chance in its residuals (a clean
+    // frame's chi-square is about its dof) is tried again with a punch
+    // (p <= 0), kept when the markers ask for it beyond chance
+    // (docs/sensing.md, "Adhesive contacts").
+    let noise = cfg.marker_noise_mm.map_or(hf.noise_sd, |n| n.0);
+    let chi2 = |sse: f64| sse / (noise * noise);
+    let sse_hertz = hf.rms * hf.rms * hf.kept.iter().filter(|&&b| b).count() as f64;
+    let poor = noise > 0.0 && chi2(sse_hertz) > hf.dof as f64 + PUNCH_CHI2;
+    // The tied fit rejects the markers a punch moves most (those inside the
+    // contact read it 10-30 um above a tied Hertz field) as outliers when the
+    // rest follow it: it is also tried when it left out markers.
+    let rejected = hf.kept.iter().filter(|&&b| !b).count();
+    // Only with the curvature known: before the run has learnt it, a free
+    // curvature beside the punch reads these contacts no better (tried).
+    // Only with the curvature known: before the run has learnt it, a punch
+    // with a free curvature beside it reads these contacts no better (inside
+    // a contact of a pitch or two the markers sit at one or two radii, where
+    // depth and curvature trade off; docs/sensing.md).
+    let punch = match curvature {
+        Curvature::Known { per_mm, .. } if fixed_centre && (cfg.adhesive || poor || rejected >= 2) => {
+            punch_stage(&pts, hf.centre, per_mm, hf.gamma1, cfg).filter(|(p, kept)| {
+                // Both fields on the markers the punch kept.
+                let hertz: f64 = pts
+                    .iter()
+                    .zip(kept)
+                    .filter(|(_, k)| **k)
+                    .map(|(q, _)| {
+                        let r = (q[0] - hf.centre[0]).hypot(q[1] - hf.centre[1]);
+                        (q[2] - hf.gamma1 * fit::hertz_shape(r / hf.radius)).powi(2)
+                    })
+                    .sum();
+                // On a gel known to be tacky the punch is the model: kept
+                // whenever it pulls; else only beyond chance.
+                p.punch < 0.0 && (cfg.adhesive || chi2(hertz - p.sse) > PUNCH_CHI2)
+            })
+        }
+        _ => None,
+    };
+    if let Some((p, kept)) = punch {
+        let m = kept.iter().filter(|&&b| b).count();
+        let dof = m.saturating_sub(1);
+        let rms = (p.sse / m as f64).sqrt();
+        let noise_sd = if dof > 0 { rms * (m as f64 / dof as f64).sqrt() } else { f64::NAN };
+        let own = p.gamma1_sd_per_noise * noise_sd;
+        let here = dist2(hf.centre, start.1) <= reach * reach && p.gamma1 > 0.0 && p.radius > 0.0;
+        // Its curvature is the one it was given: nothing to learn from it.
+        return here.then(|| Depth {
+            gamma1: p.gamma1,
+            centre: hf.centre,
+            radius: p.radius,
+            selected,
+            kept,
+            rms,
+            window: 0.0,
+            gamma1_sd: own.hypot(hf.gamma1_common_sd),
+            gamma1_common_sd: hf.gamma1_common_sd,
+            noise_sd,
+            dof,
+            curvature: None,
+            punch: Some(p.punch),
+            adhesive: true,
+        });
+    }
     // A contact over about a pitch and a sixth, at a known centre, holds
     // enough markers inside it to measure its curvature with the radius
     // free: that is learnt (by [`FrameEstimator`]) where it is used, below
-    // the contacts a paraboloid resolves. gamma1 stays the tied fit's.
-    let curvature = if fixed_centre && hf.radius >= MID_CONTACT_PITCHES * pitch {
+    // the contacts a paraboloid resolves. gamma1 stays the tied fit's. A
+    // tied fit the field does not follow (poor) teaches nothing: a Hertz
+    // curvature fitted to another field is not the contact's.
+    let curvature = if fixed_centre && !poor && hf.radius >= MID_CONTACT_PITCHES * pitch {
         let (k, floor) = (cfg.outlier_sigmas, cfg.outlier_floor_mm);
         fit_hertz(&pts, (hf.gamma1, hf.centre, hf.radius), k, floor, Curvature::Free, true)
             .filter(|f| (0.7..=1.4).contains(&(f.radius / hf.radius)))
@@ -437,6 +608,8 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
         noise_sd: hf.noise_sd,
         dof: hf.dof,
         curvature,
+        punch: None,
+        adhesive: false,
     })
 }
 
@@ -487,7 +660,15 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
             None => quad?,
         }
     } else {
-        quad?
+        let d = quad?;
+        // A resolved contact reads its depth right whatever the punch; while
+        // the run has not decided whether the gel is tacky, it is asked too.
+        match (cfg.probe_adhesion, cfg.contact_curvature_per_mm, cfg.contact_centre_mm) {
+            (true, Some((c, _)), Some(at)) if c > 0.0 && d.radius < PROBE_PITCHES * pitch => {
+                Depth { adhesive: adhesion_probe(frame, at, c, d.gamma1, d.radius.max(pitch), cfg), ..d }
+            }
+            _ => d,
+        }
     };
     let Depth {
         gamma1,
@@ -501,6 +682,8 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
         curvature,
         noise_sd,
         dof,
+        punch,
+        adhesive,
         ..
     } = depth;
     // The errors with the pooled marker noise (the tie's part is not noise).
@@ -579,6 +762,8 @@ pub fn measure(frame: &SensorFrame, cfg: &SensingConfig) -> Result<Measurement, 
         rotation_noise_mm: rotation_noise,
         rotation_dof,
         contact_curvature_per_mm: curvature,
+        punch_mm: punch,
+        adhesive,
         contact_centre_mm: centre,
         contact_radius_mm: radius,
         gamma1_residual_mm: depth_rms,

@@ -45,6 +45,10 @@ pub struct Reading {
     pub force_n: f64,
     pub contact_radius_mm: f64,
     pub in_contact: bool,
+    /// The flat-punch (adhesion) part of `gamma1_mm` as the sensor reports it,
+    /// mm (<= 0; 0 without adhesion): the marker field is Hertz's for the
+    /// rest of the depth plus a punch's (sim::sensor::field::punch_shape).
+    pub gamma1_punch_mm: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -54,6 +58,8 @@ struct Contact {
     force: f64,
     a: f64,
     delta: f64,
+    /// The elastomer's share of the punch displacement, mm.
+    punch1: f64,
 }
 
 /// How the punch (adhesion) term is set at a given contact radius.
@@ -173,7 +179,7 @@ impl TrueRig {
         let force = k_h + 2.0 * es * a * dp;
         let gamma1 = es / e1e * (hz + dp) - b1e * force;
         let gamma2 = es / self.e2s * (YOFFE * hz + dp) - self.b2 * force;
-        Contact { gamma1, gamma2, force, a, delta: gamma1 + gamma2 + c * force }
+        Contact { gamma1, gamma2, force, a, delta: gamma1 + gamma2 + c * force, punch1: es / e1e * dp }
     }
 
     fn es_at(&self, a: f64) -> f64 {
@@ -235,6 +241,7 @@ impl TrueRig {
                     force: st.force_n,
                     a: st.contact_radius_mm,
                     delta: s,
+                    punch1: 0.0,
                 });
             }
             return self.solve_rising(s, Punch::None, 0.0, guess);
@@ -334,7 +341,7 @@ impl TrueRig {
                 let load = if a > 0.0 { 0.75 * f / a } else { 0.0 };
                 let g2 = j2 * YOFFE * load - b2 * f;
                 let g1 = a * a / r_star - j2 * load - b1 / j_inf * h;
-                (Contact { gamma1: g1, gamma2: g2, force: f, a, delta: g1 + g2 + c * f }, qn)
+                (Contact { gamma1: g1, gamma2: g2, force: f, a, delta: g1 + g2 + c * f, punch1: 0.0 }, qn)
             };
             let (c0, q0) = state(0.0);
             let (contact, qn) = if s <= c0.delta {
@@ -481,6 +488,7 @@ impl TrueRig {
             force_n: contact.force,
             contact_radius_mm: contact.a,
             in_contact,
+            gamma1_punch_mm: if in_contact { gain * contact.punch1 } else { 0.0 },
         })
     }
 }
@@ -596,6 +604,16 @@ mod tests {
         let a = run(SimProfile { adhesion: Some(adhesion::Params { w_mj_m2: 80.0, eta: 3.0 }), ..Default::default() });
         assert!(a[120].in_contact && a[120].gamma1_mm < 0.0, "{:?}", a[120]);
         assert!(a[110].gamma1_mm < a[10].gamma1_mm);
+        // The depth is a Hertz part for the contact's radius plus a pulling
+        // punch (the marker field draws both): the Hertz part's curvature,
+        // (gamma1 - punch) / a^2, is the clean contact's on both branches
+        // (within the percent Tatara's term moves it between sizes).
+        let curvature = |r: &Reading| (r.gamma1_mm - r.gamma1_punch_mm) / (r.contact_radius_mm * r.contact_radius_mm);
+        for k in [10, 40, 100, 110] {
+            let (r, c_clean) = (&a[k], curvature(&clean[k]));
+            assert!(r.gamma1_punch_mm < 0.0 && (curvature(r) / c_clean - 1.0).abs() < 0.015, "{r:?} vs {c_clean}");
+        }
+        assert!(clean.iter().all(|r| r.gamma1_punch_mm == 0.0));
         // Frame compliance: less depth at high force.
         let f = run(SimProfile {
             frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.01 }),

@@ -183,6 +183,13 @@ impl ServedRig {
         &self.rotation
     }
 
+    /// Frames the simulated sensor drew as the clean contact because the
+    /// set-up's effect model failed there (e.g. gross slip): 0 when the run
+    /// saw every effect it was given.
+    pub fn effect_failures(&self) -> u64 {
+        self.sensor.effect_failures()
+    }
+
     pub fn sensor_endpoint(&self) -> &SensorEndpoint {
         &self.sensor_endpoint
     }

@@ -47,12 +47,23 @@ pub struct ContactState {
     /// Poisson's ratio of the elastomer; sets the in-plane radial field of the
     /// normal contact (0.5: none).
     pub nu1: f64,
+    /// The flat-punch part of `gamma1_mm` (mm, <= 0 for an adhesive contact,
+    /// 0 for Hertz): a JKR contact is Hertz's field for its radius plus a
+    /// rigid punch's, uniform inside the contact (see [`punch_shape`]).
+    pub punch_mm: f64,
 }
 
 impl ContactState {
     /// A contact on an incompressible elastomer (no radial in-plane field).
     pub fn new(center_mm: [f64; 2], gamma1_mm: f64, contact_radius_mm: f64, theta1_rad: f64) -> Self {
-        Self { center_mm, gamma1_mm, contact_radius_mm, theta1_rad, nu1: 0.5 }
+        Self { center_mm, gamma1_mm, contact_radius_mm, theta1_rad, nu1: 0.5, punch_mm: 0.0 }
+    }
+
+    /// The same peak depth made of a Hertz field of depth `gamma1_mm - punch_mm`
+    /// and a flat punch of depth `punch_mm` at the same radius (JKR).
+    pub fn with_punch(mut self, punch_mm: f64) -> Self {
+        self.punch_mm = punch_mm;
+        self
     }
 
     pub fn with_nu1(mut self, nu1: f64) -> Self {
@@ -70,7 +81,8 @@ impl ContactState {
         let dy = y - self.center_mm[1];
         let r = dx.hypot(dy);
         let rho = r / a;
-        let w = self.gamma1_mm * normal_shape(rho);
+        let (hertz, punch) = (self.gamma1_mm - self.punch_mm, self.punch_mm);
+        let w = hertz * normal_shape(rho) + punch * punch_shape(rho);
         // In-plane: radial and twist components along e_r = (dx, dy)/r and
         // e_phi = (-dy, dx)/r; both vanish at the centre.
         if r == 0.0 {
@@ -84,7 +96,8 @@ impl ContactState {
         // one, so its rotation is theta whatever nu is.
         let psi = self.theta1_rad * a * twist_shape(rho) / r;
         let (s, c) = psi.sin_cos();
-        let u_r = -self.gamma1_mm * radial_coefficient(self.nu1) * radial_shape(rho);
+        let u_r = -hertz * radial_coefficient(self.nu1) * radial_shape(rho)
+            - punch * punch_radial_coefficient(self.nu1) * punch_radial_shape(rho);
         let scale = 1.0 + u_r / r;
         let (px, py) = (dx * scale, dy * scale);
         [c * px - s * py - dx, s * px + c * py - dy, -w]
@@ -98,6 +111,37 @@ pub fn normal_shape(rho: f64) -> f64 {
     } else {
         ((2.0 - rho * rho) * (1.0 / rho).asin() + (rho * rho - 1.0).sqrt()) / std::f64::consts::PI
     }
+}
+
+/// Normalised flat-punch normal displacement w(r) / w(0) at rho = r / a:
+/// 1 inside the contact (a rigid flat face), (2/pi) asin(1/rho) outside
+/// (Boussinesq's punch, Johnson 1985 Eq. 3.38). Continuous at the edge, where
+/// the outside field leaves with an infinite slope (the punch's edge singularity).
+pub fn punch_shape(rho: f64) -> f64 {
+    if rho <= 1.0 { 1.0 } else { std::f64::consts::FRAC_2_PI * (1.0 / rho).asin() }
+}
+
+/// Normalised flat-punch radial field |u_r| / (w(0) k_p) at rho = r / a
+/// (> 0 inward for a pressing punch): (1 - sqrt(1 - rho^2)) / rho inside,
+/// 1 / rho outside, with k_p from [`punch_radial_coefficient`].
+pub fn punch_radial_shape(rho: f64) -> f64 {
+    if rho <= 0.0 {
+        0.0
+    } else if rho <= 1.0 {
+        (1.0 - (1.0 - rho * rho).sqrt()) / rho
+    } else {
+        1.0 / rho
+    }
+}
+
+/// k_p = (1 - 2 nu) / (pi (1 - nu)): the punch's radial to normal field scale
+/// (its load P gives w(0) = P (1 - nu^2) / (2 a E) and, outside, u_r =
+/// (1 - 2 nu)(1 + nu) P / (2 pi E r)).
+pub fn punch_radial_coefficient(nu: f64) -> f64 {
+    if nu >= 0.5 || nu <= -1.0 {
+        return 0.0;
+    }
+    (1.0 - 2.0 * nu) / (std::f64::consts::PI * (1.0 - nu))
 }
 
 /// Normalised twist field u_phi / (theta a) at rho = r / a (rigid disc in full stick).
@@ -393,6 +437,38 @@ mod tests {
             assert!(v < prev);
             prev = v;
         }
+    }
+
+    #[test]
+    fn an_adhesive_contact_is_hertz_plus_a_flat_punch() {
+        // The punch: flat inside, continuous at the edge, (2/pi)/rho far out.
+        assert_eq!(punch_shape(0.3), 1.0);
+        assert!((punch_shape(1.0 + 1e-12) - 1.0).abs() < 1e-5);
+        assert!((punch_shape(100.0) * 100.0 - 2.0 / PI).abs() < 1e-4);
+        assert!((punch_radial_shape(1.0) - 1.0).abs() < 1e-15 && (punch_radial_shape(1.0 + 1e-12) - 1.0).abs() < 1e-9);
+        assert!((punch_radial_coefficient(0.0) - 1.0 / PI).abs() < 1e-15 && punch_radial_coefficient(0.5) == 0.0);
+        // JKR (Johnson 1985, 5.3): inside the contact the surface is the
+        // indenter's shape, gamma1 - c r^2 / 2 with c the Hertz part's
+        // gamma1_H / a^2, whatever the punch; it reaches the edge at
+        // gamma1_H / 2 + p, and outside it falls off faster than Hertz's.
+        let (a, hertz, p) = (1.5, 0.39, -0.12);
+        let jkr = ContactState::new([0.0, 0.0], hertz + p, a, 0.0).with_punch(p);
+        let plain = ContactState::new([0.0, 0.0], hertz + p, a, 0.0);
+        let c = hertz / (a * a);
+        for r in [0.0, 0.4, 1.0, 1.49] {
+            assert!((-jkr.displacement_at(r, 0.0)[2] - (hertz + p - 0.5 * c * r * r)).abs() < 1e-12, "r {r}");
+        }
+        assert!((-jkr.displacement_at(a, 0.0)[2] - (0.5 * hertz + p)).abs() < 1e-12);
+        for r in [1.6, 2.0, 3.0, 6.0] {
+            let (w, w_plain) = (-jkr.displacement_at(r, 0.0)[2], -plain.displacement_at(r, 0.0)[2]);
+            let want = hertz * normal_shape(r / a) + p * 2.0 / PI * (a / r).asin();
+            assert!((w - want).abs() < 1e-12 && w < w_plain, "r {r}: {w} vs {want}, plain {w_plain}");
+        }
+        // A pulling punch moves the surface outward in-plane (nu < 0.5).
+        let jkr = jkr.with_nu1(0.39);
+        let d = jkr.displacement_at(3.0, 0.0);
+        let hertz_only = -hertz * radial_coefficient(0.39) * radial_shape(2.0);
+        assert!((d[0] - (hertz_only - p * punch_radial_coefficient(0.39) * 0.5)).abs() < 1e-12 && d[0] > hertz_only);
     }
 
     #[test]

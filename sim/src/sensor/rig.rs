@@ -120,7 +120,8 @@ impl RigSensor {
                     r.contact_radius_mm,
                     r.theta1_deg.to_radians(),
                 )
-                .with_nu1(self.cfg.setup.pair().elastomer.nu),
+                .with_nu1(self.cfg.setup.pair().elastomer.nu)
+                .with_punch(r.gamma1_punch_mm),
             ),
             Ok(_) => None,
             Err(_) => {
@@ -274,6 +275,25 @@ mod tests {
         let after = s.frame();
         let peak = after.displacements.iter().map(|d| -d[2]).fold(0.0, f64::max);
         assert!(peak > 0.1, "peak {peak}");
+    }
+
+    #[test]
+    fn a_failing_effect_model_is_counted_and_the_clean_contact_drawn() {
+        let rig = Rig::new(VirtualClock::new(1.0), axis(-10.0, 10.0), axis(-360.0, 360.0));
+        let pose = |stage_mm, rot_deg| RigPose { t_s: 0.0, stage_mm, rot_deg };
+        // Little friction: 30 degrees of twist is gross slip, which the slip model refuses.
+        let slip = SimProfile {
+            partial_slip: Some(crate::effects::partial_slip::Params { mu: 0.05 }),
+            ..SimProfile::default()
+        };
+        let mut s = RigSensor::new(rig.clone(), quiet(slip, 1.0)).unwrap();
+        let mut clean = RigSensor::new(rig, quiet(SimProfile::default(), 1.0)).unwrap();
+        s.frame_at_pose(&pose(3.0, 0.0));
+        clean.frame_at_pose(&pose(3.0, 0.0));
+        assert_eq!(s.effect_failures(), 0);
+        let f = s.frame_at_pose(&pose(3.0, 30.0));
+        assert_eq!(s.effect_failures(), 1);
+        assert_eq!(f.displacements, clean.frame_at_pose(&pose(3.0, 30.0)).displacements);
     }
 
     fn peak_depth(f: &SensorFrame) -> f64 {

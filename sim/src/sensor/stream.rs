@@ -70,6 +70,7 @@ pub struct SensorStream {
     silenced: Arc<AtomicBool>,
     sent: Arc<AtomicU64>,
     generated: Arc<AtomicU64>,
+    effect_failures: Arc<AtomicU64>,
     task: Option<JoinHandle<StreamEnd>>,
 }
 
@@ -93,6 +94,13 @@ impl SensorStream {
     /// Frames the sensor produced so far, sent or not.
     pub fn frames_generated(&self) -> u64 {
         self.generated.load(Ordering::SeqCst)
+    }
+
+    /// Frames for which the set-up's effect model failed and the clean
+    /// contact was drawn instead ([`RigSensor::effect_failures`]): a run on
+    /// such a stream did not see all of the effect it was given.
+    pub fn effect_failures(&self) -> u64 {
+        self.effect_failures.load(Ordering::SeqCst)
     }
 
     /// True once the task has ended (sink failure or stop).
@@ -132,8 +140,18 @@ pub fn spawn_rig_sensor<S: FrameSink>(sensor: RigSensor, sink: S) -> SensorStrea
     let silenced = Arc::new(AtomicBool::new(false));
     let sent = Arc::new(AtomicU64::new(0));
     let generated = Arc::new(AtomicU64::new(0));
-    let task = tokio::spawn(run(sensor, sink, stop_rx, silenced.clone(), sent.clone(), generated.clone()));
-    SensorStream { stop: stop_tx, silenced, sent, generated, task: Some(task) }
+    let effect_failures = Arc::new(AtomicU64::new(0));
+    let counters =
+        Counters { sent: sent.clone(), generated: generated.clone(), effect_failures: effect_failures.clone() };
+    let task = tokio::spawn(run(sensor, sink, stop_rx, silenced.clone(), counters));
+    SensorStream { stop: stop_tx, silenced, sent, generated, effect_failures, task: Some(task) }
+}
+
+/// What the stream's task counts for its handle.
+struct Counters {
+    sent: Arc<AtomicU64>,
+    generated: Arc<AtomicU64>,
+    effect_failures: Arc<AtomicU64>,
 }
 
 async fn run<S: FrameSink>(
@@ -141,9 +159,9 @@ async fn run<S: FrameSink>(
     mut sink: S,
     mut stop: watch::Receiver<bool>,
     silenced: Arc<AtomicBool>,
-    sent: Arc<AtomicU64>,
-    generated: Arc<AtomicU64>,
+    counters: Counters,
 ) -> StreamEnd {
+    let Counters { sent, generated, effect_failures } = counters;
     let rate = sensor.config().frame_rate_hz;
     let rate = if rate.is_finite() && rate > 0.0 { rate } else { 30.0 };
     let clock = sensor.rig().clock();
@@ -163,6 +181,7 @@ async fn run<S: FrameSink>(
             _ = ticks.tick() => {
                 let frame = sensor.frame();
                 generated.fetch_add(1, Ordering::SeqCst);
+                effect_failures.store(sensor.effect_failures(), Ordering::SeqCst);
                 if silenced.load(Ordering::SeqCst) {
                     continue;
                 }
