@@ -108,6 +108,10 @@ pub struct Scored {
 pub struct Plan {
     /// The diagnosis's answer on the recording as it is, in one line ([`outcome_of`]).
     pub verdict: String,
+    /// E1 and nu1 of that diagnosis (corrected when it names an effect).
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
     pub hypotheses: Vec<Hypothesis>,
     /// Every candidate, best first.
     pub experiments: Vec<Scored>,
@@ -146,6 +150,8 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
     let verdict = outcome_of(d);
     let empty = |why: &str| Plan {
         verdict: verdict.clone(),
+        e1_mpa: d.e1_mpa,
+        nu1: d.nu1,
         hypotheses: vec![],
         experiments: vec![],
         nothing_because: Some(why.to_string()),
@@ -216,7 +222,7 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
             o.separation
         ));
     }
-    Ok(Plan { verdict, hypotheses, experiments, nothing_because: None, operator_steps })
+    Ok(Plan { verdict, e1_mpa: d.e1_mpa, nu1: d.nu1, hypotheses, experiments, nothing_because: None, operator_steps })
 }
 
 /// A diagnosis in one line: what it named (with the corrected E1, nu1), what
@@ -227,7 +233,7 @@ pub fn outcome_of(d: &Diagnosis) -> String {
         format!("named {}: {values}", d.effects.join(" + "))
     } else if !d.ambiguous.is_empty() {
         let alts: Vec<String> = d.ambiguous.iter().map(|a| a.effects.join(" + ")).collect();
-        format!("ambiguous: {}", alts.join(" / "))
+        format!("ambiguous: {} ({values} with the best)", alts.join(" / "))
     } else if d.unexplained {
         format!("unexplained mismatch: {values}")
     } else {

@@ -103,6 +103,7 @@ where
             };
             if let Some(last) = self.adaptive.last_mut() {
                 last.outcome = p.verdict.clone();
+                (last.e1_mpa, last.nu1) = (p.e1_mpa, p.nu1);
             }
             if self.adaptive.len() as u32 >= a.max_steps {
                 self.log(LogLevel::Info, format!("adaptive: {} experiments run, the most allowed", a.max_steps));
@@ -143,6 +144,8 @@ where
                 why,
                 rig_time_s: took,
                 outcome: String::new(),
+                e1_mpa: f64::NAN,
+                nu1: f64::NAN,
             });
         }
         Ok(())
