@@ -13,7 +13,7 @@ use crate::physics::Body;
 use crate::recording::{Direction, Phase};
 
 /// Young's modulus of the rigid ball an operator mounts for `rigid_ball`: steel, MPa.
-/// Against a gel of a few tenths of a MPa it deforms a millionth as much.
+/// Against a gel of a few tenths of a MPa it takes a few millionths of the travel.
 pub const RIGID_BALL_E_MPA: f64 = 210_000.0;
 /// Poisson's ratio of the steel ball.
 pub const RIGID_BALL_NU: f64 = 0.3;
