@@ -165,3 +165,34 @@ fn rigid_ball_rates_over_seeds() {
     println!("RATE sensor_gain 0.99: named within 1 %/2 % in {ok}/10");
     assert!(ok >= 9, "{ok}/10");
 }
+
+/// `easycalib plan --json` on a sensor-gain recording puts the rigid ball
+/// first, marked as an operator step weighed with the operator's effort;
+/// `--no-operator` proposes no swap and says what is left to one.
+#[test]
+fn plan_command_weighs_operator_steps_and_leaves_them_out_on_request() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("gain.csv");
+    let profile = SimProfile { sensor_gain: Some(sensor_gain::Params { g: 0.99 }), ..SimProfile::default() };
+    generate(&GeneratorConfig { seed: 1, profile, ..GeneratorConfig::default() }).unwrap().write_path(&path).unwrap();
+    let run = |extra: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_easycalib"))
+            .args(["plan", path.to_str().unwrap(), "--json"])
+            .args(extra)
+            .env("EASYCALIB_HOME", dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    let v = run(&[]);
+    let first = &v["experiments"][0];
+    assert_eq!((first["name"].as_str(), first["operator"].as_bool()), (Some("rigid_ball"), Some(true)), "{v:#}");
+    let (rig, cost) = (first["rig_time_s"].as_f64().unwrap(), first["cost_s"].as_f64().unwrap());
+    assert!((cost - rig - easycalib::plan::OPERATOR_EFFORT_S).abs() < 1e-9, "{v:#}");
+    let bare = run(&["--no-operator"]);
+    let exps = bare["experiments"].as_array().unwrap();
+    assert!(exps.iter().all(|e| e["operator"] == false), "{bare:#}");
+    let left = bare["operator_steps"].as_array().unwrap();
+    assert!(left.iter().any(|o| o.as_str().is_some_and(|o| o.contains("rigid_ball"))), "{bare:#}");
+}
