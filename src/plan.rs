@@ -19,6 +19,45 @@ use crate::diagnosis::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose};
 /// its spread being 2 sqrt(separation).
 pub const DECISIVE_SEPARATION: f64 = 24.0;
 
+/// What an operator's indenter swap costs, in seconds of rig time it is
+/// weighed as (docs/experiments.md, "Operator effort"): the rig retracts to
+/// park, someone walks over, unscrews one indenter, mounts the other with its
+/// apex on the same reference and confirms — about five minutes of a
+/// person's time, and a chance to disturb the set-up. A rig-only experiment
+/// that decides is therefore always preferred to a swap that decides.
+pub const OPERATOR_EFFORT_S: f64 = 300.0;
+
+/// What a plan may propose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlanOptions {
+    /// Operator-assisted steps (an indenter swap) may be proposed (`--no-operator`: not).
+    pub operator: bool,
+}
+
+impl Default for PlanOptions {
+    fn default() -> Self {
+        Self { operator: true }
+    }
+}
+
+/// The operator-assisted steps a plan weighs for `rec`: a steel ball of the
+/// recording's indenter radius (sensor gain against frame compliance), and a
+/// second indenter four times stiffer and twice the radius (a different
+/// E2/R2: a different share of the stage travel goes into the indenter).
+pub fn operator_candidates(rec: &Recording) -> Vec<ExperimentSpec> {
+    let ind = rec.meta.indenter;
+    vec![
+        ExperimentSpec::RigidBall { r_mm: ind.r_mm, travel_mm: 2.5, steps: 20 },
+        ExperimentSpec::SwapIndenter {
+            e2_mpa: 4.0 * ind.e_mpa,
+            nu2: ind.nu,
+            r2_mm: 2.0 * ind.r_mm,
+            travel_mm: 2.5,
+            steps: 20,
+        },
+    ]
+}
+
 /// The experiments a plan weighs: what the rig can run alone.
 pub fn candidates() -> Vec<ExperimentSpec> {
     vec![
@@ -50,6 +89,10 @@ pub struct Scored {
     pub spec: ExperimentSpec,
     pub samples: usize,
     pub rig_time_s: f64,
+    /// Needs an operator to swap the indenter.
+    pub operator: bool,
+    /// What it is weighed at: its rig time, plus [`OPERATOR_EFFORT_S`] for an operator step, s.
+    pub cost_s: f64,
     /// Sum over its samples of the squared difference between the two best
     /// hypotheses' predictions, each over its reading's noise.
     pub separation: f64,
@@ -65,6 +108,10 @@ pub struct Scored {
 pub struct Plan {
     /// The diagnosis's answer on the recording as it is, in one line ([`outcome_of`]).
     pub verdict: String,
+    /// E1 and nu1 of that diagnosis (corrected when it names an effect).
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
     pub hypotheses: Vec<Hypothesis>,
     /// Every candidate, best first.
     pub experiments: Vec<Scored>,
@@ -91,18 +138,20 @@ pub enum PlanError {
 }
 
 /// Plan the next experiment for `rec` (diagnosed here).
-pub fn plan(rec: &Recording) -> Result<Plan, PlanError> {
+pub fn plan(rec: &Recording, opts: PlanOptions) -> Result<Plan, PlanError> {
     let d = diagnose(rec, &DiagnoseOptions::default())?;
-    plan_for(rec, &d)
+    plan_for(rec, &d, opts)
 }
 
 /// Plan for `rec` given its diagnosis `d`.
-pub fn plan_for(rec: &Recording, d: &Diagnosis) -> Result<Plan, PlanError> {
-    let operator_steps: Vec<String> =
+pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Plan, PlanError> {
+    let mut operator_steps: Vec<String> =
         d.degenerate.iter().filter_map(|g| g.separate_by.map(|s| format!("{}: {s}", g.effect))).collect();
     let verdict = outcome_of(d);
     let empty = |why: &str| Plan {
         verdict: verdict.clone(),
+        e1_mpa: d.e1_mpa,
+        nu1: d.nu1,
         hypotheses: vec![],
         experiments: vec![],
         nothing_because: Some(why.to_string()),
@@ -126,29 +175,54 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis) -> Result<Plan, PlanError> {
         return Ok(empty("fewer than two of the explanations could be refitted"));
     }
     let mut experiments = Vec::new();
-    for spec in candidates() {
+    let mut left_to_operator = Vec::new();
+    for spec in candidates().into_iter().chain(operator_candidates(rec)) {
         let step_time_s = step_time(rec, spec.phase().kind());
-        let (separation, peak_gamma1_mm) =
-            separation(rec, &hypotheses[0], &hypotheses[1], &spec, step_time_s, sigma_g, sigma_t)?;
-        experiments.push(Scored {
+        let (separation, peak_gamma1_mm) = if spec.is_operator() {
+            operator_separation(rec, &hypotheses[0], &hypotheses[1], &spec, step_time_s, sigma_g)?
+        } else {
+            separation(rec, &hypotheses[0], &hypotheses[1], &spec, step_time_s, sigma_g, sigma_t)?
+        };
+        let rig_time_s = spec.rig_time_s(step_time_s) + seek_time(rec, &spec);
+        let scored = Scored {
             name: spec.name(),
             spec,
             samples: spec.samples(),
-            rig_time_s: spec.rig_time_s(step_time_s) + seek_time(rec, &spec),
+            rig_time_s,
+            operator: spec.is_operator(),
+            cost_s: rig_time_s + if spec.is_operator() { OPERATOR_EFFORT_S } else { 0.0 },
             separation,
             decisive: separation >= DECISIVE_SEPARATION,
             peak_gamma1_mm,
-        });
+        };
+        if scored.operator && !opts.operator {
+            left_to_operator.push(scored);
+        } else {
+            experiments.push(scored);
+        }
     }
     // Decisive first, the cheapest of them (the better separating at equal
-    // time); then the rest by separation per second.
+    // cost); then the rest by separation per second of cost.
     experiments.sort_by(|a, b| {
         b.decisive.cmp(&a.decisive).then_with(|| match a.decisive {
-            true => a.rig_time_s.total_cmp(&b.rig_time_s).then(b.separation.total_cmp(&a.separation)),
-            false => (b.separation / b.rig_time_s).total_cmp(&(a.separation / a.rig_time_s)),
+            true => a.cost_s.total_cmp(&b.cost_s).then(b.separation.total_cmp(&a.separation)),
+            false => (b.separation / b.cost_s).total_cmp(&(a.separation / a.cost_s)),
         })
     });
-    Ok(Plan { verdict, hypotheses, experiments, nothing_because: None, operator_steps })
+    // Without an operator: say what only a swap would have decided.
+    if !experiments.iter().any(|e| e.decisive)
+        && let Some(o) = left_to_operator.iter().filter(|o| o.decisive).min_by(|a, b| a.cost_s.total_cmp(&b.cost_s))
+    {
+        let names: Vec<String> = hypotheses.iter().take(2).map(|h| h.effects.join(" + ")).collect();
+        operator_steps.push(format!(
+            "{}: left standing without an operator; {} {:?} would separate them (separation {:.0})",
+            names.join(" / "),
+            o.name,
+            o.spec,
+            o.separation
+        ));
+    }
+    Ok(Plan { verdict, e1_mpa: d.e1_mpa, nu1: d.nu1, hypotheses, experiments, nothing_because: None, operator_steps })
 }
 
 /// A diagnosis in one line: what it named (with the corrected E1, nu1), what
@@ -159,7 +233,7 @@ pub fn outcome_of(d: &Diagnosis) -> String {
         format!("named {}: {values}", d.effects.join(" + "))
     } else if !d.ambiguous.is_empty() {
         let alts: Vec<String> = d.ambiguous.iter().map(|a| a.effects.join(" + ")).collect();
-        format!("ambiguous: {}", alts.join(" / "))
+        format!("ambiguous: {} ({values} with the best)", alts.join(" / "))
     } else if d.unexplained {
         format!("unexplained mismatch: {values}")
     } else {
@@ -266,6 +340,171 @@ fn separation(
     Ok((d, run.iter().map(|s| s.gamma1_mm).fold(0.0, f64::max)))
 }
 
+/// How far apart an operator step's outcomes are under hypotheses `a` and
+/// `b`: each hypothesis's rig (its E1, nu1 and effects) with the step's
+/// indenter, from a fresh history (the gel recovered while parked), loaded
+/// along the step's path after the recording. Also the largest gamma1 `a`
+/// predicts, mm.
+fn operator_separation(
+    rec: &Recording,
+    a: &Hypothesis,
+    b: &Hypothesis,
+    spec: &ExperimentSpec,
+    step_time_s: f64,
+    sigma_g: f64,
+) -> Result<(f64, f64), PlanError> {
+    let fail = |e: String| PlanError::Simulate(e);
+    let Some(indenter) = spec.operator_indenter() else {
+        return Err(fail(format!("{} is no operator step", spec.name())));
+    };
+    let (ExperimentSpec::RigidBall { travel_mm, steps, .. } | ExperimentSpec::SwapIndenter { travel_mm, steps, .. }) =
+        *spec
+    else {
+        return Err(fail(format!("{} has no operator sweep", spec.name())));
+    };
+    let t0 = rec.samples.last().map_or(0.0, |s| s.t_s) + step_time_s;
+    let cmds: Vec<CommandedPose> = sim::experiment::operator_path(travel_mm, steps)
+        .iter()
+        .enumerate()
+        .map(|(i, &(stage, _))| CommandedPose { t_s: t0 + i as f64 * step_time_s, stage_mm: stage, rot_deg: 0.0 })
+        .collect();
+    let read = |h: &Hypothesis| -> Result<Vec<f64>, PlanError> {
+        let pair = pair_of(rec, &h.profile).ok_or_else(|| fail("a hypothesis has no material".into()))?;
+        let pair = ContactPair { indenter, ..pair };
+        let r = simulate(pair, &h.profile, &cmds).map_err(|e| fail(e.to_string()))?;
+        Ok(r.iter().map(|r| if r.in_contact { r.gamma1_mm } else { 0.0 }).collect())
+    };
+    let (ga, gb) = (read(a)?, read(b)?);
+    let d = ga.iter().zip(&gb).map(|(x, y)| ((x - y) / sigma_g).powi(2)).sum();
+    Ok((d, ga.iter().copied().fold(0.0, f64::max)))
+}
+
+/// The sensor's depth gain as a rigid-ball sweep measures it (docs/experiments.md,
+/// "Operator-assisted steps").
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct GainMeasure {
+    /// gamma1 as read over gamma1 as it is.
+    pub g: f64,
+    /// Its standard error.
+    pub g_sd: f64,
+    /// In-contact samples used.
+    pub samples: usize,
+}
+
+/// Measure the gain from a rigid-ball recording (its header's indenter is the
+/// ball). With gamma2 = 0 and a stiff frame the stage travel past contact is
+/// gamma1, and the sensor reads g gamma1: a straight line, read = g (stage -
+/// z0), fitted by least squares with the reading (which carries the noise)
+/// on the left. A compliant frame bends it (C F); whether the frame or the
+/// gain explains the sweep is decided by the hypotheses' predictions
+/// ([`decide_with_ball`]), since over the ball's small forces C F is close
+/// to a line too.
+pub fn rigid_ball_gain(ball: &Recording) -> Option<GainMeasure> {
+    let live: Vec<&Sample> = ball.samples.iter().filter(|s| s.gamma1_mm > 0.0).collect();
+    let n = live.len();
+    if n < 5 {
+        return None;
+    }
+    let nf = n as f64;
+    let (sx, sy) = live.iter().fold((0.0, 0.0), |(a, b), s| (a + s.stage_mm, b + s.gamma1_mm));
+    let (mx, my) = (sx / nf, sy / nf);
+    let (sxx, sxy) = live
+        .iter()
+        .fold((0.0, 0.0), |(a, b), s| (a + (s.stage_mm - mx).powi(2), b + (s.stage_mm - mx) * (s.gamma1_mm - my)));
+    let g = sxy / sxx;
+    let rss: f64 = live.iter().map(|s| (s.gamma1_mm - my - g * (s.stage_mm - mx)).powi(2)).sum();
+    let g_sd = (rss / (nf - 2.0) / sxx).sqrt();
+    (g.is_finite() && g > 0.0).then_some(GainMeasure { g, g_sd, samples: n })
+}
+
+/// What the closed loop makes of a rigid-ball sweep.
+#[derive(Debug, Clone, Serialize)]
+pub struct GainDecision {
+    pub gain: GainMeasure,
+    /// The hypothesis whose prediction of the ball's readings fits best, and
+    /// each hypothesis's chi² on them.
+    pub best: Vec<&'static str>,
+    pub chi2: Vec<(String, f64)>,
+    /// The best hypothesis holds the sensor gain and the gain differs from 1
+    /// by more than four of its standard errors and 0.2 %.
+    pub named: bool,
+    /// Effects named: the sensor gain when it is, with what the recording's
+    /// diagnosis names once its depths are divided by the measured gain.
+    pub effects: Vec<&'static str>,
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    /// One line, as [`outcome_of`].
+    pub outcome: String,
+}
+
+/// Decide with a rigid-ball recording taken after `rec` (diagnosed as `d`,
+/// planned as `p`): each standing hypothesis predicts the ball's readings
+/// (its E1, nu1 and effects with the ball mounted, as the plan scored it) and
+/// the one with the least chi² stands. When that one holds the sensor gain and
+/// the measured gain is off, the recording's depth readings (and their
+/// standard errors) are divided by it and diagnosed again: E1 and nu1 are
+/// then the corrected recording's.
+pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recording) -> Result<GainDecision, PlanError> {
+    let fail = |e: String| PlanError::Simulate(e);
+    let gain =
+        rigid_ball_gain(ball).ok_or_else(|| fail("the rigid-ball sweep has too few samples in contact".into()))?;
+    let sigma_g = d.noise.normal_um * 1e-3;
+    let cmds: Vec<CommandedPose> =
+        ball.samples.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: 0.0 }).collect();
+    let mut chi2 = Vec::new();
+    for h in &p.hypotheses {
+        let pair = pair_of(rec, &h.profile).ok_or_else(|| fail("a hypothesis has no material".into()))?;
+        let pair = ContactPair { indenter: ball.meta.indenter, ..pair };
+        let r = simulate(pair, &h.profile, &cmds).map_err(|e| fail(e.to_string()))?;
+        let c: f64 = ball
+            .samples
+            .iter()
+            .zip(&r)
+            .filter(|(s, _)| s.gamma1_mm > 0.0)
+            .map(|(s, r)| ((s.gamma1_mm - r.gamma1_mm) / sigma_g).powi(2))
+            .sum();
+        chi2.push((h.effects.clone(), c));
+    }
+    let best = chi2.iter().min_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0.clone()).unwrap_or_default();
+    let chi2: Vec<(String, f64)> = chi2.into_iter().map(|(e, c)| (e.join(" + "), c)).collect();
+    let named = best.contains(&"sensor_gain") && (gain.g - 1.0).abs() > (4.0 * gain.g_sd).max(0.002);
+    if !named {
+        return Ok(GainDecision {
+            gain,
+            best,
+            chi2,
+            named,
+            effects: d.effects.clone(),
+            e1_mpa: d.e1_mpa,
+            nu1: d.nu1,
+            outcome: format!(
+                "sensor gain ruled out (rigid ball: g {:.4} +- {:.4}); {}",
+                gain.g,
+                gain.g_sd,
+                outcome_of(d)
+            ),
+        });
+    }
+    let mut fixed = rec.clone();
+    for s in &mut fixed.samples {
+        s.gamma1_mm /= gain.g;
+        s.gamma1_sd_mm = s.gamma1_sd_mm.map(|v| v / gain.g);
+    }
+    let d2 = diagnose(&fixed, &DiagnoseOptions::default())?;
+    let mut effects = vec!["sensor_gain"];
+    effects.extend(d2.effects.iter().copied().filter(|e| *e != "sensor_gain"));
+    let outcome = format!(
+        "named {} (rigid ball: g {:.4} +- {:.4}): E1 {:.4} MPa, nu1 {:.4}",
+        effects.join(" + "),
+        gain.g,
+        gain.g_sd,
+        d2.e1_mpa,
+        d2.nu1
+    );
+    Ok(GainDecision { gain, best, chi2, named, effects, e1_mpa: d2.e1_mpa, nu1: d2.nu1, outcome })
+}
+
 /// The plan as text: the hypotheses, the choice with its time and what each outcome would mean, the others.
 pub fn report(p: &Plan) -> String {
     use std::fmt::Write;
@@ -290,8 +529,13 @@ pub fn report(p: &Plan) -> String {
         let verdict = if c.decisive { "decides" } else { "separates best per second, but may not decide" };
         let _ = writeln!(
             s,
-            "Run: {} {:?} ({} samples, about {:.0} s of rig time): separation {:.1} (decisive at {DECISIVE_SEPARATION}), {verdict}.",
-            c.name, c.spec, c.samples, c.rig_time_s, c.separation
+            "Run: {}{} {:?} ({} samples, about {:.0} s of rig time): separation {:.1} (decisive at {DECISIVE_SEPARATION}), {verdict}.",
+            c.name,
+            if c.operator { " (an operator swaps the indenter)" } else { "" },
+            c.spec,
+            c.samples,
+            c.rig_time_s,
+            c.separation
         );
         for h in [a, b] {
             let effects = h.effects.join(" + ");
@@ -303,7 +547,8 @@ pub fn report(p: &Plan) -> String {
         }
         let _ = writeln!(s, "Candidates (separation, rig time):");
         for e in &p.experiments {
-            let _ = writeln!(s, "  {:<18} {:>8.1} {:>6.0} s  {:?}", e.name, e.separation, e.rig_time_s, e.spec);
+            let who = if e.operator { " + operator" } else { "" };
+            let _ = writeln!(s, "  {:<18} {:>8.1} {:>6.0} s{who}  {:?}", e.name, e.separation, e.rig_time_s, e.spec);
         }
     }
     for o in &p.operator_steps {

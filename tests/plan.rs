@@ -3,18 +3,19 @@
 //! the recording with that experiment names the truth.
 
 use easycalib::diagnosis::{DiagnoseOptions, diagnose};
-use easycalib::plan::{DECISIVE_SEPARATION, plan};
-use sim::effects::{SimProfile, finite_thickness, frame_compliance};
-use sim::generator::{GeneratorConfig, generate};
+use easycalib::plan::{DECISIVE_SEPARATION, PlanOptions, decide_with_ball, plan};
+use sim::effects::{SimProfile, finite_thickness, frame_compliance, sensor_gain};
+use sim::generator::{GeneratorConfig, generate, operator_recording};
 
 fn check(truth: &str, profile: SimProfile, seed: u64) {
     let cfg = GeneratorConfig { seed, profile, ..GeneratorConfig::default() };
     let rec = generate(&cfg).unwrap();
-    let p = plan(&rec).unwrap();
+    let p = plan(&rec, PlanOptions::default()).unwrap();
     println!("{truth} seed {seed}:\n{}", easycalib::plan::report(&p));
     let listed: Vec<&str> = p.hypotheses.iter().flat_map(|h| h.effects.iter().copied()).collect();
     assert!(listed.contains(&truth), "{truth} seed {seed}: the truth must stand: {listed:?}");
     let c = p.choice().expect("an experiment is proposed");
+    assert!(!c.operator, "a rig-only experiment decides, no swap: {c:?}");
     assert!(c.decisive && c.separation >= DECISIVE_SEPARATION, "{c:?}");
     // Run it: the diagnosis of the recording with it names the truth.
     let with = GeneratorConfig { experiments: vec![c.spec], ..cfg };
@@ -35,7 +36,7 @@ fn plan_chooses_an_experiment_that_separates_frame_compliance_from_a_layer() {
 #[test]
 fn plan_proposes_nothing_for_a_clean_recording() {
     let rec = generate(&GeneratorConfig::default()).unwrap();
-    let p = plan(&rec).unwrap();
+    let p = plan(&rec, PlanOptions::default()).unwrap();
     assert!(p.choice().is_none() && p.nothing_because.is_some(), "{}", easycalib::plan::report(&p));
 }
 
@@ -74,4 +75,124 @@ fn plan_command_prints_the_choice_as_json_and_refuses_unknown_phases() {
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("unknown phase `torsion3`") && err.contains(&format!("line {}", n + 1)), "{err}");
+}
+
+/// One sensor-gain recording through the operator path: what the plan
+/// proposes with and without an operator, the rigid ball's run (generator:
+/// the simulated operator mounts the ball), and the decision it gives.
+/// Returns (named, E1 error %, nu1 error %, g measured).
+fn gain_case(g: f64, seed: u64) -> (bool, f64, f64, f64) {
+    let profile = SimProfile { sensor_gain: Some(sensor_gain::Params { g }), ..SimProfile::default() };
+    let cfg = GeneratorConfig { seed, profile, ..GeneratorConfig::default() };
+    let rec = generate(&cfg).unwrap();
+    let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+    let p = easycalib::plan::plan_for(&rec, &d, PlanOptions::default()).unwrap();
+    println!("gain {g} seed {seed}: {}\n{}", d.verdict, easycalib::plan::report(&p));
+    let c = p.choice().expect("an experiment is proposed");
+    assert!(c.operator && c.decisive && c.name == "rigid_ball", "seed {seed}: {c:?}");
+    // Without an operator the swap is not proposed, and the plan says what it leaves.
+    let bare = easycalib::plan::plan_for(&rec, &d, PlanOptions { operator: false }).unwrap();
+    assert!(bare.experiments.iter().all(|e| !e.operator), "seed {seed}");
+    assert!(bare.operator_steps.iter().any(|o| o.contains("rigid_ball")), "seed {seed}: {:?}", bare.operator_steps);
+    let t = rec.samples.last().unwrap().t_s + 1.0;
+    let ball = operator_recording(&cfg, &c.spec, t).unwrap();
+    assert_eq!(ball.meta.indenter, c.spec.operator_indenter().unwrap());
+    let dec = decide_with_ball(&rec, &d, &p, &ball).unwrap();
+    println!("  -> {} {:?}", dec.outcome, dec.chi2);
+    let truth = cfg.pair.elastomer;
+    let e1 = 100.0 * (dec.e1_mpa / truth.e_mpa - 1.0);
+    let nu1 = 100.0 * (dec.nu1 / truth.nu - 1.0);
+    (dec.named && dec.effects.first() == Some(&"sensor_gain"), e1, nu1, dec.gain.g)
+}
+
+/// issue 14: a sensor gain the sweeps cannot tell from a compliant frame is
+/// named once the rigid ball ran, with E1 within 1 % and nu1 within 2 %.
+#[test]
+fn a_rigid_ball_measures_the_sensor_gain_and_the_calibration_follows() {
+    let (named, e1, nu1, g) = gain_case(0.99, 1);
+    assert!(named, "not named: g {g}");
+    assert!((g - 0.99).abs() < 0.002, "g {g}");
+    assert!(e1.abs() < 1.0 && nu1.abs() < 2.0, "E1 {e1:.2} %, nu1 {nu1:.2} %");
+}
+
+/// The closed loop as `run --adaptive` runs it, on the generator with a
+/// simulated operator: plan, run the choice (a rig step into the recording,
+/// an operator step as its own recording), diagnose again, at most three
+/// steps. Returns (effects named, E1, nu1, the steps run).
+fn loop_on_generator(cfg: &GeneratorConfig) -> (Vec<&'static str>, f64, f64, Vec<&'static str>) {
+    let mut cfg = cfg.clone();
+    let mut ran = Vec::new();
+    loop {
+        let rec = generate(&cfg).unwrap();
+        let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        if ran.len() >= 3 || d.ambiguous.len() < 2 {
+            return (d.effects.clone(), d.e1_mpa, d.nu1, ran);
+        }
+        let p = easycalib::plan::plan_for(&rec, &d, PlanOptions::default()).unwrap();
+        let Some(c) = p.choice().filter(|c| c.decisive).cloned() else {
+            return (d.effects.clone(), d.e1_mpa, d.nu1, ran);
+        };
+        ran.push(c.name);
+        if c.operator {
+            let t = rec.samples.last().unwrap().t_s + 1.0;
+            let ball = operator_recording(&cfg, &c.spec, t).unwrap();
+            let dec = decide_with_ball(&rec, &d, &p, &ball).unwrap();
+            println!("  {} -> {}", c.name, dec.outcome);
+            return (dec.effects, dec.e1_mpa, dec.nu1, ran);
+        }
+        cfg.experiments.push(c.spec);
+    }
+}
+
+/// The rate over seeds (ignored: about a minute in release): a sensor gain
+/// of 0.99 through the whole loop (a torsion at a second depth first when
+/// the two best explanations are frame and layer, then the rigid ball).
+/// `cargo test --release --test plan -- --ignored --nocapture`.
+#[test]
+#[ignore = "a rate study over ten seeds"]
+fn rigid_ball_rates_over_seeds() {
+    let mut ok = 0;
+    for seed in 1..=10 {
+        let profile = SimProfile { sensor_gain: Some(sensor_gain::Params { g: 0.99 }), ..SimProfile::default() };
+        let cfg = GeneratorConfig { seed, profile, ..GeneratorConfig::default() };
+        let (named, e1, nu1, ran) = loop_on_generator(&cfg);
+        let truth = cfg.pair.elastomer;
+        let (e1, nu1) = (100.0 * (e1 / truth.e_mpa - 1.0), 100.0 * (nu1 / truth.nu - 1.0));
+        let good = named == ["sensor_gain"] && e1.abs() < 1.0 && nu1.abs() < 2.0;
+        ok += usize::from(good);
+        println!("RATE gain seed {seed}: {good} {named:?} E1 {e1:+.3} % nu1 {nu1:+.3} % after {ran:?}");
+    }
+    println!("RATE sensor_gain 0.99: named within 1 %/2 % in {ok}/10");
+    assert!(ok >= 9, "{ok}/10");
+}
+
+/// `easycalib plan --json` on a sensor-gain recording puts the rigid ball
+/// first, marked as an operator step weighed with the operator's effort;
+/// `--no-operator` proposes no swap and says what is left to one.
+#[test]
+fn plan_command_weighs_operator_steps_and_leaves_them_out_on_request() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("gain.csv");
+    let profile = SimProfile { sensor_gain: Some(sensor_gain::Params { g: 0.99 }), ..SimProfile::default() };
+    generate(&GeneratorConfig { seed: 1, profile, ..GeneratorConfig::default() }).unwrap().write_path(&path).unwrap();
+    let run = |extra: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_easycalib"))
+            .args(["plan", path.to_str().unwrap(), "--json"])
+            .args(extra)
+            .env("EASYCALIB_HOME", dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    let v = run(&[]);
+    let first = &v["experiments"][0];
+    assert_eq!((first["name"].as_str(), first["operator"].as_bool()), (Some("rigid_ball"), Some(true)), "{v:#}");
+    let (rig, cost) = (first["rig_time_s"].as_f64().unwrap(), first["cost_s"].as_f64().unwrap());
+    assert!((cost - rig - easycalib::plan::OPERATOR_EFFORT_S).abs() < 1e-9, "{v:#}");
+    let bare = run(&["--no-operator"]);
+    let exps = bare["experiments"].as_array().unwrap();
+    assert!(exps.iter().all(|e| e["operator"] == false), "{bare:#}");
+    let left = bare["operator_steps"].as_array().unwrap();
+    assert!(left.iter().any(|o| o.as_str().is_some_and(|o| o.contains("rigid_ball"))), "{bare:#}");
 }

@@ -9,7 +9,14 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::physics::Body;
 use crate::recording::{Direction, Phase};
+
+/// Young's modulus of the rigid ball an operator mounts for `rigid_ball`: steel, MPa.
+/// Against a gel of a few tenths of a MPa it takes a few millionths of the travel.
+pub const RIGID_BALL_E_MPA: f64 = 210_000.0;
+/// Poisson's ratio of the steel ball.
+pub const RIGID_BALL_NU: f64 = 0.3;
 
 /// The recording phase of an experiment's samples. Each is a normal-state or
 /// a torsion-state sample to the model ([`Experiment::kind`]).
@@ -24,11 +31,21 @@ pub enum Experiment {
     Reversal,
     /// A torsion sweep at a second depth.
     Torsion2,
+    /// A normal sweep with a rigid ball the operator mounted (operator-assisted).
+    RigidBall,
+    /// A normal sweep with a second indenter the operator mounted (operator-assisted).
+    SwapIndenter,
 }
 
 impl Experiment {
-    pub const ALL: [Experiment; 4] =
-        [Experiment::Dwell, Experiment::Reload, Experiment::Reversal, Experiment::Torsion2];
+    pub const ALL: [Experiment; 6] = [
+        Experiment::Dwell,
+        Experiment::Reload,
+        Experiment::Reversal,
+        Experiment::Torsion2,
+        Experiment::RigidBall,
+        Experiment::SwapIndenter,
+    ];
 
     /// The name in the recording's `phase` column.
     pub fn as_str(self) -> &'static str {
@@ -37,6 +54,8 @@ impl Experiment {
             Experiment::Reload => "reload",
             Experiment::Reversal => "reversal",
             Experiment::Torsion2 => "torsion2",
+            Experiment::RigidBall => "rigid_ball",
+            Experiment::SwapIndenter => "swap_indenter",
         }
     }
 
@@ -48,7 +67,7 @@ impl Experiment {
     /// position) or a torsion-state one (also theta1 at a mount angle).
     pub fn kind(self) -> Phase {
         match self {
-            Experiment::Dwell | Experiment::Reload => Phase::Normal,
+            Experiment::Dwell | Experiment::Reload | Experiment::RigidBall | Experiment::SwapIndenter => Phase::Normal,
             Experiment::Reversal | Experiment::Torsion2 => Phase::Torsion,
         }
     }
@@ -70,6 +89,15 @@ pub enum ExperimentSpec {
     TwistReversal { amplitude_deg: f64, step_deg: f64 },
     /// Go to depth `beta` (gamma2/R2 as measured), twist out to `amplitude_deg` and back.
     TorsionAtDepth { beta: f64, amplitude_deg: f64, step_deg: f64 },
+    /// Operator-assisted: the rig retracts to park, the operator mounts a
+    /// rigid (steel) ball of radius `r_mm` with its apex where the indenter's
+    /// was, and the rig loads it `travel_mm` past contact in `steps` steps and
+    /// unloads. With gamma2 = 0 the stage travel is gamma1 plus the frame's
+    /// C F: the sensor's depth gain is measured.
+    RigidBall { r_mm: f64, travel_mm: f64, steps: u32 },
+    /// Operator-assisted: as `rigid_ball`, with a second indenter of modulus
+    /// `e2_mpa`, Poisson's ratio `nu2` and radius `r2_mm`.
+    SwapIndenter { e2_mpa: f64, nu2: f64, r2_mm: f64, travel_mm: f64, steps: u32 },
 }
 
 /// Most samples one experiment step may take (a typo would cost hours of rig time).
@@ -93,7 +121,23 @@ impl ExperimentSpec {
             ExperimentSpec::Reload { .. } => "reload",
             ExperimentSpec::TwistReversal { .. } => "twist_reversal",
             ExperimentSpec::TorsionAtDepth { .. } => "torsion_at_depth",
+            ExperimentSpec::RigidBall { .. } => "rigid_ball",
+            ExperimentSpec::SwapIndenter { .. } => "swap_indenter",
         }
+    }
+
+    /// The indenter an operator-assisted step mounts; `None` for the steps the rig runs alone.
+    pub fn operator_indenter(&self) -> Option<Body> {
+        match *self {
+            ExperimentSpec::RigidBall { r_mm, .. } => Some(Body::new(RIGID_BALL_E_MPA, RIGID_BALL_NU, r_mm)),
+            ExperimentSpec::SwapIndenter { e2_mpa, nu2, r2_mm, .. } => Some(Body::new(e2_mpa, nu2, r2_mm)),
+            _ => None,
+        }
+    }
+
+    /// True for a step that needs an operator (a swap of the indenter).
+    pub fn is_operator(&self) -> bool {
+        self.operator_indenter().is_some()
     }
 
     /// The recording phase of its samples.
@@ -103,6 +147,8 @@ impl ExperimentSpec {
             ExperimentSpec::Reload { .. } => Experiment::Reload,
             ExperimentSpec::TwistReversal { .. } => Experiment::Reversal,
             ExperimentSpec::TorsionAtDepth { .. } => Experiment::Torsion2,
+            ExperimentSpec::RigidBall { .. } => Experiment::RigidBall,
+            ExperimentSpec::SwapIndenter { .. } => Experiment::SwapIndenter,
         }
     }
 
@@ -115,6 +161,7 @@ impl ExperimentSpec {
             ExperimentSpec::TorsionAtDepth { amplitude_deg, step_deg, .. } => {
                 sweep_angles(amplitude_deg, step_deg).len()
             }
+            ExperimentSpec::RigidBall { steps, .. } | ExperimentSpec::SwapIndenter { steps, .. } => 2 * steps as usize,
         }
     }
 
@@ -159,6 +206,26 @@ impl ExperimentSpec {
                 in_range("amplitude_deg", amplitude_deg, 0.0, max_twist_deg)?;
                 in_range("step_deg", step_deg, 0.0, amplitude_deg)?;
             }
+            ExperimentSpec::RigidBall { .. } | ExperimentSpec::SwapIndenter { .. } => {}
+        }
+        if let ExperimentSpec::RigidBall { travel_mm, steps, .. }
+        | ExperimentSpec::SwapIndenter { travel_mm, steps, .. } = *self
+        {
+            in_range("travel_mm", travel_mm, 0.0, 5.0)?;
+            if !(1..=200).contains(&steps) {
+                return Err(fail("steps", format!("must be 1..=200, got {steps}")));
+            }
+        }
+        match *self {
+            ExperimentSpec::RigidBall { r_mm, .. } => in_range("r_mm", r_mm, 0.0, 100.0)?,
+            ExperimentSpec::SwapIndenter { e2_mpa, nu2, r2_mm, .. } => {
+                in_range("e2_mpa", e2_mpa, 0.0, 1e6)?;
+                if !(nu2.is_finite() && nu2 > 0.0 && nu2 < 0.5) {
+                    return Err(fail("nu2", format!("must lie in (0, 0.5), got {nu2}")));
+                }
+                in_range("r2_mm", r2_mm, 0.0, 100.0)?;
+            }
+            _ => {}
         }
         if let ExperimentSpec::TorsionAtDepth { beta, .. } = *self {
             in_range("beta", beta, 0.0, 0.3)?;
@@ -208,6 +275,16 @@ pub fn reversal_angles(amplitude_deg: f64, step_deg: f64) -> Vec<(f64, Direction
     .collect()
 }
 
+/// Stage travel past contact of an operator-assisted step's sweep: in to
+/// `travel_mm` in `steps` equal steps, out the same way to contact.
+pub fn operator_path(travel_mm: f64, steps: u32) -> Vec<(f64, Direction)> {
+    let n = steps.max(1);
+    let at = |i: u32| travel_mm * i as f64 / n as f64;
+    let mut out: Vec<(f64, Direction)> = (1..=n).map(|i| (at(i), Direction::Load)).collect();
+    out.extend((0..n).rev().map(|i| (at(i), Direction::Unload)));
+    out
+}
+
 /// Stage positions of reload cycles between `top_mm` and the stage at
 /// `fraction` of the travel past `contact_mm`: down in `steps` steps, back up.
 pub fn reload_path(top_mm: f64, contact_mm: f64, fraction: f64, steps: u32, cycles: u32) -> Vec<(f64, Direction)> {
@@ -239,6 +316,9 @@ mod tests {
         let stages: Vec<f64> = p.iter().map(|a| a.0).collect();
         assert_eq!(stages, vec![0.75, 0.5, 0.75, 1.0]);
         assert_eq!(dwell_count(10.0, 2.0), 6);
+        let o: Vec<f64> = operator_path(1.0, 2).iter().map(|a| a.0).collect();
+        assert_eq!(o, vec![0.5, 1.0, 0.5, 0.0]);
+        assert_eq!(ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 1.0, steps: 2 }.samples(), o.len());
     }
 
     #[test]
@@ -256,6 +336,15 @@ mod tests {
         let e = ExperimentSpec::Dwell { hold_s: 3600.0, every_s: 0.01 }.validate(0, 10.0).unwrap_err();
         assert!(e.message.contains("limit"), "{e}");
         assert!(ExperimentSpec::Reload { fraction: 0.5, steps: 5, cycles: 2 }.validate(0, 10.0).is_ok());
+        let e = ExperimentSpec::SwapIndenter { e2_mpa: 1.0, nu2: 0.5, r2_mm: 5.0, travel_mm: 1.0, steps: 4 }
+            .validate(1, 10.0)
+            .unwrap_err();
+        assert_eq!((e.index, e.key), (1, "nu2"));
+        let e = ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 0.0, steps: 4 }.validate(0, 10.0).unwrap_err();
+        assert_eq!(e.key, "travel_mm");
+        let ball = ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 1.0, steps: 4 };
+        assert!(ball.validate(0, 10.0).is_ok() && ball.is_operator());
+        assert!(!ExperimentSpec::Dwell { hold_s: 10.0, every_s: 2.0 }.is_operator());
         for e in Experiment::ALL {
             assert_eq!(Experiment::parse(e.as_str()), Some(e));
         }

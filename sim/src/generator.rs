@@ -385,8 +385,50 @@ impl Continued {
                 }
                 Ok(stage)
             }
+            ExperimentSpec::RigidBall { .. } | ExperimentSpec::SwapIndenter { .. } => {
+                Err(GenerateError::Plan(format!(
+                    "{} needs an operator to swap the indenter: its sweep is a recording of its own (operator_recording)",
+                    spec.name()
+                )))
+            }
         }
     }
+}
+
+/// An operator-assisted step (`rigid_ball`, `swap_indenter`) after the run of
+/// `cfg` (its experiments included) on the same rig: the rig retracted, the
+/// operator mounted the step's indenter with its apex where the first one's
+/// was (the stage zero is the contact point of both), and the rig loads it
+/// along [`crate::experiment::operator_path`] from rig time `t_s`, one sample
+/// per `cfg.plan.step_time_s`. The profile's effects stay (frame, gain,
+/// drift); the gel's history starts afresh (it recovered while parked).
+/// A recording of its own: its header's indenter is the mounted one, so
+/// `fit` and `diagnose` read it as they read any recording.
+pub fn operator_recording(cfg: &GeneratorConfig, spec: &ExperimentSpec, t_s: f64) -> Result<Recording, GenerateError> {
+    let Some(indenter) = spec.operator_indenter() else {
+        return Err(GenerateError::Plan(format!("{} is not an operator-assisted step", spec.name())));
+    };
+    spec.validate(0, MAX_TWIST_DEG).map_err(|e| GenerateError::Plan(e.to_string()))?;
+    let (ExperimentSpec::RigidBall { travel_mm, steps, .. } | ExperimentSpec::SwapIndenter { travel_mm, steps, .. }) =
+        *spec
+    else {
+        return Err(GenerateError::Plan(format!("{} has no operator sweep", spec.name())));
+    };
+    let swapped =
+        GeneratorConfig { pair: ContactPair { indenter, ..cfg.pair }, experiments: Vec::new(), ..cfg.clone() };
+    swapped.pair.validate()?;
+    let rig = TrueRig::new(swapped.pair, &cfg.profile)?;
+    let pair = *rig.pair();
+    // Its own noise stream: the seed's, apart from the main run's.
+    let rng = Rng::seed_from(cfg.seed ^ 0x6f70_6572_6174_6f72);
+    let mut run =
+        Continued { rig, rng, t: t_s, samples: Vec::new(), noise: cfg.noise, step_time_s: cfg.plan.step_time_s };
+    for (stage, dir) in crate::experiment::operator_path(travel_mm, steps) {
+        run.take(spec, stage, 0.0, Some(dir), cfg.plan.step_time_s)?;
+    }
+    let mut meta = sim_metadata(&swapped, &pair);
+    meta.extra.push(("operator_step".to_string(), spec.name().to_string()));
+    Ok(Recording { meta, samples: run.samples })
 }
 
 /// The commanded stage at which the rig's noise-free depth reading gives

@@ -177,7 +177,7 @@ fn err(line: usize, message: impl Into<String>) -> RecordingError {
 const REQUIRED_COLUMNS: [&str; 6] = ["t_s", "phase", "stage_mm", "rot_deg", "gamma1_mm", "theta1_deg"];
 
 /// The phases this reader knows, as its error for an unknown one says.
-const KNOWN: &str = "this reader knows `normal`, `torsion`, `dwell`, `reload`, `reversal` and `torsion2`";
+const KNOWN: &str = "this reader knows `normal`, `torsion`, `dwell`, `reload`, `reversal`, `torsion2`, `rigid_ball` and `swap_indenter`";
 
 /// The optional per-sample standard errors (docs/recording-format.md).
 const SD_COLUMNS: [&str; 2] = ["gamma1_sd_mm", "theta1_sd_deg"];

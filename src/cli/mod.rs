@@ -57,6 +57,9 @@ pub struct PlanArgs {
     /// Print JSON instead of the human report.
     #[arg(long)]
     pub json: bool,
+    /// Weigh only the experiments the rig runs alone (no indenter swap by an operator).
+    #[arg(long)]
+    pub no_operator: bool,
 }
 
 #[derive(Debug, Args)]

@@ -72,12 +72,14 @@ fn write_header(s: &mut String, out: &CalibrationOutput, rec: &Recording) {
         for (i, e) in t.experiments.iter().enumerate() {
             let _ = writeln!(
                 s,
-                "| experiment {} | {} ({:.1} s of rig time): {}; then {} |",
+                "| experiment {} | {} ({:.1} s of rig time): {}; then {} (E1 {:.4} MPa, nu1 {:.4}) |",
                 i + 1,
                 e.name,
                 e.rig_time_s,
                 e.why,
-                e.outcome
+                e.outcome,
+                e.e1_mpa,
+                e.nu1
             );
         }
     }

@@ -488,6 +488,16 @@ impl Script {
         }
         for (i, e) in self.experiment.iter().enumerate() {
             e.validate(i, self.limits.max_twist_deg).map_err(|e| invalid("experiment", e.to_string()))?;
+            if e.is_operator() {
+                return Err(invalid(
+                    "experiment",
+                    format!(
+                        "experiment {i} ({}) needs an operator to swap the indenter, which the sequencer does not \
+                         prompt for yet: take its sweep as a recording of its own (docs/experiments.md)",
+                        e.name()
+                    ),
+                ));
+            }
         }
         Ok(())
     }

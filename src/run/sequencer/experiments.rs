@@ -65,6 +65,13 @@ where
                 );
                 self.twist_path(&sweep_angles(amplitude_deg, step_deg), label, &mut to_go).await?;
             }
+            // The script refuses them and the loop plans without them (no operator prompt yet).
+            ExperimentSpec::RigidBall { .. } | ExperimentSpec::SwapIndenter { .. } => {
+                return Err(Halt {
+                    culprit: Culprit::Procedure,
+                    message: format!("{} needs an operator to swap the indenter; not run", spec.name()),
+                });
+            }
         }
         Ok(())
     }
@@ -79,7 +86,10 @@ where
         for _ in 0..=a.max_steps {
             let Some(meta) = self.meta.clone() else { return Ok(()) };
             let rec = sim::recording::Recording { meta, samples: self.samples.clone() };
-            let planned = tokio::task::spawn_blocking(move || crate::plan::plan(&rec)).await;
+            let planned = tokio::task::spawn_blocking(move || {
+                crate::plan::plan(&rec, crate::plan::PlanOptions { operator: false })
+            })
+            .await;
             let p = match planned {
                 Ok(Ok(p)) => p,
                 Ok(Err(e)) => {
@@ -93,6 +103,7 @@ where
             };
             if let Some(last) = self.adaptive.last_mut() {
                 last.outcome = p.verdict.clone();
+                (last.e1_mpa, last.nu1) = (p.e1_mpa, p.nu1);
             }
             if self.adaptive.len() as u32 >= a.max_steps {
                 self.log(LogLevel::Info, format!("adaptive: {} experiments run, the most allowed", a.max_steps));
@@ -133,6 +144,8 @@ where
                 why,
                 rig_time_s: took,
                 outcome: String::new(),
+                e1_mpa: f64::NAN,
+                nu1: f64::NAN,
             });
         }
         Ok(())

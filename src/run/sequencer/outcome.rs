@@ -86,6 +86,10 @@ pub struct AdaptiveStep {
     pub rig_time_s: f64,
     /// The diagnosis's verdict with its samples.
     pub outcome: String,
+    /// E1 and nu1 the diagnosis gives with its samples (corrected when it names an effect).
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
 }
 
 /// Rig time of one phase of the procedure.
