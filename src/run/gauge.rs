@@ -97,10 +97,6 @@ pub trait Gauge: Send {
     async fn read(&mut self, timeout: Duration) -> Result<GaugeReading, GaugeError>;
     /// Take the current deformation as zero (elastomer untouched).
     async fn tare(&mut self) -> Result<(), GaugeError>;
-    /// Drop the frames received but not read yet, so the next reading is of
-    /// a frame that arrives from now on (after a move: not one taken while
-    /// the stage still moved). A gauge without a queue has nothing to drop.
-    fn discard_queued(&mut self) {}
     /// Health of the stream so far.
     fn link_stats(&self) -> SensorStatus;
     /// What the sensor is, for messages and the recording (e.g. a serial number).
@@ -174,10 +170,6 @@ impl<L: SensorLink, F: Measure> Gauge for SensorGauge<L, F> {
 
     async fn tare(&mut self) -> Result<(), GaugeError> {
         self.link.tare().await.map_err(GaugeError::Link)
-    }
-
-    fn discard_queued(&mut self) {
-        self.link.discard_queued();
     }
 
     fn link_stats(&self) -> SensorStatus {

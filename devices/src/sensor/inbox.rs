@@ -99,19 +99,6 @@ impl Inbox {
         s.queue.clear();
     }
 
-    /// Drop the frames queued so far (counted as skipped by the consumer,
-    /// [`BadReason::Overrun`]): they were taken before the caller's last
-    /// action (a move) ended. Returns how many.
-    pub fn discard_queued(&self) -> usize {
-        let mut s = self.lock();
-        let n = s.queue.len();
-        s.queue.clear();
-        for _ in 0..n {
-            s.tracker.bad(BadReason::Overrun);
-        }
-        n
-    }
-
     pub fn stats(&self) -> LinkStats {
         self.lock().tracker.stats()
     }
@@ -139,29 +126,5 @@ impl Inbox {
                 return Err(SensorError::Timeout { waited: timeout });
             }
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn frame(index: u64) -> SensorFrame {
-        SensorFrame { index, t_s: index as f64 * 0.01, positions: vec![[0.0; 3]], displacements: vec![[0.0; 3]] }
-    }
-
-    #[tokio::test]
-    async fn discarded_frames_are_counted_and_the_next_one_is_new() {
-        let inbox = Inbox::new(8);
-        inbox.set_streaming(true);
-        for i in 0..5 {
-            inbox.frame(frame(i));
-        }
-        assert_eq!(inbox.discard_queued(), 5);
-        assert_eq!(inbox.stats().bad_count(BadReason::Overrun), 5);
-        assert!(matches!(inbox.next(Duration::from_millis(1)).await, Err(SensorError::Timeout { .. })));
-        inbox.frame(frame(5));
-        assert_eq!(inbox.next(Duration::from_millis(50)).await.unwrap().index, 5);
-        assert_eq!(inbox.discard_queued(), 0);
     }
 }

@@ -38,14 +38,6 @@ pub trait SensorLink: Send {
     /// wall-clock time). If the consumer falls behind, the oldest queued
     /// frames are discarded and counted as [`BadReason::Overrun`].
     async fn next_frame(&mut self, timeout: Duration) -> Result<SensorFrame, SensorError>;
-    /// Drop the frames received but not yet taken (they are counted as
-    /// skipped, [`BadReason::Overrun`]), so the next frame is one that
-    /// arrives from now on: after a move, frames queued while the stage
-    /// still moved do not describe where it stopped. Returns how many were
-    /// dropped. A link without a queue has nothing to drop.
-    fn discard_queued(&mut self) -> usize {
-        0
-    }
     /// Take the current deformation as zero (sensor must be untouched). Tac3D
     /// does not acknowledge it; frames already in flight still carry the old
     /// zero, so wait for a frame or two before relying on it.

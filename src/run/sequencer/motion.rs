@@ -27,10 +27,6 @@ where
         let moved =
             drive(&mut self.stage, target, timeout, &mut self.stage_mm, &mut self.controls, &mut self.pause_requested)
                 .await;
-        // Frames queued while the stage moved do not read where it stopped;
-        // how many there are depends on how quickly this task got back to
-        // the sensor (the machine's load), so none of them is read.
-        self.gauge.discard_queued();
         match moved {
             Ok(Ok(p)) => Ok(p),
             Ok(Err(e)) => Err(self.stage_fault(&format!("{context}: move to {target:.4} mm"), e)),
@@ -51,7 +47,6 @@ where
         let moved =
             drive(&mut self.mount, target, timeout, &mut self.mount_deg, &mut self.controls, &mut self.pause_requested)
                 .await;
-        self.gauge.discard_queued();
         match moved {
             Ok(Ok(p)) => Ok(p),
             Ok(Err(e)) => Err(self.mount_fault(&format!("{context}: move to {target:.3} deg"), e)),
