@@ -73,8 +73,12 @@ fn clean_runs_on_the_emulated_rig_fit_near_their_errors_and_mostly_name_nothing(
         rig_e1 <= 1.2 * ideal_e1 && rig_nu1 <= 1.2 * ideal_nu1,
         "the paper's method is further off on the rig than on ideal recordings"
     );
+    // The rms above is the comparison; the counts are binomial draws of 20.
+    // A rig exactly as good as the ideal recordings (18 of 20 within here)
+    // still draws 17 or fewer in about a third of runs, 15 or fewer in under
+    // 5 %: so the count may fall two below the ideal one, not three.
     assert!(
-        within(&rig) >= 18.min(within(&ideal)),
+        within(&rig) + 2 >= 18.min(within(&ideal)),
         "{} of 20 rig runs within 2 % / 6 %, {} ideal",
         within(&rig),
         within(&ideal)
