@@ -120,9 +120,9 @@ fn the_dev_sets_nonlinear_recordings_are_recovered_at_large_strain() {
 }
 
 /// What the large-strain fit holds on the dev set's neo-Hookean recordings
-/// (issue 13 asks for 1 % and 2 %; measured: E1 -1.46 % and -1.85 %, nu1
-/// within 1.42 %).
-const LARGE_E1_PCT: f64 = 2.0;
+/// (issue 13 asks for 1 % and 2 %; measured with the deeper, smoothed table:
+/// E1 -0.75 % and -1.19 %, nu1 within 0.6 %).
+const LARGE_E1_PCT: f64 = 1.5;
 const LARGE_NU1_PCT: f64 = 2.0;
 
 #[test]

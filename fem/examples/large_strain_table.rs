@@ -37,7 +37,7 @@ fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
     let mut out = Vec::new();
     for k in 1..=120 {
         let delta = k as f64 * STEP_MM;
-        let Ok(nl) = large.step_to(delta) else { break };
+        let Some(nl) = large.solve_path(&[delta], STEP_MM).ok().and_then(|mut v| v.pop()) else { break };
         let Ok(li) = lin.solve(delta) else { break };
         if nl.gamma2_mm > 0.3 * R2 || nl.contact_radius_mm > 0.95 * R2 {
             break;

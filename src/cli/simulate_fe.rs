@@ -44,6 +44,17 @@ pub fn fe_recording(args: &SimulateArgs) -> Result<Recording, CliError> {
     let sweep =
         calibration_sweep(|| LargeStrainContact::for_layer(h, materials.0, materials.1, ind.r_mm), ind.r_mm, &plan)
             .map_err(|e| CliError::bad_input(format!("cannot simulate on the FE reference: {e}")))?;
+    let short = sweep.beta_reached < plan.beta - 0.005;
+    if short {
+        eprintln!(
+            "warning: the finite-element reference stopped settling at beta = {:.3} (gamma2 {:.3} mm), short of \
+             {}: the sweep ends there (a stiff indenter pressed deep into a thin gel is beyond its \
+             contact iteration; docs/fem.md)",
+            sweep.beta_reached,
+            sweep.beta_reached * ind.r_mm,
+            plan.beta
+        );
+    }
     let mut rng = sim::rng::Rng::seed_from(cfg.seed);
     let (sg, st) = (sim::defaults::GAMMA1_SIGMA_MM, sim::defaults::THETA1_SIGMA_DEG);
     let mut samples = Vec::new();
@@ -75,5 +86,9 @@ pub fn fe_recording(args: &SimulateArgs) -> Result<Recording, CliError> {
             ),
         )],
     };
+    let mut meta = meta;
+    if short {
+        meta.extra.push(("sim_beta_reached".into(), format!("{:.4}", sweep.beta_reached)));
+    }
     Ok(Recording { meta, samples })
 }

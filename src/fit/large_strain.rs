@@ -11,7 +11,8 @@ use super::full::{ModelParams, fe_layer};
 
 /// Relative model error of the large-strain layer model (one standard
 /// deviation): its recoveries on the test data's two neo-Hookean recordings
-/// (E1 within 1.1–1.5 %, nu1 within 0.5 %) and on a recording of the project's
+/// (E1 within 0.75–1.2 %, nu1 within 0.6 %, with the table built to
+/// depth and its twist ratios smoothed) and on a recording of the project's
 /// own large-strain reference off the correction table's grid (E2/E1 1.5, nu1
 /// and nu2 0.45: E1 +0.7 %, nu1 +7 %, the table's interpolation in the
 /// Poisson's ratios); docs/physics.md, "Large strain".

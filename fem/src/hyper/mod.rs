@@ -35,6 +35,12 @@ const TOLERANCE_MM: f64 = 2e-7;
 /// micrometre: a twentieth of a sensor's noise).
 const STALL_TOLERANCE_MM: f64 = 1e-4;
 const STALL_ROUNDS: usize = 3;
+/// ... or by more than this after `LATE_ROUNDS` (half a micrometre, a quarter of
+/// a sensor's noise): deep in a stiff indenter's sweep the contact edge sits on
+/// the steep flank of the sphere, where a node on a corner of the indenter's
+/// chain holds the iteration at a few tenths of a micrometre.
+const LATE_TOLERANCE_MM: f64 = 5e-4;
+const LATE_ROUNDS: usize = 8;
 
 /// The indenter's surface as a chain of nodes from the tip to the equator.
 fn sphere_chain(mesh: &Mesh, radius_mm: f64) -> Vec<usize> {
@@ -292,7 +298,10 @@ impl LargeStrainContact {
                 // A node sliding over a corner of the indenter's chain can hold the
                 // iteration at a few hundredths of a micrometre: after a few fresh
                 // tangents that is accepted.
-                if size < TOLERANCE_MM || (round >= STALL_ROUNDS && size < STALL_TOLERANCE_MM) {
+                if size < TOLERANCE_MM
+                    || (round >= STALL_ROUNDS && size < STALL_TOLERANCE_MM)
+                    || (round >= LATE_ROUNDS && size < LATE_TOLERANCE_MM)
+                {
                     return Ok(self.state());
                 }
                 prev = prev.min(size);

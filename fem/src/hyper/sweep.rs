@@ -28,6 +28,10 @@ pub struct Sweep {
     pub normal: Vec<LargeState>,
     /// (platform twist, theta1), degrees, at the deepest state.
     pub torsion_deg: Vec<(f64, f64)>,
+    /// gamma2 / R2 of the deepest state: the plan's beta, or less where the
+    /// reference's iteration stopped settling before it (a stiff indenter deep
+    /// in a thin, nearly incompressible gel).
+    pub beta_reached: f64,
 }
 
 /// Load step while searching for the torsion depth, mm.
@@ -63,7 +67,19 @@ pub fn calibration_sweep(
     let mut search = build()?;
     let mut last = search.step_to(0.0)?;
     let depth = loop {
-        let next = search.step_to(last.delta_mm + SEARCH_STEP_MM)?;
+        // A step that does not settle (or whose tangent gives out) ends the
+        // search at the deepest state that did, once a quarter of the target
+        // was reached: the sweep then says how deep it got.
+        let next = match search.solve_path(&[last.delta_mm + SEARCH_STEP_MM], SEARCH_STEP_MM) {
+            Ok(mut v) => v.pop().ok_or_else(|| FemError::Invalid("an empty load step".into()))?,
+            Err(e)
+                if matches!(e, FemError::ContactNotSettled(_) | FemError::NotPositiveDefinite(_))
+                    && last.gamma2_mm > 0.25 * target =>
+            {
+                break last.delta_mm;
+            }
+            Err(e) => return Err(e),
+        };
         if next.gamma2_mm >= target {
             let t = (target - last.gamma2_mm) / (next.gamma2_mm - last.gamma2_mm);
             break last.delta_mm + t * (next.delta_mm - last.delta_mm);
@@ -80,5 +96,6 @@ pub fn calibration_sweep(
     let twists: Vec<f64> = plan.twists_deg.iter().map(|d| d.to_radians()).collect();
     let theta = sweep.theta1_rad(deepest, &twists, plan.friction)?;
     let torsion_deg = plan.twists_deg.iter().zip(&theta).map(|(&d, t)| (d, t.to_degrees())).collect();
-    Ok(Sweep { normal, torsion_deg })
+    let beta_reached = deepest.gamma2_mm / indenter_radius_mm;
+    Ok(Sweep { normal, torsion_deg, beta_reached })
 }

@@ -93,6 +93,9 @@ impl LargeStrainTable {
             v
         };
         let axes = [axis(0), axis(1), axis(2)];
+        for case in &mut cases {
+            smooth_twist(&mut case.twist);
+        }
         if cases.len() != axes.iter().map(Vec::len).product::<usize>() || cases.iter().any(|c| c.gamma1.len() < 2) {
             return Err(FemError::Invalid("large-strain table: not a full grid of cases".into()));
         }
@@ -159,24 +162,93 @@ impl LargeStrainTable {
     }
 }
 
-/// How far past its last tabulated approach a case is held at its last value
-/// without a flag (delta/R2: the twist ratio is tabulated every second load
-/// step, 0.02 apart, and changes by a few parts in a thousand over that).
+/// The twist ratios as tabulated jump by a few parts in a thousand from one
+/// approach to the next: both references take the twist over the nodes in
+/// contact, so the ratio moves whenever either contact gains a node, while the
+/// ratio itself (a property of the continuum) is smooth in the approach. Each
+/// case's series is replaced by its least-squares cubic through 1 at zero
+/// approach, r = 1 + c1 d + c2 d² + c3 d³ (docs/physics.md, "Large strain").
+fn smooth_twist(points: &mut [(f64, f64)]) {
+    if points.len() < 6 {
+        return;
+    }
+    // Normal equations of the three coefficients.
+    let mut a = [[0.0; 3]; 3];
+    let mut b = [0.0; 3];
+    for &(d, r) in points.iter() {
+        let basis = [d, d * d, d * d * d];
+        for i in 0..3 {
+            b[i] += basis[i] * (r - 1.0);
+            for j in 0..3 {
+                a[i][j] += basis[i] * basis[j];
+            }
+        }
+    }
+    let Some(c) = solve3(a, b) else { return };
+    for p in points.iter_mut() {
+        let d = p.0;
+        p.1 = 1.0 + c[0] * d + c[1] * d * d + c[2] * d * d * d;
+    }
+}
+
+/// Gaussian elimination with partial pivoting on a 3x3 system.
+fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
+    for col in 0..3 {
+        let piv = (col..3).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
+        if a[piv][col].abs() < 1e-300 {
+            return None;
+        }
+        a.swap(col, piv);
+        b.swap(col, piv);
+        for row in col + 1..3 {
+            let f = a[row][col] / a[col][col];
+            for k in col..3 {
+                a[row][k] -= f * a[col][k];
+            }
+            b[row] -= f * b[col];
+        }
+    }
+    let mut x = [0.0; 3];
+    for row in (0..3).rev() {
+        let s: f64 = (row + 1..3).map(|k| a[row][k] * x[k]).sum();
+        x[row] = (b[row] - s) / a[row][row];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// How far past its last tabulated approach a case is extended without a flag
+/// (delta/R2: the twist ratio is tabulated every second load step, 0.02 apart).
 const HOLD_BEYOND: f64 = 0.025;
+
+/// How far past its last tabulated approach a case is extended along its
+/// trend at all (delta/R2); beyond, the ratio is held at that point's value.
+const EXTEND_AT_MOST: f64 = 0.2;
+
+/// Tabulated points the trend past the table's end is fitted through.
+const TREND_POINTS: usize = 4;
 
 /// Poisson's ratio up to which a polynomial extension past the table's last
 /// node is not flagged.
 const NU_TRUSTED: f64 = 0.49;
 
 /// Linear interpolation along the approach; 1 at zero approach (linear
-/// elasticity is the limit), held at the last value beyond the table (flagged
-/// past [`HOLD_BEYOND`]).
+/// elasticity is the limit). Beyond the table the ratio follows the straight
+/// line fitted through its last few points (the ratios are smooth in the
+/// approach, and the neo-Hookean reference stops where its iteration does, not
+/// where the physics changes), for at most [`EXTEND_AT_MOST`], flagged past
+/// [`HOLD_BEYOND`].
 fn along(points: &[(f64, f64)], d: f64) -> (f64, bool) {
     let Some(&(d_last, r_last)) = points.last() else {
         return (1.0, true);
     };
     if d >= d_last {
-        return (r_last, d > d_last + HOLD_BEYOND);
+        let tail = &points[points.len().saturating_sub(TREND_POINTS)..];
+        let n = tail.len() as f64;
+        let (mx, my) = (tail.iter().map(|p| p.0).sum::<f64>() / n, tail.iter().map(|p| p.1).sum::<f64>() / n);
+        let sxx: f64 = tail.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        let slope = if sxx > 0.0 { tail.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / sxx } else { 0.0 };
+        let reach = (d - d_last).min(EXTEND_AT_MOST);
+        return (r_last + slope * reach, d > d_last + HOLD_BEYOND);
     }
     let mut prev = (0.0, 1.0);
     for &(x, r) in points {
@@ -213,6 +285,38 @@ mod tests {
         // Outside the table: flagged.
         assert!(t.gamma1_ratio(&Groups { e2_over_e1: 50.0, ..g }).clamped);
         assert!(t.gamma1_ratio(&Groups { h_over_r2: 0.4, ..g }).clamped);
+    }
+
+    #[test]
+    fn past_its_end_a_case_follows_its_trend_for_a_while_then_holds() {
+        let pts: Vec<(f64, f64)> = (1..=10).map(|k| (0.05 * k as f64, 1.0 - 0.1 * 0.05 * k as f64)).collect();
+        // A straight trend is continued exactly, flagged only past the hold margin.
+        let (r, flagged) = along(&pts, 0.52);
+        assert!((r - (1.0 - 0.052)).abs() < 1e-12 && !flagged, "{r}");
+        let (r, flagged) = along(&pts, 0.6);
+        assert!((r - 0.94).abs() < 1e-12 && flagged, "{r}");
+        // Far beyond, the extension stops at its reach.
+        assert!((along(&pts, 2.0).0 - (1.0 - 0.1 * 0.7)).abs() < 1e-12);
+        // Inside the table: interpolation, from 1 at zero approach.
+        assert!((along(&pts, 0.025).0 - 0.9975).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_jumpy_twist_series_is_replaced_by_its_smooth_trend() {
+        // A cubic through 1 at zero approach plus node-jump noise of +-0.5 %.
+        let truth = |d: f64| 1.0 + 0.02 * d - 0.05 * d * d + 0.1 * d * d * d;
+        let mut pts: Vec<(f64, f64)> = (1..=28)
+            .map(|k| 0.02 * k as f64)
+            .map(|d| (d, truth(d) + 0.005 * if k_odd(d) { 1.0 } else { -1.0 }))
+            .collect();
+        smooth_twist(&mut pts);
+        for &(d, r) in &pts {
+            assert!((r - truth(d)).abs() < 1.5e-3, "d {d}: {r} against {}", truth(d));
+        }
+    }
+
+    fn k_odd(d: f64) -> bool {
+        ((d / 0.02).round() as i64) % 2 == 1
     }
 
     #[test]
