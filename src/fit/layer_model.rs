@@ -67,6 +67,10 @@ pub(super) fn predict_fe(
     let model = fw.model(p.e1_mpa, p.nu1);
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
     let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).collect();
+    // At large strain the press is frictionless, as in the neo-Hookean
+    // reference whose ratios scale it (a ratio taken between frictionless
+    // presses applies to a frictionless press); friction acts in the twist.
+    let normal = if p.large_strain { NormalContact::Frictionless } else { normal };
     let states: Vec<fem::ContactState> = match normal {
         // The gel and the indenter grip each other while the stage presses (the
         // same interface friction as in torsion), so the normal state depends on
@@ -127,7 +131,9 @@ pub(super) fn friction_correction(
     p: &ModelParams,
     previous: Option<&Correction>,
 ) -> Result<Option<Correction>, FitError> {
-    let Some(layer) = fe_layer(rec) else {
+    // Without a layer there is nothing to correct; at large strain the press
+    // is frictionless (see `predict_fe`), so the fast form is the model.
+    let Some(layer) = fe_layer(rec).filter(|_| !p.large_strain) else {
         return Ok(None);
     };
     let diff = |q: &ModelParams| -> Result<Vec<(f64, f64)>, FitError> {
