@@ -115,7 +115,60 @@ pub struct Factor {
     l: Banded,
 }
 
+/// Right-hand sides solved together by [`Factor::solve_many`]: each row of the
+/// factor is read once per block (the factor is megabytes, and a single solve is
+/// bound by reading it).
+const BLOCK: usize = 16;
+
 impl Factor {
+    /// The solutions for many right-hand sides, in blocks that share each pass
+    /// over the factor; a block's forward pass starts at its first non-zero row
+    /// (the surface compliances load one node at a time).
+    pub fn solve_many(&self, rhs: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        let l = &self.l;
+        let (n, bw) = (l.n, l.bw);
+        let mut out = Vec::with_capacity(rhs.len());
+        for chunk in rhs.chunks(BLOCK) {
+            let m = chunk.len();
+            // Interleaved: y[i * m + r] is row i of right-hand side r.
+            let mut y = vec![0.0; n * m];
+            let mut start = n;
+            for (r, b) in chunk.iter().enumerate() {
+                for (i, &v) in b.iter().enumerate().take(n) {
+                    if v != 0.0 {
+                        y[i * m + r] = v;
+                        start = start.min(i);
+                    }
+                }
+            }
+            let mut acc = vec![0.0; m];
+            for i in start..n {
+                acc.copy_from_slice(&y[i * m..(i + 1) * m]);
+                for k in i.saturating_sub(bw).max(start)..i {
+                    let lik = l.data[l.idx(i, k)];
+                    let yk = &y[k * m..(k + 1) * m];
+                    acc.iter_mut().zip(yk).for_each(|(a, v)| *a -= lik * v);
+                }
+                let d = l.data[l.idx(i, i)];
+                y[i * m..(i + 1) * m].iter_mut().zip(&acc).for_each(|(v, a)| *v = a / d);
+            }
+            for i in (0..n).rev() {
+                acc.copy_from_slice(&y[i * m..(i + 1) * m]);
+                for k in i + 1..=(i + bw).min(n - 1) {
+                    let lki = l.data[l.idx(k, i)];
+                    let yk = &y[k * m..(k + 1) * m];
+                    acc.iter_mut().zip(yk).for_each(|(a, v)| *a -= lki * v);
+                }
+                let d = l.data[l.idx(i, i)];
+                y[i * m..(i + 1) * m].iter_mut().zip(&acc).for_each(|(v, a)| *v = a / d);
+            }
+            for r in 0..m {
+                out.push((0..n).map(|i| y[i * m + r]).collect());
+            }
+        }
+        out
+    }
+
     /// x with L Lᵀ x = b.
     pub fn solve(&self, b: &[f64]) -> Vec<f64> {
         let l = &self.l;
@@ -142,6 +195,34 @@ impl Factor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn many_right_hand_sides_solve_as_one_at_a_time() {
+        let n = 60;
+        let mut a = Banded::zeros(n, 3);
+        for i in 0..n {
+            a.add(i, i, 5.0 + (i % 3) as f64);
+            if i > 0 {
+                a.add(i, i - 1, -1.0);
+            }
+            if i > 2 {
+                a.add(i, i - 3, 0.7);
+            }
+        }
+        let f = a.factor().unwrap();
+        // Unit loads (the forward pass skips their leading zeros) and a full
+        // vector, more than one block of them.
+        let mut rhs: Vec<Vec<f64>> = (0..n).step_by(3).map(|j| (0..n).map(|i| f64::from(i == j)).collect()).collect();
+        rhs.push((0..n).map(|i| (i as f64 * 0.7).cos()).collect());
+        let many = f.solve_many(&rhs);
+        assert_eq!(many.len(), rhs.len());
+        for (b, x) in rhs.iter().zip(&many) {
+            let one = f.solve(b);
+            for (p, q) in one.iter().zip(x) {
+                assert!((p - q).abs() < 1e-13, "{p} vs {q}");
+            }
+        }
+    }
 
     #[test]
     fn solves_a_banded_spd_system() {

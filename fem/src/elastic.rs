@@ -124,14 +124,15 @@ impl Body {
             if mean < z { -1.0 } else { 1.0 }
         };
         let sign = into(s[0]);
-        s.iter()
+        let loads: Vec<Vec<f64>> = s
+            .iter()
             .map(|&j| {
                 let mut f = vec![0.0; n];
                 f[2 * j + 1] = sign;
-                let u = self.factor.solve(&f);
-                s.iter().map(|&i| sign * u[2 * i + 1]).collect()
+                f
             })
-            .collect()
+            .collect();
+        self.factor.solve_many(&loads).iter().map(|u| s.iter().map(|&i| sign * u[2 * i + 1]).collect()).collect()
     }
 
     /// The full surface compliance in global (r, z) components on the first
@@ -144,19 +145,27 @@ impl Body {
         let s = &self.mesh.surface[..nodes.min(self.mesh.surface.len())];
         let n = 2 * self.mesh.xy.len();
         let held: std::collections::HashSet<usize> = self.mesh.axis.iter().copied().collect();
-        let column = |j: usize, dof: usize| -> (Vec<f64>, Vec<f64>) {
-            if dof == 0 && held.contains(&j) {
-                return (vec![0.0; s.len()], vec![0.0; s.len()]);
-            }
-            let mut f = vec![0.0; n];
-            f[2 * j + dof] = 1.0;
-            let u = self.factor.solve(&f);
+        // Unit loads along r then z at each node, solved together; a held
+        // radial dof takes no load (zero column).
+        let loads: Vec<Vec<f64>> = s
+            .iter()
+            .flat_map(|&j| [(j, 0), (j, 1)])
+            .map(|(j, dof)| {
+                let mut f = vec![0.0; n];
+                if !(dof == 0 && held.contains(&j)) {
+                    f[2 * j + dof] = 1.0;
+                }
+                f
+            })
+            .collect();
+        let u = self.factor.solve_many(&loads);
+        let split = |u: &[f64]| -> (Vec<f64>, Vec<f64>) {
             (s.iter().map(|&i| u[2 * i]).collect(), s.iter().map(|&i| u[2 * i + 1]).collect())
         };
         let mut out = SurfaceCompliance::default();
-        for &j in s {
-            let (rr, zr) = column(j, 0);
-            let (rz, zz) = column(j, 1);
+        for pair in u.chunks(2) {
+            let (rr, zr) = split(&pair[0]);
+            let (rz, zz) = split(&pair[1]);
             out.rr.push(rr);
             out.zr.push(zr);
             out.rz.push(rz);

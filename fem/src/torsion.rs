@@ -64,15 +64,15 @@ impl TorsionBody {
     /// Surface compliance for unit shear modulus: (i, j) the twist displacement at
     /// surface node i under a unit tangential force per radian at node j (column-major).
     pub fn surface_compliance(&self, surface: &[usize]) -> Vec<Vec<f64>> {
-        surface
+        let loads: Vec<Vec<f64>> = surface
             .iter()
             .map(|&j| {
                 let mut f = vec![0.0; self.n];
                 f[j] = 1.0;
-                let u = self.factor.solve(&f);
-                surface.iter().map(|&i| u[i]).collect()
+                f
             })
-            .collect()
+            .collect();
+        self.factor.solve_many(&loads).iter().map(|u| surface.iter().map(|&i| u[i]).collect()).collect()
     }
 }
 

@@ -21,22 +21,26 @@ impl LargeStrainContact {
         }
         let r: Vec<f64> = nodes.iter().map(|&k| st.radius_mm[k]).collect();
         // Compliances in twist angle per unit moment per radian.
-        let cg: Vec<Vec<f64>> = nodes
+        let loads: Vec<Vec<f64>> = nodes
             .iter()
             .map(|&l| {
                 let mut e = vec![0.0; fg_len(&ig)];
                 if let Some(d) = ig[self.slaves[l]] {
                     e[d] = 1.0;
                 }
-                let x = fg.solve(&e);
-                nodes.iter().map(|&k| ig[self.slaves[k]].map_or(0.0, |d| x[d])).collect()
+                e
             })
+            .collect();
+        let cg: Vec<Vec<f64>> = fg
+            .solve_many(&loads)
+            .iter()
+            .map(|x| nodes.iter().map(|&k| ig[self.slaves[k]].map_or(0.0, |d| x[d])).collect())
             .collect();
         let weights = |k: usize| -> [(usize, f64); 2] {
             let (m, xi) = st.meets[k].unwrap_or((0, 0.0));
             [(self.chain[m], 1.0 - xi), (self.chain[m + 1], xi)]
         };
-        let ci: Vec<Vec<f64>> = nodes
+        let loads: Vec<Vec<f64>> = nodes
             .iter()
             .map(|&l| {
                 let mut e = vec![0.0; fg_len(&ii)];
@@ -45,7 +49,13 @@ impl LargeStrainContact {
                         e[d] += w;
                     }
                 }
-                let x = fi.solve(&e);
+                e
+            })
+            .collect();
+        let ci: Vec<Vec<f64>> = fi
+            .solve_many(&loads)
+            .iter()
+            .map(|x| {
                 nodes.iter().map(|&k| weights(k).iter().map(|&(n, w)| ii[n].map_or(0.0, |d| w * x[d])).sum()).collect()
             })
             .collect();
