@@ -334,13 +334,19 @@ impl LargeStrainContact {
             let idx: Vec<usize> = (0..ns).filter(|&k| active[k]).collect();
             // Nodes let go drop their whole multiplier.
             let gone: Vec<usize> = (0..ns).filter(|&k| !active[k] && self.lambda[k] != 0.0).collect();
-            for &k in idx.iter().chain(&gone) {
-                if cols[k].is_none() {
-                    let mut e = vec![0.0; self.gel.free];
-                    rows[k].0.iter().for_each(|&(d, c)| e[d] += c);
-                    let mut f = vec![0.0; self.indenter.free];
-                    rows[k].1.iter().for_each(|&(d, c)| f[d] += c);
-                    cols[k] = Some((frozen.kg.solve(&e), frozen.ki.solve(&f)));
+            // The constraints' columns not yet known, solved together.
+            let missing: Vec<usize> = idx.iter().chain(&gone).copied().filter(|&k| cols[k].is_none()).collect();
+            if !missing.is_empty() {
+                let load = |row: &Row, len: usize| {
+                    let mut e = vec![0.0; len];
+                    row.iter().for_each(|&(d, c)| e[d] += c);
+                    e
+                };
+                let eg: Vec<Vec<f64>> = missing.iter().map(|&k| load(&rows[k].0, self.gel.free)).collect();
+                let ei: Vec<Vec<f64>> = missing.iter().map(|&k| load(&rows[k].1, self.indenter.free)).collect();
+                let solved = frozen.kg.solve_many(&eg).into_iter().zip(frozen.ki.solve_many(&ei));
+                for (&k, pair) in missing.iter().zip(solved) {
+                    cols[k] = Some(pair);
                 }
             }
             let coupling = |k: usize, l: usize| match &cols[l] {
