@@ -134,6 +134,10 @@ pub struct Sequencer<S, R, G> {
     /// The recording's metadata, once written (the closed loop diagnoses the samples so far with it).
     meta: Option<Metadata>,
     adaptive: Vec<AdaptiveStep>,
+    /// On the emulated rig: the simulated sensor's indenter mount, through
+    /// which the simulation performs an operator step itself (no prompt).
+    /// `None` on a real rig: an operator step prompts and waits.
+    emulated_operator: Option<sim::sensor::rig::IndenterMount>,
     /// The contact while the normal sweep's first samples place it (their
     /// recording waits for the header, which declares the contact).
     pending: Option<PendingContact>,
@@ -316,6 +320,7 @@ where
             },
             meta: None,
             adaptive: Vec::new(),
+            emulated_operator: None,
             pending: None,
         })
     }
@@ -329,6 +334,14 @@ where
     /// Take pause / resume / abort / quit from here.
     pub fn with_controls(mut self, rx: UnboundedReceiver<RunControl>) -> Self {
         self.controls = Some(rx);
+        self
+    }
+
+    /// The emulated rig's indenter mount: operator-assisted steps are then
+    /// performed by the simulation (it mounts the step's indenter) instead of
+    /// prompting an operator.
+    pub fn with_emulated_operator(mut self, mount: sim::sensor::rig::IndenterMount) -> Self {
+        self.emulated_operator = Some(mount);
         self
     }
 
