@@ -283,6 +283,7 @@ where
             ),
         }
         self.log(LogLevel::Info, format!("{}: {} samples in {}", spec.name(), ball.samples.len(), path.display()));
+        self.operator_recordings.push(path.clone());
         Ok((ball, path))
     }
 
