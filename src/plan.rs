@@ -295,6 +295,9 @@ fn pair_of(rec: &Recording, profile: &SimProfile) -> Option<ContactPair> {
     Some(ContactPair { elastomer: Body::new(m.e1_mpa, m.nu1, rec.meta.elastomer_r_mm), indenter: rec.meta.indenter })
 }
 
+/// A predicted reading: gamma1 (mm), and theta1 (degrees) for a torsion-kind sample.
+type Reading = (f64, Option<f64>);
+
 /// How far apart `spec`'s outcomes are under hypotheses `a` and `b`, and the
 /// largest gamma1 `a` predicts during it, mm. Both predict the step's
 /// readings (gamma1, and theta1 for a torsion-kind sample), compared over
@@ -317,7 +320,7 @@ fn separation(
 ) -> Result<(f64, f64), PlanError> {
     let fail = |e: String| PlanError::Simulate(e);
     // (gamma1, theta1 when torsion-kind) of each sample under a, then under b.
-    let (pa, pb): (Vec<(f64, Option<f64>)>, Vec<(f64, Option<f64>)>) = match spec.operator_indenter() {
+    let (pa, pb): (Vec<Reading>, Vec<Reading>) = match spec.operator_indenter() {
         Some(indenter) => {
             let (ExperimentSpec::RigidBall { travel_mm, steps, .. }
             | ExperimentSpec::SwapIndenter { travel_mm, steps, .. }) = *spec
@@ -334,7 +337,7 @@ fn separation(
                     rot_deg: 0.0,
                 })
                 .collect();
-            let read = |h: &Hypothesis| -> Result<Vec<(f64, Option<f64>)>, PlanError> {
+            let read = |h: &Hypothesis| -> Result<Vec<Reading>, PlanError> {
                 let pair = pair_of(rec, &h.profile).ok_or_else(|| fail("a hypothesis has no material".into()))?;
                 let pair = ContactPair { indenter, ..pair };
                 let r = simulate(pair, &h.profile, &cmds).map_err(|e| fail(e.to_string()))?;

@@ -190,3 +190,48 @@ async fn the_plain_display_sends_the_typed_answer() {
     let state = display.await.unwrap().unwrap();
     assert!(state.prompt().is_none() && state.status().is_over());
 }
+
+/// The TUI's prompt panel: shown from the prompt to the confirmation, `c`
+/// confirms (once), `a` still aborts.
+#[test]
+fn the_tui_prompt_takes_c_to_confirm_and_a_to_abort() {
+    use easycalib::run::events::RunPhase;
+    use easycalib::tui::State;
+    use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
+    let key = |c: char| KeyEvent::new(KeyCode::Char(c), KeyModifiers::NONE);
+    let body = sim::physics::Body { e_mpa: RIGID_BALL_E_MPA, nu: 0.3, r_mm: 5.0 };
+    let prompt = RunEvent::OperatorPrompt { step: "rigid_ball".into(), indenter: body, message: "mount it".into() };
+    let mut s = State::new();
+    s.apply(&RunEvent::StepStarted {
+        index: 8,
+        total: 10,
+        name: "adaptive: rigid_ball".into(),
+        phase: RunPhase::Normal,
+    });
+    // No prompt: c does nothing.
+    assert_eq!(s.on_key(key('c')), None);
+    s.apply(&prompt);
+    assert_eq!(s.prompt().map(|p| (p.step.as_str(), p.indenter)), Some(("rigid_ball", body)));
+    assert_eq!(s.on_key(key('c')), Some(RunControl::Confirm));
+    assert_eq!(s.on_key(key('c')), None, "one confirmation while it is pending");
+    s.apply(&RunEvent::OperatorConfirmed { step: "rigid_ball".into() });
+    assert!(s.prompt().is_none() && s.pending().is_none());
+    // A second prompt, aborted.
+    s.apply(&prompt);
+    assert_eq!(s.on_key(key('a')), Some(RunControl::Abort));
+    s.apply(&RunEvent::Aborted { reason: "abort requested by the operator during the rigid_ball prompt".into() });
+    assert!(s.prompt().is_none() && s.status().is_over());
+    // The panel is drawn while a prompt waits.
+    let mut s = State::new();
+    s.apply(&RunEvent::StepStarted {
+        index: 8,
+        total: 10,
+        name: "adaptive: rigid_ball".into(),
+        phase: RunPhase::Normal,
+    });
+    s.apply(&prompt);
+    let mut term = ratatui::Terminal::new(ratatui::backend::TestBackend::new(120, 40)).unwrap();
+    term.draw(|f| easycalib::tui::draw(&s, f)).unwrap();
+    let text: String = term.backend().buffer().content().iter().map(|c| c.symbol()).collect();
+    assert!(text.contains("OPERATOR STEP") && text.contains("E 210000 MPa"), "panel not drawn");
+}
