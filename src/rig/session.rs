@@ -235,6 +235,16 @@ pub async fn run_calibration_with(
             if let Some(d) = &diagnosis {
                 let _ = events.send(RunEvent::Diagnosis(Box::new(d.clone())));
             }
+            // An operator step's decision rests on samples outside the run's
+            // recording (its own file): the diagnosis above does not see them.
+            if let Some(step) = outcome.adaptive.iter().rev().find(|s| s.recording.is_some()) {
+                let message = format!(
+                    "closed loop, after {}: {} (the diagnosis above is the run recording's alone; the decision is \
+                     the last entry of report.json's run.experiments)",
+                    step.name, step.outcome
+                );
+                let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
+            }
             let mut summary = outcome.summary(Some(&cal));
             summary.report = Some(files.json.display().to_string());
             let _ = events.send(RunEvent::Finished { summary });
