@@ -376,6 +376,7 @@ async fn fake_sequencer(
                 events.send(RunEvent::Resumed).unwrap();
                 acks.send("resumed").unwrap();
             }
+            RunControl::Confirm => {}
             RunControl::Abort | RunControl::Quit => {
                 events
                     .send(RunEvent::Log { level: LogLevel::Warn, message: "backing the stage off 2.000 mm".into() })
@@ -507,7 +508,7 @@ fn tui_child(mode: &str) {
                     RunControl::Quit | RunControl::Abort => {
                         ev_tx.send(RunEvent::Aborted { reason: "quit by the operator".into() }).unwrap();
                     }
-                    RunControl::Resume => {}
+                    RunControl::Resume | RunControl::Confirm => {}
                 }
             }
             std::future::pending::<()>().await

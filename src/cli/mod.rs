@@ -243,6 +243,11 @@ pub struct RunArgs {
     /// Rig time the closed loop may spend on experiments, s (with --adaptive).
     #[arg(long, value_name = "N", requires = "adaptive")]
     pub budget_s: Option<f64>,
+    /// The closed loop may not choose operator-assisted steps (a rigid ball,
+    /// a second indenter); without it, a real rig prompts for them and the
+    /// emulated rig's simulation performs them (with --adaptive).
+    #[arg(long, requires = "adaptive")]
+    pub no_operator: bool,
     #[command(flatten)]
     pub db: history::DbArg,
     /// The simulated elastomer and indenter (emulated rig only).

@@ -13,7 +13,7 @@ use super::sim_setup::{SimSetupArgs, sim_setup};
 use super::{CliError, RunArgs};
 use crate::report::{Truth, calibration_output, default_run_dir};
 use crate::rig::emulated::{EmulatedRig, ServeOptions};
-use crate::rig::{RigConfig, RigSpec, RunRequest, RunResult, run_calibration};
+use crate::rig::{RigConfig, RigSpec, RunRequest, RunResult, run_calibration_with};
 use crate::run::events::{RunControl, format_duration};
 use crate::run::{RunStatus, Script};
 
@@ -129,6 +129,9 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
         if let Some(b) = args.budget_s {
             script.adaptive.budget_s = b;
         }
+        if args.no_operator {
+            script.adaptive.operator = false;
+        }
         script.validate().map_err(|e| CliError::bad_input(e.to_string()))?;
     }
     let out_dir = match &args.out {
@@ -155,9 +158,8 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
         tokio::spawn(async move {
             if json {
                 // stdout carries the JSON document: progress goes to stderr.
-                let r = crate::tui::run_plain(ev_rx, std::io::stderr()).await;
-                drop(ctl);
-                r
+                // An operator step is answered on stdin.
+                crate::tui::run_plain_prompting(ev_rx, std::io::stderr(), ctl, crate::tui::read_stdin_line).await
             } else {
                 crate::tui::run_display(ev_rx, ctl).await
             }
@@ -177,7 +179,8 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
     let script_toml = script.to_toml().ok();
     let req = RunRequest { spec, script, out_dir: out_dir.clone(), truth, metadata, diagnose: !args.no_diagnose };
     let history_tx = ev_tx.clone();
-    let result = run_calibration(req, ev_tx, ctl_rx).await;
+    let mount = emulated.as_ref().map(|rig| rig.indenter_mount());
+    let result = run_calibration_with(req, ev_tx, ctl_rx, mount).await;
     // The history, while the display still shows the result (its verdict goes
     // into the final panel). Its PostgreSQL client blocks: off the async workers.
     let mut history_lines = vec![];

@@ -84,7 +84,7 @@ impl EmulatedRig {
         let (ev_tx, mut ev_rx) = tokio::sync::mpsc::unbounded_channel();
         let (_ctl_tx, ctl_rx) = tokio::sync::mpsc::unbounded_channel();
         let drain = tokio::spawn(async move { while ev_rx.recv().await.is_some() {} });
-        let result = super::run_calibration(req, ev_tx, ctl_rx).await;
+        let result = super::run_calibration_with(req, ev_tx, ctl_rx, Some(self.indenter_mount())).await;
         let _ = drain.await;
         if let Ok(r) = &result
             && let Some(w) = self.note_effect_failures(r.report.as_ref())

@@ -14,4 +14,6 @@ pub use config::{ConfigError, RigConfig};
 pub use connect::{ConnectError, RigDevices, RigGauge, RigSpec, SensorDriver, SensorSpec, measure_frame, open_rig};
 pub use drivers::{AxisSpec, Driver, Drivers, OpenAxis, OpenError, RotationSpec, StageSpec};
 pub use emulated::{EmulatedRig, EmulatedSensor, ServeOptions, StageEmulator};
-pub use session::{RECORDING_FILE, Reported, RunRequest, RunResult, StartError, fit_and_report, run_calibration};
+pub use session::{
+    RECORDING_FILE, Reported, RunRequest, RunResult, StartError, fit_and_report, run_calibration, run_calibration_with,
+};

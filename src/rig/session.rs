@@ -158,6 +158,18 @@ pub async fn run_calibration(
     events: UnboundedSender<RunEvent>,
     controls: UnboundedReceiver<RunControl>,
 ) -> Result<RunResult, StartError> {
+    run_calibration_with(req, events, controls, None).await
+}
+
+/// As [`run_calibration`]; on the emulated rig `emulated_operator` is its
+/// simulated sensor's indenter mount, through which the simulation performs
+/// operator steps itself (no prompt). `None` (a real rig): they prompt.
+pub async fn run_calibration_with(
+    req: RunRequest,
+    events: UnboundedSender<RunEvent>,
+    controls: UnboundedReceiver<RunControl>,
+    emulated_operator: Option<sim::sensor::rig::IndenterMount>,
+) -> Result<RunResult, StartError> {
     req.script.validate()?;
     std::fs::create_dir_all(&req.out_dir).map_err(|source| StartError::OutDir { path: req.out_dir.clone(), source })?;
     // The indenter bounds what a contact under the marker pitch can look like.
@@ -174,6 +186,9 @@ pub async fn run_calibration(
         .with_controls(controls)
         .with_metadata(meta)
         .with_panic_after_samples(test_panic_after_samples());
+    if let Some(m) = emulated_operator {
+        seq = seq.with_emulated_operator(m);
+    }
     let outcome = seq.run().await;
     // Close the devices (stop keep-alives, release the ports) before fitting;
     // the sensor's receive task is awaited, so its port is free when this returns.
@@ -219,6 +234,16 @@ pub async fn run_calibration(
             let _ = events.send(RunEvent::Log { level, message });
             if let Some(d) = &diagnosis {
                 let _ = events.send(RunEvent::Diagnosis(Box::new(d.clone())));
+            }
+            // An operator step's decision rests on samples outside the run's
+            // recording (its own file): the diagnosis above does not see them.
+            if let Some(step) = outcome.adaptive.iter().rev().find(|s| s.recording.is_some()) {
+                let message = format!(
+                    "closed loop, after {}: {} (the diagnosis above is the run recording's alone; the decision is \
+                     the last entry of report.json's run.experiments)",
+                    step.name, step.outcome
+                );
+                let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
             }
             let mut summary = outcome.summary(Some(&cal));
             summary.report = Some(files.json.display().to_string());

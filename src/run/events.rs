@@ -215,6 +215,23 @@ pub enum RunEvent {
     /// The run stopped at a safe point and waits for `Resume`.
     Paused,
     Resumed,
+    /// An operator-assisted step (docs/run.md, "Operator steps"): the stage
+    /// stands retracted clear of the gel and the run waits for `Confirm`
+    /// (or `Abort`) once the operator mounted `indenter` with its apex on the
+    /// first indenter's reference.
+    OperatorPrompt {
+        /// The step (`rigid_ball`, `swap_indenter`).
+        step: String,
+        /// The indenter to mount: E (MPa), nu, R (mm).
+        indenter: Body,
+        /// What to do, in one sentence.
+        message: String,
+    },
+    /// The operator confirmed (or, on the emulated rig, the simulation
+    /// mounted the indenter itself): the step runs.
+    OperatorConfirmed {
+        step: String,
+    },
     /// The run was aborted (motion stopped, stage backed off); `reason` says why.
     Aborted {
         reason: String,
@@ -245,6 +262,9 @@ pub enum RunControl {
     Abort,
     /// The operator wants to leave: abort if still running, then end.
     Quit,
+    /// The operator mounted what an [`RunEvent::OperatorPrompt`] asked for:
+    /// the step may run (ignored when no prompt waits).
+    Confirm,
 }
 
 /// Seconds as `1m05.3s` / `12.3s`: fixed precision so logs diff cleanly.
@@ -335,6 +355,16 @@ impl ProgressLine {
             RunEvent::Log { level, message } => Some(format!("{} {}: {}", self.prefix(), level.as_str(), message)),
             RunEvent::Paused => Some(format!("{} paused", self.prefix())),
             RunEvent::Resumed => Some(format!("{} resumed", self.prefix())),
+            RunEvent::OperatorPrompt { step, indenter, message } => Some(format!(
+                "{} OPERATOR ({step}): {message} [E {} MPa, nu {}, R {} mm]",
+                self.prefix(),
+                indenter.e_mpa,
+                indenter.nu,
+                indenter.r_mm
+            )),
+            RunEvent::OperatorConfirmed { step } => {
+                Some(format!("{} {step}: indenter mounted, running", self.prefix()))
+            }
             RunEvent::Aborted { reason } => Some(format!("{} ABORTED: {}", self.prefix(), reason)),
             RunEvent::Diagnosis(d) => Some(diagnosis_line(d)),
             RunEvent::Finished { summary } => Some(summary_line(summary)),

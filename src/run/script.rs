@@ -151,10 +151,13 @@ home_s = 120.0
 # while the diagnosis of the recording so far leaves explanations standing,
 # run the experiment `easycalib plan` chooses when it is decisive, within
 # budget_s of rig time and max_steps experiments. `run --adaptive` turns it on.
+# operator = false (`run --no-operator`) forbids operator-assisted steps
+# (a rigid ball or a second indenter, mounted by someone at a prompt).
 [adaptive]
 enabled = false
 budget_s = 120.0
 max_steps = 3
+operator = true
 "#;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -183,11 +186,15 @@ pub struct AdaptiveSection {
     pub budget_s: f64,
     /// Most experiments the loop runs.
     pub max_steps: u32,
+    /// The loop may choose operator-assisted steps (a rigid ball, a second
+    /// indenter): on a real rig they prompt and wait for the operator's
+    /// confirmation; on the emulated rig the simulation mounts the indenter.
+    pub operator: bool,
 }
 
 impl Default for AdaptiveSection {
     fn default() -> Self {
-        Self { enabled: false, budget_s: 120.0, max_steps: 3 }
+        Self { enabled: false, budget_s: 120.0, max_steps: 3, operator: true }
     }
 }
 
@@ -492,8 +499,9 @@ impl Script {
                 return Err(invalid(
                     "experiment",
                     format!(
-                        "experiment {i} ({}) needs an operator to swap the indenter, which the sequencer does not \
-                         prompt for yet: take its sweep as a recording of its own (docs/experiments.md)",
+                        "experiment {i} ({}) needs an operator to swap the indenter: only the closed loop \
+                         (`run --adaptive`) runs it, with its prompt; or take its sweep as a recording of its own \
+                         (docs/experiments.md)",
                         e.name()
                     ),
                 ));

@@ -319,6 +319,10 @@ fn draw_footer(state: &State, frame: &mut Frame, area: Rect) {
     let mut spans = Vec::new();
     if state.status().is_over() {
         spans.extend(key(" q ", "leave"));
+    } else if state.prompt().is_some() {
+        spans.extend(key(" c ", "confirm: indenter mounted"));
+        spans.extend(key(" a ", "abort"));
+        spans.extend(key(" q ", "quit"));
     } else {
         spans.extend(key(" p ", "pause"));
         spans.extend(key(" r ", "resume"));
@@ -331,6 +335,7 @@ fn draw_footer(state: &State, frame: &mut Frame, area: Rect) {
         Some(RunControl::Resume) => Some("resuming…"),
         Some(RunControl::Abort) => Some("aborting: stopping motion and backing off…"),
         Some(RunControl::Quit) => Some("quitting: aborting the run first…"),
+        Some(RunControl::Confirm) => Some("confirmed: the step starts…"),
         None => None,
     };
     if let Some(p) = pending {
@@ -416,7 +421,19 @@ fn draw_banner(state: &State, frame: &mut Frame, area: Rect) {
         RunStatus::Finished(s) => {
             (" RUN FINISHED ", Style::new().fg(Color::Cyan), summary_lines(s, state.history(), state.diagnosis()))
         }
-        RunStatus::Idle | RunStatus::Running => return,
+        RunStatus::Idle | RunStatus::Running => match state.prompt() {
+            Some(p) => (
+                " OPERATOR STEP ",
+                Style::new().fg(Color::Magenta),
+                vec![
+                    Line::from(format!("{}: mount this indenter", p.step).bold()),
+                    Line::from(format!("E {} MPa, nu {}, R {} mm", p.indenter.e_mpa, p.indenter.nu, p.indenter.r_mm)),
+                    Line::from(p.message.clone()),
+                    Line::from("Press c once it is mounted, a to abort.".italic()),
+                ],
+            ),
+            None => return,
+        },
     };
     let height = (lines.len() as u16 + 2).min(area.height);
     let width = area.width.saturating_sub(4).min(72);
@@ -430,7 +447,8 @@ fn draw_banner(state: &State, frame: &mut Frame, area: Rect) {
     );
 }
 
-const HELP: [(&str, &str); 6] = [
+const HELP: [(&str, &str); 7] = [
+    ("c", "confirm an operator step (indenter mounted)"),
     ("p", "pause at the next safe point"),
     ("r", "resume a paused run"),
     ("a", "abort: stop motion, back the stage off"),

@@ -15,5 +15,8 @@ mod state;
 
 pub use channel::{ControlSink, EventSource};
 pub use draw::draw;
-pub use runner::{DriveOptions, NO_RESULT_REASON, drive, run_display, run_plain, run_tui, stdout_is_terminal};
-pub use state::{LOG_CAPACITY, LogEntry, RunStatus, State, StepInfo};
+pub use runner::{
+    DriveOptions, NO_RESULT_REASON, drive, operator_answer, read_stdin_line, run_display, run_plain,
+    run_plain_prompting, run_tui, stdout_is_terminal,
+};
+pub use state::{LOG_CAPACITY, LogEntry, OperatorPrompt, RunStatus, State, StepInfo};

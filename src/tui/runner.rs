@@ -188,17 +188,90 @@ pub async fn run_plain<W: Write>(mut events: impl EventSource, mut out: W) -> io
     Ok(state)
 }
 
+/// As [`run_plain`], answering operator steps on the command line: at an
+/// [`RunEvent::OperatorPrompt`] a line goes to stderr and `answer` is called
+/// on a thread of its own (it blocks: stdin, read a line); an empty line
+/// confirms, `a` / `abort`, `q` / `quit` or the end of input abort. Events
+/// keep being shown meanwhile (a Ctrl-C abort ends the run while the line
+/// is still awaited). `controls` stays open until the run is over.
+pub async fn run_plain_prompting<W, C, A>(
+    mut events: impl EventSource,
+    mut out: W,
+    controls: C,
+    answer: A,
+) -> io::Result<State>
+where
+    W: Write,
+    C: ControlSink,
+    A: Fn() -> io::Result<Option<String>> + Send + Sync + Clone + 'static,
+{
+    let mut state = State::new();
+    let mut lines = ProgressLine::new();
+    let (ans_tx, mut ans_rx) = mpsc::unbounded_channel::<crate::run::events::RunControl>();
+    loop {
+        let ev = tokio::select! {
+            ev = events.next_event() => ev,
+            Some(c) = ans_rx.recv() => {
+                if state.prompt().is_some() {
+                    controls.send_control(c).await;
+                }
+                continue;
+            }
+        };
+        let Some(ev) = ev else { break };
+        state.apply(&ev);
+        if let Some(l) = lines.line(&ev) {
+            writeln!(out, "{l}")?;
+            out.flush()?;
+        }
+        if let RunEvent::OperatorPrompt { step, .. } = &ev {
+            eprintln!("{step}: press Enter once the indenter is mounted, or type a and Enter to abort");
+            let (tx, read) = (ans_tx.clone(), answer.clone());
+            std::thread::spawn(move || {
+                let _ = tx.send(operator_answer(read()));
+            });
+        }
+        if state.status().is_over() {
+            return Ok(state);
+        }
+    }
+    let ev = RunEvent::Aborted { reason: NO_RESULT_REASON.to_string() };
+    state.apply(&ev);
+    if let Some(l) = lines.line(&ev) {
+        writeln!(out, "{l}")?;
+    }
+    Ok(state)
+}
+
+/// The control a typed line means at an operator prompt: an empty line
+/// confirms; anything else (`a`, `abort`, `q`), the end of input or a read
+/// error aborts (nobody confirmed).
+pub fn operator_answer(line: io::Result<Option<String>>) -> crate::run::events::RunControl {
+    use crate::run::events::RunControl;
+    match line {
+        Ok(Some(l)) if l.trim().is_empty() => RunControl::Confirm,
+        _ => RunControl::Abort,
+    }
+}
+
+/// One line of stdin (`None` at its end).
+pub fn read_stdin_line() -> io::Result<Option<String>> {
+    let mut l = String::new();
+    match io::stdin().read_line(&mut l)? {
+        0 => Ok(None),
+        _ => Ok(Some(l)),
+    }
+}
+
 /// The display the issue asks for: the TUI when stdout is a terminal, plain
-/// progress lines on stdout otherwise. In plain mode nobody sends controls,
-/// but `controls` stays open until the run is over so the sequencer does not
-/// mistake a closed channel for an operator leaving (Ctrl-C there is the
-/// caller's signal handler's job).
+/// progress lines on stdout otherwise. In plain mode an operator step is
+/// answered on stdin ([`run_plain_prompting`]); `controls` stays open until
+/// the run is over so the sequencer does not mistake a closed channel for an
+/// operator leaving (Ctrl-C there is the caller's signal handler's job).
 pub async fn run_display(events: impl EventSource, controls: impl ControlSink) -> io::Result<State> {
     if stdout_is_terminal() {
         run_tui(events, controls).await
     } else {
-        let state = run_plain(events, io::stdout()).await;
-        drop(controls);
-        state
+        run_plain_prompting(events, io::stdout(), controls, read_stdin_line).await
     }
 }

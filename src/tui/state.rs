@@ -82,6 +82,17 @@ pub struct State {
     history: Vec<String>,
     /// The diagnosis of the finished run's recording.
     diagnosis: Option<crate::report::RunDiagnosis>,
+    /// An operator step waiting for the operator's confirmation.
+    prompt: Option<OperatorPrompt>,
+}
+
+/// What an operator step asks for ([`RunEvent::OperatorPrompt`]), shown in a
+/// panel until confirmed (`c`) or aborted (`a`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct OperatorPrompt {
+    pub step: String,
+    pub indenter: sim::physics::Body,
+    pub message: String,
 }
 
 impl Default for State {
@@ -96,6 +107,7 @@ impl State {
             status: RunStatus::Idle,
             history: Vec::new(),
             diagnosis: None,
+            prompt: None,
             step: None,
             progress: None,
             devices: None,
@@ -148,8 +160,21 @@ impl State {
                     self.pending = None;
                 }
             }
+            RunEvent::OperatorPrompt { step, indenter, message } => {
+                self.prompt =
+                    Some(OperatorPrompt { step: step.clone(), indenter: *indenter, message: message.clone() });
+                self.push_log(LogLevel::Warn, format!("{step}: {message}"));
+            }
+            RunEvent::OperatorConfirmed { step } => {
+                self.prompt = None;
+                if self.pending == Some(RunControl::Confirm) {
+                    self.pending = None;
+                }
+                self.push_log(LogLevel::Info, format!("{step}: indenter mounted"));
+            }
             RunEvent::Aborted { reason } => {
                 self.status = RunStatus::Aborted { reason: reason.clone() };
+                self.prompt = None;
                 self.pending = None;
                 self.push_log(LogLevel::Error, format!("aborted: {reason}"));
             }
@@ -200,6 +225,10 @@ impl State {
             KeyCode::Char('r') if self.status == RunStatus::Paused => {
                 self.pending = Some(RunControl::Resume);
                 Some(RunControl::Resume)
+            }
+            KeyCode::Char('c') if self.prompt.is_some() && self.pending.is_none() => {
+                self.pending = Some(RunControl::Confirm);
+                Some(RunControl::Confirm)
             }
             KeyCode::Char('a') if !self.status.is_over() => {
                 self.pending = Some(RunControl::Abort);
@@ -265,6 +294,10 @@ impl State {
     }
     pub fn log(&self) -> impl DoubleEndedIterator<Item = &LogEntry> + ExactSizeIterator {
         self.log.iter()
+    }
+    /// The operator step waiting for confirmation, if any.
+    pub fn prompt(&self) -> Option<&OperatorPrompt> {
+        self.prompt.as_ref()
     }
     pub fn pending(&self) -> Option<RunControl> {
         self.pending

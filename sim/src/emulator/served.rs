@@ -226,6 +226,12 @@ impl ServedRig {
         self.sensor.set_silenced(on);
     }
 
+    /// The simulated sensor's indenter mount: an operator step on the
+    /// emulated rig mounts its indenter through it (the simulation plays the operator).
+    pub fn indenter_mount(&self) -> crate::sensor::rig::IndenterMount {
+        self.sensor.indenter_mount()
+    }
+
     /// One line per device, `NAME PATH`, as `easycalib sim serve` prints them.
     pub fn device_lines(&self) -> Vec<String> {
         let sensor = match &self.sensor_endpoint {

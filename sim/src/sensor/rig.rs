@@ -4,12 +4,14 @@
 //! becomes theta1 through the torsion model (Jäger + rod) at the current depth.
 //! Moving the emulated stage therefore changes what the sensor sees.
 
+use std::sync::{Arc, Mutex};
+
 use devices::sensor::SensorFrame;
 
 use super::field::{ContactState, MarkerGrid, SimulatedSensor};
 use crate::effects::{CommandedPose, EffectError, TrueRig};
 use crate::emulator::rig::{Rig, RigPose};
-use crate::physics::{NormalModel, NormalState, torsion_at};
+use crate::physics::{Body, ContactPair, NormalModel, NormalState, torsion_at};
 use crate::setup::SimSetup;
 
 /// Everything that defines the simulated sensor: the simulated set-up
@@ -59,10 +61,36 @@ pub struct ContactTruth {
     pub theta1_rad: f64,
 }
 
+/// Which indenter the emulated rig has mounted, shared between the sensor
+/// (which reads it before every frame) and whoever plays the operator
+/// (`None`: the set-up's own indenter). Changing it is the emulated rig's
+/// indenter swap (docs/experiments.md, "Operator-assisted steps").
+#[derive(Debug, Clone, Default)]
+pub struct IndenterMount(Arc<Mutex<Option<Body>>>);
+
+impl IndenterMount {
+    /// Mount `indenter` (`None`: the set-up's own) from the next frame on.
+    pub fn mount(&self, indenter: Option<Body>) {
+        let mut m = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        *m = indenter;
+    }
+
+    /// What is mounted (`None`: the set-up's own indenter).
+    pub fn mounted(&self) -> Option<Body> {
+        *self.0.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
 /// A simulated Tac3D looking at the emulated rig.
 pub struct RigSensor {
     rig: Rig,
     model: NormalModel,
+    /// The contact as mounted now: the set-up's elastomer with the set-up's
+    /// indenter, or the one an operator step mounted.
+    pair: ContactPair,
+    mount: IndenterMount,
+    /// What `pair` was built for (`None`: the set-up's indenter).
+    mounted: Option<Body>,
     cfg: SensorSimConfig,
     sensor: SimulatedSensor,
     /// Mount angle when the current contact was made: twist before touching
@@ -97,7 +125,68 @@ impl RigSensor {
         };
         let sensor = SimulatedSensor::new(cfg.grid.clone(), *setup.noise(), setup.seed(), Box::new(|_| None))
             .with_first_index(cfg.first_index);
-        Ok(Self { rig, model, cfg, sensor, twist_origin_deg: None, effects, effect_failures: 0 })
+        let pair = *setup.pair();
+        Ok(Self {
+            rig,
+            model,
+            pair,
+            mount: IndenterMount::default(),
+            mounted: None,
+            cfg,
+            sensor,
+            twist_origin_deg: None,
+            effects,
+            effect_failures: 0,
+        })
+    }
+
+    /// The handle through which the mounted indenter is changed (shared: clones act on this sensor).
+    pub fn mount(&self) -> IndenterMount {
+        self.mount.clone()
+    }
+
+    /// The contact pair as mounted now.
+    pub fn pair(&self) -> &ContactPair {
+        &self.pair
+    }
+
+    /// Follow the mount: when another indenter was mounted since the last
+    /// frame, the normal model, the torsion pair and the effects' rig are
+    /// rebuilt for it. The effects' history starts afresh, as the
+    /// generator's operator recording does (the gel recovered while the
+    /// stage was parked for the swap); the profile's effects (frame, gain,
+    /// drift) stay. An indenter the models refuse leaves the previous one
+    /// mounted and is counted as an effect failure.
+    fn follow_mount(&mut self) {
+        let want = self.mount.mounted();
+        if want == self.mounted {
+            return;
+        }
+        let pair = ContactPair { indenter: want.unwrap_or(self.cfg.setup.pair().indenter), ..*self.cfg.setup.pair() };
+        let model = match NormalModel::new(pair) {
+            Ok(m) => m,
+            Err(_) => {
+                self.effect_failures += 1;
+                self.mounted = want;
+                return;
+            }
+        };
+        let effects = match self.cfg.setup.effects().is_clean() {
+            true => None,
+            false => match TrueRig::new(pair, self.cfg.setup.effects()) {
+                Ok(r) => Some(r),
+                Err(_) => {
+                    self.effect_failures += 1;
+                    self.mounted = want;
+                    return;
+                }
+            },
+        };
+        self.pair = pair;
+        self.model = model;
+        self.effects = effects;
+        self.mounted = want;
+        self.twist_origin_deg = None;
     }
 
     /// Readings the effect model could not give and the clean contact answered.
@@ -120,7 +209,7 @@ impl RigSensor {
                     r.contact_radius_mm,
                     r.theta1_deg.to_radians(),
                 )
-                .with_nu1(self.cfg.setup.pair().elastomer.nu)
+                .with_nu1(self.pair.elastomer.nu)
                 .with_punch(r.gamma1_punch_mm),
             ),
             Ok(_) => None,
@@ -158,9 +247,9 @@ impl RigSensor {
         if !(normal.gamma1_mm > 0.0 && normal.contact_radius_mm > 0.0) {
             return None;
         }
-        let beta = normal.gamma2_mm / self.cfg.setup.pair().indenter.r_mm;
+        let beta = normal.gamma2_mm / self.pair.indenter.r_mm;
         let twist_deg = pose.rot_deg - twist_origin_deg.unwrap_or(pose.rot_deg);
-        let theta1_rad = torsion_at(self.cfg.setup.pair(), beta, twist_deg.to_radians()).theta1_rad;
+        let theta1_rad = torsion_at(&self.pair, beta, twist_deg.to_radians()).theta1_rad;
         Some(ContactTruth { normal, beta, twist_deg, theta1_rad })
     }
 
@@ -172,6 +261,7 @@ impl RigSensor {
     /// The frame the sensor reports for `pose` (advances the frame counter,
     /// the noise and the contact history).
     pub fn frame_at_pose(&mut self, pose: &RigPose) -> SensorFrame {
+        self.follow_mount();
         let truth = self.truth(pose);
         match truth {
             Some(_) if self.twist_origin_deg.is_none() => self.twist_origin_deg = Some(pose.rot_deg),
@@ -180,7 +270,7 @@ impl RigSensor {
         }
         let clean = truth.map(|t| {
             ContactState::new(self.cfg.contact_center_mm, t.normal.gamma1_mm, t.normal.contact_radius_mm, t.theta1_rad)
-                .with_nu1(self.cfg.setup.pair().elastomer.nu)
+                .with_nu1(self.pair.elastomer.nu)
         });
         // With effects the history-dependent model answers; it is stepped on
         // every frame (in time order) so backlash, creep and drift see the
@@ -328,5 +418,36 @@ mod tests {
         let got = peak_depth(&scaled.frame_at_pose(&pose(3.0)));
         assert!((got - want).abs() < 1e-6, "{got} vs {want}");
         assert_eq!(scaled.effect_failures(), 0);
+    }
+
+    #[test]
+    fn a_mounted_rigid_ball_reads_the_travel_times_the_gain_and_unmounting_restores() {
+        let rig = Rig::new(VirtualClock::new(1.0), axis(-10.0, 10.0), axis(-360.0, 360.0));
+        let pose = |stage_mm| RigPose { t_s: 0.0, stage_mm, rot_deg: 0.0 };
+        let gain =
+            SimProfile { sensor_gain: Some(crate::effects::sensor_gain::Params { g: 0.99 }), ..SimProfile::default() };
+        let mut s = RigSensor::new(rig.clone(), quiet(gain, 1.0)).unwrap();
+        let mut plain = RigSensor::new(rig, quiet(SimProfile::default(), 1.0)).unwrap();
+        let soft = peak_depth(&s.frame_at_pose(&pose(2.0)));
+        let mount = s.mount();
+        let ball = Body { e_mpa: crate::experiment::RIGID_BALL_E_MPA, nu: crate::experiment::RIGID_BALL_NU, r_mm: 5.0 };
+        mount.mount(Some(ball));
+        s.frame_at_pose(&pose(0.5));
+        assert_eq!(s.pair().indenter, ball);
+        // A steel ball takes (almost) none of the 1 mm travel: the gel takes it all ...
+        let g1 = s.truth(&pose(2.0)).unwrap().normal.gamma1_mm;
+        assert!((g1 - 1.0).abs() < 1e-4, "gamma1 under the ball {g1}, want the travel 1 mm");
+        // ... and the sensor reads it times its gain.
+        plain.mount().mount(Some(ball));
+        plain.frame_at_pose(&pose(0.5));
+        let hard = peak_depth(&s.frame_at_pose(&pose(2.0)));
+        let hard_plain = peak_depth(&plain.frame_at_pose(&pose(2.0)));
+        assert!((hard / hard_plain - 0.99).abs() < 1e-6, "ball reads {hard} against {hard_plain} without the gain");
+        assert!(hard > soft + 0.05, "the ball {hard} must press deeper than the soft indenter {soft}");
+        mount.mount(None);
+        s.frame_at_pose(&pose(0.5));
+        let again = peak_depth(&s.frame_at_pose(&pose(2.0)));
+        assert!((again - soft).abs() < 1e-9, "{again} vs {soft}");
+        assert_eq!(s.effect_failures(), 0);
     }
 }

@@ -71,6 +71,7 @@ pub struct SensorStream {
     sent: Arc<AtomicU64>,
     generated: Arc<AtomicU64>,
     effect_failures: Arc<AtomicU64>,
+    mount: super::rig::IndenterMount,
     task: Option<JoinHandle<StreamEnd>>,
 }
 
@@ -101,6 +102,12 @@ impl SensorStream {
     /// such a stream did not see all of the effect it was given.
     pub fn effect_failures(&self) -> u64 {
         self.effect_failures.load(Ordering::SeqCst)
+    }
+
+    /// The streaming sensor's indenter mount: what an operator step mounts
+    /// on the emulated rig ([`super::rig::IndenterMount`]).
+    pub fn indenter_mount(&self) -> super::rig::IndenterMount {
+        self.mount.clone()
     }
 
     /// True once the task has ended (sink failure or stop).
@@ -143,8 +150,9 @@ pub fn spawn_rig_sensor<S: FrameSink>(sensor: RigSensor, sink: S) -> SensorStrea
     let effect_failures = Arc::new(AtomicU64::new(0));
     let counters =
         Counters { sent: sent.clone(), generated: generated.clone(), effect_failures: effect_failures.clone() };
+    let mount = sensor.mount();
     let task = tokio::spawn(run(sensor, sink, stop_rx, silenced.clone(), counters));
-    SensorStream { stop: stop_tx, silenced, sent, generated, effect_failures, task: Some(task) }
+    SensorStream { stop: stop_tx, silenced, sent, generated, effect_failures, mount, task: Some(task) }
 }
 
 /// What the stream's task counts for its handle.

@@ -5,6 +5,14 @@
 
 use super::*;
 use sim::experiment::{dwell_count, reload_path, reversal_angles, sweep_angles};
+use sim::recording::Recording;
+
+/// Where an operator step's recording goes: beside the run's, the step's
+/// name before the extension (`recording.csv` -> `recording.rigid_ball.csv`).
+pub(super) fn operator_recording_path(recording: &Path, step: &str) -> PathBuf {
+    let stem = recording.file_stem().map_or_else(|| "recording".into(), |s| s.to_string_lossy().into_owned());
+    recording.with_file_name(format!("{stem}.{step}.csv"))
+}
 
 /// Frames an experiment's sample averages: the settling's own. The sweeps'
 /// `frames` are sized for their few long stops; an experiment's samples
@@ -65,11 +73,14 @@ where
                 );
                 self.twist_path(&sweep_angles(amplitude_deg, step_deg), label, &mut to_go).await?;
             }
-            // The script refuses them and the loop plans without them (no operator prompt yet).
+            // The script refuses them: only the closed loop runs them, through `operator_step`.
             ExperimentSpec::RigidBall { .. } | ExperimentSpec::SwapIndenter { .. } => {
                 return Err(Halt {
                     culprit: Culprit::Procedure,
-                    message: format!("{} needs an operator to swap the indenter; not run", spec.name()),
+                    message: format!(
+                        "{} needs an operator to swap the indenter: the closed loop runs it (operator_step)",
+                        spec.name()
+                    ),
                 });
             }
         }
@@ -86,12 +97,15 @@ where
         for _ in 0..=a.max_steps {
             let Some(meta) = self.meta.clone() else { return Ok(()) };
             let rec = sim::recording::Recording { meta, samples: self.samples.clone() };
+            let opts = crate::plan::PlanOptions { operator: a.operator };
             let planned = tokio::task::spawn_blocking(move || {
-                crate::plan::plan(&rec, crate::plan::PlanOptions { operator: false })
+                let d = crate::diagnosis::diagnose(&rec, &crate::diagnosis::DiagnoseOptions::default())?;
+                let p = crate::plan::plan_for(&rec, &d, opts)?;
+                Ok::<_, crate::plan::PlanError>((rec, d, p))
             })
             .await;
-            let p = match planned {
-                Ok(Ok(p)) => p,
+            let (rec, d, p) = match planned {
+                Ok(Ok(x)) => x,
                 Ok(Err(e)) => {
                     self.log(LogLevel::Warn, format!("adaptive: no plan: {e}"));
                     return Ok(());
@@ -135,6 +149,44 @@ where
             self.step(self.track.step_index, format!("adaptive: {}", c.name), phase);
             self.log(LogLevel::Info, format!("adaptive: running {} ({:.0} s): {why}", c.name, c.rig_time_s));
             let t0 = self.clock.t_last;
+            if c.operator {
+                // An operator step ends the loop: its sweep is decided on
+                // here (a rigid ball) or left to its own recording.
+                let (ball, path) = self.operator_step(c.spec).await?;
+                let took = self.clock.t_last - t0;
+                let mut step = AdaptiveStep {
+                    name: c.name,
+                    spec: c.spec,
+                    why,
+                    rig_time_s: took,
+                    outcome: String::new(),
+                    e1_mpa: d.e1_mpa,
+                    nu1: d.nu1,
+                    recording: Some(path.clone()),
+                    effects: Vec::new(),
+                };
+                if matches!(c.spec, ExperimentSpec::RigidBall { .. }) {
+                    let decided =
+                        tokio::task::spawn_blocking(move || crate::plan::decide_with_ball(&rec, &d, &p, &ball)).await;
+                    match decided {
+                        Ok(Ok(g)) => {
+                            step.outcome = g.outcome.clone();
+                            (step.e1_mpa, step.nu1) = (g.e1_mpa, g.nu1);
+                            step.effects = g.effects.clone();
+                        }
+                        Ok(Err(e)) => step.outcome = format!("rigid ball: not decided: {e}"),
+                        Err(e) => step.outcome = format!("rigid ball: the decision stopped: {e}"),
+                    }
+                } else {
+                    step.outcome = format!(
+                        "recorded in {} for `easycalib diagnose`; the loop decides on-line after a rigid ball only",
+                        path.display()
+                    );
+                }
+                self.log(LogLevel::Info, format!("adaptive: {}: {}", c.name, step.outcome));
+                self.adaptive.push(step);
+                return Ok(());
+            }
             self.experiment(&[c.spec]).await?;
             let took = self.clock.t_last - t0;
             spent += took;
@@ -146,8 +198,141 @@ where
                 outcome: String::new(),
                 e1_mpa: f64::NAN,
                 nu1: f64::NAN,
+                recording: None,
+                effects: Vec::new(),
             });
         }
+        Ok(())
+    }
+
+    /// An operator-assisted step (docs/run.md, "Operator steps"): retract the
+    /// stage clear of the gel (nothing waits with the stage in the gel), have
+    /// the step's indenter mounted — by the simulation on the emulated rig,
+    /// else by the operator at a prompt, waiting for `Confirm` (an abort there
+    /// is the run's one abort path) — then load it along the step's path from
+    /// the first indenter's contact (its apex mounted on the same reference)
+    /// and retract again. Its samples go to a recording of their own next to
+    /// the run's (the mounted indenter in its header, `operator_step` among
+    /// its keys, docs/recording-format.md); returned with its path.
+    pub(super) async fn operator_step(&mut self, spec: ExperimentSpec) -> Step<(Recording, PathBuf)> {
+        let procedure = |m: String| Halt { culprit: Culprit::Procedure, message: m };
+        let Some(indenter) = spec.operator_indenter() else {
+            return Err(procedure(format!("{} is no operator step", spec.name())));
+        };
+        let (ExperimentSpec::RigidBall { travel_mm, steps, .. }
+        | ExperimentSpec::SwapIndenter { travel_mm, steps, .. }) = spec
+        else {
+            return Err(procedure(format!("{} has no operator sweep", spec.name())));
+        };
+        let (Some(contact), Some(meta)) = (self.contact_mm, self.meta.clone()) else {
+            return Err(procedure(format!("{}: no contact found before it", spec.name())));
+        };
+        self.retract().await?;
+        self.await_operator(spec, indenter).await?;
+        let label = spec.phase();
+        let path = operator_recording_path(&self.recording_path, spec.name());
+        let mut meta = Metadata { indenter, ..meta };
+        meta.extra.push(("operator_step".to_string(), spec.name().to_string()));
+        let mut ball = Recording { meta, samples: Vec::new() };
+        let mut to_go = 2 * steps.max(1) as usize;
+        let t0 = self.clock.t0.unwrap_or(0.0);
+        for (travel, dir) in sim::experiment::operator_path(travel_mm, steps) {
+            self.track.cursor = Cursor::Experiment { left: to_go };
+            self.checkpoint().await?;
+            self.move_stage(contact + travel, spec.name()).await?;
+            let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
+            let t_s = (r.t_s - t0).max(ball.samples.last().map_or(0.0, |s| s.t_s));
+            ball.samples.push(Sample {
+                t_s,
+                phase: Phase::Normal,
+                stage_mm: self.stage_mm - contact,
+                rot_deg: 0.0,
+                gamma1_mm: r.gamma1_mm,
+                theta1_deg: 0.0,
+                rep: None,
+                dir: Some(dir),
+                gamma1_sd_mm: r.gamma1_sd_mm,
+                theta1_sd_deg: None,
+                experiment: Some(label),
+            });
+            to_go = to_go.saturating_sub(1);
+            self.progress();
+        }
+        self.retract().await?;
+        let write = crate::run::outdir::create_nofollow(&path).and_then(|f| {
+            use std::io::Write;
+            let mut f = BufWriter::new(f);
+            f.write_all(ball.to_csv_string().as_bytes())?;
+            f.flush()
+        });
+        write.map_err(|e| Halt {
+            culprit: Culprit::Recording,
+            message: format!("cannot write the {} recording {}: {e}", spec.name(), path.display()),
+        })?;
+        match &self.emulated_operator {
+            Some(mount) => {
+                mount.mount(None);
+                self.log(LogLevel::Info, format!("{}: the simulation mounted the run's indenter back", spec.name()));
+            }
+            None => self.log(
+                LogLevel::Warn,
+                format!(
+                    "{}: the step's indenter is still mounted; mount the run's indenter back before the next run",
+                    spec.name()
+                ),
+            ),
+        }
+        self.log(LogLevel::Info, format!("{}: {} samples in {}", spec.name(), ball.samples.len(), path.display()));
+        self.operator_recordings.push(path.clone());
+        Ok((ball, path))
+    }
+
+    /// Have `indenter` mounted for `spec`, the stage retracted: on the
+    /// emulated rig the simulation mounts it; on a real rig the operator is
+    /// asked ([`RunEvent::OperatorPrompt`]) and the run waits for `Confirm`.
+    /// Abort or quit at the prompt, or a control channel that closes (nobody
+    /// can confirm), stop the run by its one abort path.
+    pub(super) async fn await_operator(&mut self, spec: ExperimentSpec, indenter: sim::physics::Body) -> Step<()> {
+        let step = spec.name().to_string();
+        if let Some(mount) = &self.emulated_operator {
+            mount.mount(Some(indenter));
+            self.log(
+                LogLevel::Info,
+                format!(
+                    "{step}: emulated rig: the simulation mounted the indenter (E {} MPa, nu {}, R {} mm)",
+                    indenter.e_mpa, indenter.nu, indenter.r_mm
+                ),
+            );
+            self.emit(RunEvent::OperatorConfirmed { step });
+            return Ok(());
+        }
+        let what = match spec {
+            ExperimentSpec::RigidBall { .. } => "the rigid (steel) ball",
+            _ => "the second indenter",
+        };
+        let message = format!(
+            "the stage is retracted clear of the gel: mount {what} with its apex where the run's indenter's was, \
+             then confirm (or abort)"
+        );
+        self.emit(RunEvent::OperatorPrompt { step: step.clone(), indenter, message });
+        loop {
+            let Some(rx) = self.controls.as_mut() else {
+                return Err(Halt {
+                    culprit: Culprit::Operator,
+                    message: format!("{step} needs an operator's confirmation and nobody can give it (no controls)"),
+                });
+            };
+            match rx.recv().await {
+                Some(RunControl::Confirm) => break,
+                Some(RunControl::Pause | RunControl::Resume) => {}
+                Some(c @ (RunControl::Abort | RunControl::Quit)) => {
+                    return Err(self.operator(c, &format!("the {step} prompt")));
+                }
+                None => self.controls = None,
+            }
+        }
+        self.log(LogLevel::Info, format!("{step}: the operator confirmed the indenter"));
+        self.emit(RunEvent::OperatorConfirmed { step });
         Ok(())
     }
 

@@ -134,6 +134,14 @@ pub struct Sequencer<S, R, G> {
     /// The recording's metadata, once written (the closed loop diagnoses the samples so far with it).
     meta: Option<Metadata>,
     adaptive: Vec<AdaptiveStep>,
+    /// On the emulated rig: the simulated sensor's indenter mount, through
+    /// which the simulation performs an operator step itself (no prompt).
+    /// `None` on a real rig: an operator step prompts and waits.
+    emulated_operator: Option<sim::sensor::rig::IndenterMount>,
+    /// Test facility: an operator step run after the sweeps, as the closed loop runs one it chose.
+    forced_operator_step: Option<ExperimentSpec>,
+    /// The operator steps' recordings written, in order.
+    operator_recordings: Vec<PathBuf>,
     /// The contact while the normal sweep's first samples place it (their
     /// recording waits for the header, which declares the contact).
     pending: Option<PendingContact>,
@@ -316,6 +324,9 @@ where
             },
             meta: None,
             adaptive: Vec::new(),
+            emulated_operator: None,
+            forced_operator_step: None,
+            operator_recordings: Vec::new(),
             pending: None,
         })
     }
@@ -332,6 +343,14 @@ where
         self
     }
 
+    /// The emulated rig's indenter mount: operator-assisted steps are then
+    /// performed by the simulation (it mounts the step's indenter) instead of
+    /// prompting an operator.
+    pub fn with_emulated_operator(mut self, mount: sim::sensor::rig::IndenterMount) -> Self {
+        self.emulated_operator = Some(mount);
+        self
+    }
+
     /// Extra `# key: value` metadata for the recording (e.g. a simulation's truth).
     pub fn with_metadata(mut self, extra: Vec<(String, String)>) -> Self {
         self.extra_meta = extra;
@@ -344,6 +363,21 @@ where
     pub fn with_panic_after_samples(mut self, n: Option<usize>) -> Self {
         self.panic_after_samples = n;
         self
+    }
+
+    /// Test facility (tests/operator_step.rs): after the sweeps and the
+    /// script's experiments, run the operator step `spec` as the closed loop
+    /// runs one it chose (retract, prompt or simulated mount, its sweep to a
+    /// recording of its own, retract), whatever a diagnosis would say.
+    #[doc(hidden)]
+    pub fn with_forced_operator_step(mut self, spec: Option<ExperimentSpec>) -> Self {
+        self.forced_operator_step = spec;
+        self
+    }
+
+    /// The recordings of the operator steps this run took, in order.
+    pub fn operator_recordings(&self) -> &[PathBuf] {
+        &self.operator_recordings
     }
 
     pub fn script(&self) -> &Script {
@@ -486,6 +520,9 @@ where
             self.step(base + 2 + i, format!("experiment {}/{}: {}", i + 1, experiments.len(), spec.name()), phase);
             self.device_status().await?;
             self.experiment(&experiments[i..]).await?;
+        }
+        if let Some(spec) = self.forced_operator_step {
+            self.operator_step(spec).await?;
         }
         if self.script.adaptive.enabled {
             self.adaptive_loop().await?;

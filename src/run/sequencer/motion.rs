@@ -65,6 +65,7 @@ where
             match rx.try_recv() {
                 Ok(RunControl::Pause) => self.pause_requested = true,
                 Ok(RunControl::Resume) => self.pause_requested = false,
+                Ok(RunControl::Confirm) => {}
                 Ok(c @ (RunControl::Abort | RunControl::Quit)) => return Err(self.operator(c, "a safe point")),
                 Err(tokio::sync::mpsc::error::TryRecvError::Empty) => break,
                 Err(tokio::sync::mpsc::error::TryRecvError::Disconnected) => self.controls = None,
@@ -84,7 +85,7 @@ where
             }
             match next_control(&mut self.controls).await {
                 RunControl::Resume => break,
-                RunControl::Pause => {}
+                RunControl::Pause | RunControl::Confirm => {}
                 c @ (RunControl::Abort | RunControl::Quit) => return Err(self.operator(c, "pause")),
             }
         }
@@ -173,6 +174,7 @@ pub(super) async fn until_done_or_stopped<T>(
                 RunControl::Abort | RunControl::Quit => return Err(c),
                 RunControl::Pause => *pause_requested = true,
                 RunControl::Resume => *pause_requested = false,
+                RunControl::Confirm => {}
             },
         }
     }

@@ -90,6 +90,14 @@ pub struct AdaptiveStep {
     #[serde(rename = "E1_MPa")]
     pub e1_mpa: f64,
     pub nu1: f64,
+    /// An operator step's samples: their recording of its own (another
+    /// indenter in its header, `operator_step` among its keys).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recording: Option<std::path::PathBuf>,
+    /// Effects named after it (an operator step's decision; empty otherwise:
+    /// the outcome's verdict names them).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub effects: Vec<&'static str>,
 }
 
 /// Rig time of one phase of the procedure.
