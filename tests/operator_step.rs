@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use easycalib::run::events::{RunControl, RunEvent};
-use easycalib::run::{Backoff, Culprit, RunOutcome, RunStatus, Script, Sequencer};
+use easycalib::run::{Backoff, Culprit, RunOutcome, RunStatus, Sequencer};
 use sim::experiment::{Experiment, ExperimentSpec, RIGID_BALL_E_MPA};
 use sim::recording::{Direction, Recording};
 use tokio::sync::mpsc::unbounded_channel;
@@ -17,17 +17,8 @@ use tokio::sync::mpsc::unbounded_channel;
 mod simrig;
 use simrig::{SimRig, SimRigConfig};
 
-/// A quick script (as tests/sequencer.rs's `stepwise`).
-fn quick() -> Script {
-    let mut s = Script::default();
-    s.approach.search_step_mm = 0.05;
-    s.normal.step_mm = 0.05;
-    s.normal.frames = 0;
-    s.torsion.step_deg = 0.2;
-    s.torsion.frames = 0;
-    s.settle.readings = 2;
-    s
-}
+/// A quick script (tests/support/simrig.rs).
+use simrig::stepwise_script as quick;
 
 const BALL: ExperimentSpec = ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 1.0, steps: 4 };
 
@@ -201,13 +192,17 @@ fn the_tui_prompt_takes_c_to_confirm_and_a_to_abort() {
     let key = |c: char| KeyEvent::new(KeyCode::Char(c), KeyModifiers::NONE);
     let body = sim::physics::Body { e_mpa: RIGID_BALL_E_MPA, nu: 0.3, r_mm: 5.0 };
     let prompt = RunEvent::OperatorPrompt { step: "rigid_ball".into(), indenter: body, message: "mount it".into() };
-    let mut s = State::new();
-    s.apply(&RunEvent::StepStarted {
-        index: 8,
-        total: 10,
-        name: "adaptive: rigid_ball".into(),
-        phase: RunPhase::Normal,
-    });
+    let started = || {
+        let mut s = State::new();
+        s.apply(&RunEvent::StepStarted {
+            index: 8,
+            total: 10,
+            name: "adaptive: rigid_ball".into(),
+            phase: RunPhase::Normal,
+        });
+        s
+    };
+    let mut s = started();
     // No prompt: c does nothing.
     assert_eq!(s.on_key(key('c')), None);
     s.apply(&prompt);
@@ -222,13 +217,7 @@ fn the_tui_prompt_takes_c_to_confirm_and_a_to_abort() {
     s.apply(&RunEvent::Aborted { reason: "abort requested by the operator during the rigid_ball prompt".into() });
     assert!(s.prompt().is_none() && s.status().is_over());
     // The panel is drawn while a prompt waits.
-    let mut s = State::new();
-    s.apply(&RunEvent::StepStarted {
-        index: 8,
-        total: 10,
-        name: "adaptive: rigid_ball".into(),
-        phase: RunPhase::Normal,
-    });
+    let mut s = started();
     s.apply(&prompt);
     let mut term = ratatui::Terminal::new(ratatui::backend::TestBackend::new(120, 40)).unwrap();
     term.draw(|f| easycalib::tui::draw(&s, f)).unwrap();

@@ -356,19 +356,7 @@ async fn pause_holds_at_a_safe_point_and_resume_continues() {
     assert_eq!(Recording::read_path(&path).unwrap().samples.len(), out.samples);
 }
 
-/// The step-by-step design the default script had before issue 15 (0.05 mm
-/// and 0.2 deg steps, samples of the settling's own frames): the fault and
-/// abort tests place their faults by move and read counts within it.
-fn stepwise() -> Script {
-    let mut s = Script::default();
-    s.approach.search_step_mm = 0.05;
-    s.normal.step_mm = 0.05;
-    s.normal.frames = 0;
-    s.torsion.step_deg = 0.2;
-    s.torsion.frames = 0;
-    s.settle.readings = 2;
-    s
-}
+use simrig::stepwise_script as stepwise;
 
 /// Run with one injected fault; returns the abort and the rig.
 async fn faulted(faults: SimFaults) -> (RunOutcome, SimRig, Recording) {

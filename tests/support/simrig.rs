@@ -462,3 +462,18 @@ impl Gauge for SimGauge {
         "sim-gauge".into()
     }
 }
+
+/// The step-by-step design the default script had before issue 15 (0.05 mm
+/// and 0.2 deg steps, samples of the settling's own frames): the fault,
+/// abort and operator-step tests place their events by move and read counts
+/// within it.
+pub fn stepwise_script() -> easycalib::run::script::Script {
+    let mut s = easycalib::run::script::Script::default();
+    s.approach.search_step_mm = 0.05;
+    s.normal.step_mm = 0.05;
+    s.normal.frames = 0;
+    s.torsion.step_deg = 0.2;
+    s.torsion.frames = 0;
+    s.settle.readings = 2;
+    s
+}
