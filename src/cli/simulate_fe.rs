@@ -49,7 +49,7 @@ pub fn fe_recording(args: &SimulateArgs) -> Result<Recording, CliError> {
         eprintln!(
             "warning: the finite-element reference stopped settling at beta = {:.3} (gamma2 {:.3} mm), short of \
              {}: the sweep ends there (a stiff indenter pressed deep into a thin gel is beyond its \
-             contact iteration; docs/fem.md)",
+             contact iteration; docs/physics.md, \"Large strain\")",
             sweep.beta_reached,
             sweep.beta_reached * ind.r_mm,
             plan.beta
@@ -71,7 +71,7 @@ pub fn fe_recording(args: &SimulateArgs) -> Result<Recording, CliError> {
         samples.push(Sample::new(t, Phase::Torsion, deepest.delta_mm, rot, deepest.gamma1_mm + rng.gaussian(sg), th));
         t += SAMPLE_PERIOD_S;
     }
-    let meta = Metadata {
+    let mut meta = Metadata {
         sensor: Some("sim-fe".into()),
         indenter: ind,
         elastomer_r_mm: f64::INFINITY,
@@ -86,7 +86,6 @@ pub fn fe_recording(args: &SimulateArgs) -> Result<Recording, CliError> {
             ),
         )],
     };
-    let mut meta = meta;
     if short {
         meta.extra.push(("sim_beta_reached".into(), format!("{:.4}", sweep.beta_reached)));
     }

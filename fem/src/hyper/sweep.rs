@@ -29,8 +29,8 @@ pub struct Sweep {
     /// (platform twist, theta1), degrees, at the deepest state.
     pub torsion_deg: Vec<(f64, f64)>,
     /// gamma2 / R2 of the deepest state: the plan's beta, or less where the
-    /// reference's iteration stopped settling before it (a stiff indenter deep
-    /// in a thin, nearly incompressible gel).
+    /// reference's iteration stopped settling before it (a stiff indenter
+    /// pressed deep into a thin gel; docs/physics.md, "Large strain").
     pub beta_reached: f64,
 }
 
