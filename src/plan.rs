@@ -242,7 +242,7 @@ pub fn outcome_of(d: &Diagnosis) -> String {
 fn refit(model: &Model, base: &Fitted, effects: &[&'static str]) -> Option<Hypothesis> {
     let mut fit = base.clone();
     for name in effects {
-        fit = crate::diagnosis::search::extend(model, &fit, Candidate::from_name(name)?)?;
+        fit = crate::diagnosis::search::extend(model, &fit, model.candidate(Candidate::from_name(name)?))?;
     }
     let profile = model.profile(&fit.cands, &fit.x)?;
     let b = fit.base();

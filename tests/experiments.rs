@@ -42,8 +42,10 @@ fn a_dwell_creeps_under_viscoelastic_and_drifts_linearly_under_thermal_drift() {
     assert!((clean[30].0 - clean[0].0 - 60.0).abs() < 1e-9);
 
     // Creep (tau 5 s): the first 20 s take nearly all of the rise, the last 20 s almost none.
-    let visco =
-        run(SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..SimProfile::default() });
+    let visco = run(SimProfile {
+        viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0, memory_n: 0.0 }),
+        ..SimProfile::default()
+    });
     let (early, late) = (visco[10].1 - visco[0].1, visco[30].1 - visco[20].1);
     assert!(early > 1e-3, "creep {early} mm over the first 20 s");
     assert!(late >= 0.0 && late < 0.05 * early, "creep {late} mm over the last 20 s vs {early}");

@@ -123,7 +123,10 @@ pub fn cases() -> Vec<CorpusCase> {
             "viscoelastic",
             VISCO_SEED,
             BiasIn::Paper,
-            SimProfile { viscoelastic: Some(viscoelastic::Params { rho: VISCO_RHO, tau_s: VISCO_TAU }), ..d() },
+            SimProfile {
+                viscoelastic: Some(viscoelastic::Params { rho: VISCO_RHO, tau_s: VISCO_TAU, memory_n: 0.0 }),
+                ..d()
+            },
         ),
         case(
             "contact_offset",

@@ -204,6 +204,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
                 gamma1_sd_mm: None,
                 theta1_sd_deg: None,
                 experiment: None,
+                timing: Default::default(),
             });
             t += plan.step_time_s;
             stage_path.push(stage);
@@ -232,6 +233,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
                 gamma1_sd_mm: None,
                 theta1_sd_deg: None,
                 experiment: None,
+                timing: Default::default(),
             });
             t += plan.step_time_s;
         }
@@ -259,6 +261,7 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
             gamma1_sd_mm: None,
             theta1_sd_deg: None,
             experiment: None,
+            timing: Default::default(),
         });
         t += plan.step_time_s;
     }
@@ -534,7 +537,7 @@ mod tests {
     fn recording_with_effects_replays_through_simulate() {
         use crate::effects::{self, stage_backlash, thermal_drift, viscoelastic};
         let profile = SimProfile {
-            viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 4.0 }),
+            viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 4.0, memory_n: 0.0 }),
             stage_backlash: Some(stage_backlash::Params { b_mm: 0.008, engaged: true }),
             thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 2e-4, vdot_mm_per_s2: 0.0 }),
             ..Default::default()

@@ -80,6 +80,29 @@ pub struct Sample {
     /// `phase` column then names the experiment and `phase` is its kind
     /// ([`Experiment::kind`], docs/recording-format.md).
     pub experiment: Option<Experiment>,
+    /// When the reading was taken and how the rig got there (optional
+    /// columns; `easycalib run` writes them): what a time-dependent model
+    /// of the rig needs to reproduce the reading.
+    pub timing: Timing,
+}
+
+/// The times behind one sample (rig time, s; optional columns
+/// `t_frames_from_s`, `t_move_start_s`, `t_move_end_s`,
+/// docs/recording-format.md). The sample's readings are the mean of the
+/// frames from `frames_from_s` to `t_s`; the move that brought the rig to
+/// its pose ran from `move_s.0` to `move_s.1` (none: the rig did not move
+/// since the previous sample).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct Timing {
+    pub frames_from_s: Option<f64>,
+    pub move_s: Option<(f64, f64)>,
+}
+
+impl Timing {
+    /// No time is given.
+    pub fn is_empty(&self) -> bool {
+        self.frames_from_s.is_none() && self.move_s.is_none()
+    }
 }
 
 impl Sample {
@@ -97,6 +120,7 @@ impl Sample {
             gamma1_sd_mm: None,
             theta1_sd_deg: None,
             experiment: None,
+            timing: Timing::default(),
         }
     }
 
@@ -182,6 +206,9 @@ const KNOWN: &str = "this reader knows `normal`, `torsion`, `dwell`, `reload`, `
 /// The optional per-sample standard errors (docs/recording-format.md).
 const SD_COLUMNS: [&str; 2] = ["gamma1_sd_mm", "theta1_sd_deg"];
 
+/// The optional per-sample times ([`Timing`], docs/recording-format.md).
+const TIMING_COLUMNS: [&str; 3] = ["t_frames_from_s", "t_move_start_s", "t_move_end_s"];
+
 fn parse_meta_number(line: usize, key: &str, value: &str) -> Result<f64, RecordingError> {
     let v = value.trim();
     let x = if v.eq_ignore_ascii_case("inf") || v.eq_ignore_ascii_case("infinity") {
@@ -237,11 +264,11 @@ impl Recording {
     pub fn to_csv_string(&self) -> String {
         let mut buf = Vec::new();
         // Writing to a Vec cannot fail.
-        let with_sd = self.samples.iter().any(|s| s.gamma1_sd_mm.is_some() || s.theta1_sd_deg.is_some());
-        let writer = match with_sd {
-            true => RecordingWriter::with_standard_errors(&mut buf, &self.meta),
-            false => RecordingWriter::new(&mut buf, &self.meta),
+        let columns = OptionalColumns {
+            standard_errors: self.samples.iter().any(|s| s.gamma1_sd_mm.is_some() || s.theta1_sd_deg.is_some()),
+            timing: self.samples.iter().any(|s| !s.timing.is_empty()),
         };
+        let writer = RecordingWriter::start(&mut buf, &self.meta, columns);
         if let Ok(mut w) = writer {
             for s in &self.samples {
                 let _ = w.append(s);
@@ -416,6 +443,8 @@ struct Columns<'t> {
     dir: Option<usize>,
     gamma1_sd: Option<usize>,
     theta1_sd: Option<usize>,
+    /// Positions of [`TIMING_COLUMNS`] that are present.
+    timing: [Option<usize>; 3],
 }
 
 impl<'t> Columns<'t> {
@@ -434,7 +463,8 @@ impl<'t> Columns<'t> {
         let dir = names.iter().position(|n| *n == "dir");
         let gamma1_sd = names.iter().position(|n| *n == SD_COLUMNS[0]);
         let theta1_sd = names.iter().position(|n| *n == SD_COLUMNS[1]);
-        Ok(Columns { names, idx, rep, dir, gamma1_sd, theta1_sd })
+        let timing = TIMING_COLUMNS.map(|want| names.iter().position(|n| *n == want));
+        Ok(Columns { names, idx, rep, dir, gamma1_sd, theta1_sd, timing })
     }
 }
 
@@ -543,8 +573,44 @@ fn parse_row(n: usize, line: &str, columns: &Columns, last_t: f64) -> Result<Sam
     };
     let gamma1_sd_mm = sd(columns.gamma1_sd)?;
     let theta1_sd_deg = sd(columns.theta1_sd)?;
+    let timing = parse_timing(fields.as_slice(), columns, t_s, &col_err)?;
     let sample = Sample::new(t_s, phase, stage_mm, rot_deg, gamma1_mm, theta1_deg);
-    Ok(Sample { rep, dir, gamma1_sd_mm, theta1_sd_deg, experiment, ..sample })
+    Ok(Sample { rep, dir, gamma1_sd_mm, theta1_sd_deg, experiment, timing, ..sample })
+}
+
+/// The optional times of one row: each empty or a finite time no later than
+/// the sample's own; a move's end not before its start, and a move is
+/// given whole (both ends) or not at all.
+fn parse_timing(
+    fields: &[&str],
+    columns: &Columns,
+    t_s: f64,
+    col_err: &dyn Fn(usize, String) -> RecordingError,
+) -> Result<Timing, RecordingError> {
+    let time = |k: usize| -> Result<Option<(usize, f64)>, RecordingError> {
+        let Some(i) = columns.timing[k].filter(|&i| !fields[i].is_empty()) else { return Ok(None) };
+        let s = fields[i];
+        match s.parse::<f64>() {
+            Ok(x) if x.is_finite() && x <= t_s => Ok(Some((i, x))),
+            Ok(x) if x.is_finite() => Err(col_err(
+                i,
+                format!("time {x} s is after the sample's own t_s {t_s} s (the sample ends its frames)"),
+            )),
+            _ => Err(col_err(i, format!("`{s}` is not a time (a finite number of seconds, or empty)"))),
+        }
+    };
+    let frames_from_s = time(0)?.map(|(_, x)| x);
+    let move_s = match (time(1)?, time(2)?) {
+        (None, None) => None,
+        (Some((_, a)), Some((i, b))) if b < a => {
+            return Err(col_err(i, format!("the move ends at {b} s, before it starts ({a} s)")));
+        }
+        (Some((_, a)), Some((_, b))) => Some((a, b)),
+        (Some((i, _)), None) | (None, Some((i, _))) => {
+            return Err(col_err(i, "a move needs both t_move_start_s and t_move_end_s (or neither)".to_string()));
+        }
+    };
+    Ok(Timing { frames_from_s, move_s })
 }
 
 /// The declared layer from its three keys: a base or a tolerance without a
@@ -586,23 +652,37 @@ fn fmt_radius(r: f64) -> String {
 /// Appends samples to a recording as they are taken, flushing each row.
 pub struct RecordingWriter<W: Write> {
     out: W,
-    /// The header names the standard-error columns.
-    sd_columns: bool,
+    columns: OptionalColumns,
+}
+
+/// Which optional columns a writer's header names.
+#[derive(Debug, Clone, Copy, Default)]
+struct OptionalColumns {
+    /// `gamma1_sd_mm`, `theta1_sd_deg`.
+    standard_errors: bool,
+    /// `t_frames_from_s`, `t_move_start_s`, `t_move_end_s`.
+    timing: bool,
 }
 
 impl<W: Write> RecordingWriter<W> {
     /// Writes the metadata block and the header row.
     pub fn new(out: W, meta: &Metadata) -> io::Result<Self> {
-        Self::start(out, meta, false)
+        Self::start(out, meta, OptionalColumns::default())
     }
 
     /// As [`RecordingWriter::new`], with the optional standard-error columns
     /// `gamma1_sd_mm` and `theta1_sd_deg` (empty for a sample without them).
     pub fn with_standard_errors(out: W, meta: &Metadata) -> io::Result<Self> {
-        Self::start(out, meta, true)
+        Self::start(out, meta, OptionalColumns { standard_errors: true, timing: false })
     }
 
-    fn start(mut out: W, meta: &Metadata, sd_columns: bool) -> io::Result<Self> {
+    /// What a rig writes: the standard errors and the sample's times
+    /// ([`Timing`]; empty where a sample has none).
+    pub fn for_rig(out: W, meta: &Metadata) -> io::Result<Self> {
+        Self::start(out, meta, OptionalColumns { standard_errors: true, timing: true })
+    }
+
+    fn start(mut out: W, meta: &Metadata, columns: OptionalColumns) -> io::Result<Self> {
         writeln!(out, "# easycalib-recording: {FORMAT_VERSION}")?;
         if let Some(s) = &meta.sensor {
             writeln!(out, "# sensor: {s}")?;
@@ -625,12 +705,15 @@ impl<W: Write> RecordingWriter<W> {
             writeln!(out, "# {k}: {v}")?;
         }
         write!(out, "t_s,phase,stage_mm,rot_deg,gamma1_mm,theta1_deg,rep,dir")?;
-        if sd_columns {
+        if columns.standard_errors {
             write!(out, ",{},{}", SD_COLUMNS[0], SD_COLUMNS[1])?;
+        }
+        if columns.timing {
+            write!(out, ",{}", TIMING_COLUMNS.join(","))?;
         }
         writeln!(out)?;
         out.flush()?;
-        Ok(Self { out, sd_columns })
+        Ok(Self { out, columns })
     }
 
     /// Appends one row and flushes it. Non-finite values are refused, not written.
@@ -657,6 +740,15 @@ impl<W: Write> RecordingWriter<W> {
                 ));
             }
         }
+        let times = [s.timing.frames_from_s, s.timing.move_s.map(|m| m.0), s.timing.move_s.map(|m| m.1)];
+        for (name, v) in TIMING_COLUMNS.iter().zip(times) {
+            if v.is_some_and(|v| !(v.is_finite() && v <= s.t_s)) {
+                return Err(io::Error::new(
+                    io::ErrorKind::InvalidData,
+                    format!("refusing to record {name} = {v:?}: not a finite time at or before t_s = {}", s.t_s),
+                ));
+            }
+        }
         let rep = s.rep.map(|r| r.to_string()).unwrap_or_default();
         let dir = s.dir.map(Direction::as_str).unwrap_or("");
         write!(
@@ -671,10 +763,15 @@ impl<W: Write> RecordingWriter<W> {
             rep,
             dir
         )?;
-        if self.sd_columns {
+        if self.columns.standard_errors {
             // Two significant digits at least, however small the error.
             let sd = |v: Option<f64>| v.map(|v| format!("{v:.3e}")).unwrap_or_default();
             write!(self.out, ",{},{}", sd(s.gamma1_sd_mm), sd(s.theta1_sd_deg))?;
+        }
+        if self.columns.timing {
+            let time = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
+            let (a, b) = (s.timing.move_s.map(|m| m.0), s.timing.move_s.map(|m| m.1));
+            write!(self.out, ",{},{},{}", time(s.timing.frames_from_s), time(a), time(b))?;
         }
         writeln!(self.out)?;
         self.out.flush()
@@ -690,6 +787,49 @@ mod tests {
     use super::*;
 
     const GOOD: &str = "# easycalib-recording: 1\n# sensor: tac3d-SN0042\n# indenter_E_MPa: 2.0\n# indenter_nu: 0.40\n# indenter_R_mm: 5.0\n# elastomer_R_mm: inf\n# created: 2026-11-22T09:30:00Z\n# lab_note: kept\nt_s,phase,stage_mm,rot_deg,gamma1_mm,theta1_deg\n0.00,normal,0.000,0.000,0.0000,0.0000\n0.80,normal,0.050,0.000,0.0171,0.0000\n31.20,torsion,1.450,0.500,1.0,0.1602\n";
+
+    #[test]
+    fn sample_times_are_optional_per_row_checked_and_round_trip() {
+        let text = GOOD
+            .replace("theta1_deg\n", "theta1_deg,t_frames_from_s,t_move_start_s,t_move_end_s\n")
+            .replace("0.0000,0.0000\n", "0.0000,0.0000,,,\n")
+            .replace("0.0171,0.0000\n", "0.0171,0.0000,0.70,0.00,0.45\n")
+            .replace("1.0,0.1602\n", "1.0,0.1602,30.9,,\n");
+        let r = Recording::parse(&text).unwrap();
+        let times: Vec<Timing> = r.samples.iter().map(|s| s.timing).collect();
+        assert_eq!(
+            times,
+            vec![
+                Timing::default(),
+                Timing { frames_from_s: Some(0.70), move_s: Some((0.0, 0.45)) },
+                Timing { frames_from_s: Some(30.9), move_s: None },
+            ]
+        );
+        let written = r.to_csv_string();
+        assert!(written.contains(",t_frames_from_s,t_move_start_s,t_move_end_s\n"), "{written}");
+        assert_eq!(Recording::parse(&written).unwrap().samples, r.samples);
+        // A time after the sample's own, a move that ends before it starts, half a
+        // move, or a non-number: an error naming the line and the column.
+        let row = "0.0171,0.0000,0.70,0.00,0.45";
+        for (bad, column) in [
+            ("0.0171,0.0000,0.90,0.00,0.45", "t_frames_from_s"),
+            ("0.0171,0.0000,0.70,0.50,0.45", "t_move_end_s"),
+            ("0.0171,0.0000,0.70,,0.45", "t_move_end_s"),
+            ("0.0171,0.0000,0.70,0.00,", "t_move_start_s"),
+            ("0.0171,0.0000,x,0.00,0.45", "t_frames_from_s"),
+            ("0.0171,0.0000,0.70,NaN,0.45", "t_move_start_s"),
+        ] {
+            let e = error_of(&text.replace(row, bad));
+            assert_eq!((e.line, e.column.clone().map(|c| c.1)), (11, Some(column.to_string())), "{bad}: {e}");
+        }
+        // The writer refuses a time after the sample's own.
+        let mut late = r.samples[1];
+        late.timing.frames_from_s = Some(late.t_s + 1.0);
+        let mut w = RecordingWriter::for_rig(Vec::new(), &r.meta).unwrap();
+        assert!(w.append(&late).is_err());
+        // Without any time the writer keeps the six-plus-two columns.
+        assert!(Recording::parse(GOOD).unwrap().to_csv_string().contains("theta1_deg,rep,dir\n"));
+    }
 
     #[test]
     fn reads_and_writes_the_declared_layer() {
@@ -868,6 +1008,7 @@ mod tests {
             gamma1_sd_mm: None,
             theta1_sd_deg: None,
             experiment: None,
+            timing: Default::default(),
         };
         assert!(w.append(&s).is_err());
         let ok = Sample { gamma1_mm: 0.05, ..s };

@@ -21,7 +21,11 @@ use crate::numerics::stats::median;
 pub enum Candidate {
     FiniteThickness,
     Adhesion,
-    Viscoelastic,
+    /// `memory`: the gel's memory of a history before the first sample is
+    /// fitted too (a recording that says the rig moved before it).
+    Viscoelastic {
+        memory: bool,
+    },
     StageBacklash,
     FrameCompliance,
     PartialSlip,
@@ -39,7 +43,7 @@ impl Candidate {
     pub const FITTED: [Candidate; 8] = [
         Candidate::FiniteThickness,
         Candidate::Adhesion,
-        Candidate::Viscoelastic,
+        Candidate::Viscoelastic { memory: false },
         Candidate::StageBacklash,
         Candidate::FrameCompliance,
         Candidate::PartialSlip,
@@ -51,7 +55,7 @@ impl Candidate {
         match self {
             Candidate::FiniteThickness => &finite_thickness::INFO,
             Candidate::Adhesion => &adhesion::INFO,
-            Candidate::Viscoelastic => &viscoelastic::INFO,
+            Candidate::Viscoelastic { .. } => &viscoelastic::INFO,
             Candidate::StageBacklash => &stage_backlash::INFO,
             Candidate::FrameCompliance => &frame_compliance::INFO,
             Candidate::PartialSlip => &partial_slip::INFO,
@@ -74,7 +78,8 @@ impl Candidate {
         match self {
             Candidate::FiniteThickness => &[("h_mm", "mm")],
             Candidate::Adhesion => &[("w_mJ_m2", "mJ/m^2"), ("eta", "")],
-            Candidate::Viscoelastic => &[("rho", ""), ("tau_s", "s")],
+            Candidate::Viscoelastic { memory: false } => &[("rho", ""), ("tau_s", "s")],
+            Candidate::Viscoelastic { memory: true } => &[("rho", ""), ("tau_s", "s"), ("memory_n", "N")],
             Candidate::StageBacklash => &[("b_mm", "mm")],
             Candidate::FrameCompliance => &[("c_mm_per_n", "mm/N")],
             Candidate::PartialSlip => &[("mu", "")],
@@ -88,6 +93,18 @@ impl Candidate {
         self.param_names().len()
     }
 
+    /// The leading parameters that are the effect itself; the rest are
+    /// nuisances of the recording (the creep's memory of an unrecorded
+    /// history, an initial condition). Whether E1/nu1 can stand in for the
+    /// effect is judged on these; a nuisance that trades with E1/nu1 widens
+    /// their intervals through the covariance instead.
+    pub fn n_identifying(self) -> usize {
+        match self {
+            Candidate::Viscoelastic { .. } => 2,
+            c => c.n_params(),
+        }
+    }
+
     /// Starting point in internal coordinates: a small, typical amount of the effect.
     pub fn start(self) -> &'static [f64] {
         match self {
@@ -95,8 +112,9 @@ impl Candidate {
             Candidate::FiniteThickness => &[0.1],
             // w / 100 mJ/m², eta.
             Candidate::Adhesion => &[0.3, 2.0],
-            // rho - 1, ln tau.
-            Candidate::Viscoelastic => &[0.02, 1.609_437_912_434_100_3],
+            // rho - 1, ln tau (and the memory of an unrecorded history, N).
+            Candidate::Viscoelastic { memory: false } => &[0.02, 1.609_437_912_434_100_3],
+            Candidate::Viscoelastic { memory: true } => &[0.02, 1.609_437_912_434_100_3, 0.0],
             Candidate::StageBacklash => &[0.003],
             Candidate::FrameCompliance => &[0.003],
             // 1/mu: well inside full stick so that the start never hits gross slip.
@@ -116,7 +134,8 @@ impl Candidate {
             // start just above, a 500 mm layer, which is next to a half-space.
             Candidate::FiniteThickness => &[0.002],
             Candidate::Adhesion => &[0.0, 2.0],
-            Candidate::Viscoelastic => &[0.0, 1.609_437_912_434_100_3],
+            Candidate::Viscoelastic { memory: false } => &[0.0, 1.609_437_912_434_100_3],
+            Candidate::Viscoelastic { memory: true } => &[0.0, 1.609_437_912_434_100_3, 0.0],
             Candidate::StageBacklash => &[0.0],
             Candidate::FrameCompliance => &[0.0],
             Candidate::PartialSlip => &[0.01],
@@ -148,9 +167,14 @@ impl Candidate {
             // still touch changes with rho and tau in steps, each a cliff of
             // chi², which splits the landscape into basins. Strong creep at
             // short, medium and long retardation times (2, 8, 30 s) reaches them.
-            Candidate::Viscoelastic => {
+            Candidate::Viscoelastic { memory: false } => {
                 vec![&[0.1, std::f64::consts::LN_2], &[0.1, 2.079_441_541_679_835_9], &[0.1, 3.401_197_381_662_155_4]]
             }
+            Candidate::Viscoelastic { memory: true } => vec![
+                &[0.1, std::f64::consts::LN_2, 0.0],
+                &[0.1, 2.079_441_541_679_835_9, 0.0],
+                &[0.1, 3.401_197_381_662_155_4, 0.0],
+            ],
             _ => Vec::new(),
         }
     }
@@ -160,8 +184,8 @@ impl Candidate {
         match (self, j) {
             (Candidate::FiniteThickness, _) => 1.0 / x,
             (Candidate::Adhesion, 0) => 100.0 * x,
-            (Candidate::Viscoelastic, 0) => 1.0 + x,
-            (Candidate::Viscoelastic, _) => x.exp(),
+            (Candidate::Viscoelastic { .. }, 0) => 1.0 + x,
+            (Candidate::Viscoelastic { .. }, 1) => x.exp(),
             (Candidate::PartialSlip, _) => 1.0 / x,
             (Candidate::ThermalDrift, _) => x * 1e-3,
             _ => x,
@@ -187,11 +211,12 @@ impl Candidate {
                 }
                 p.adhesion = Some(adhesion::Params { w_mj_m2: 100.0 * x[0], eta: x[1] });
             }
-            Candidate::Viscoelastic => {
-                if !ok(x[0], 0.0, 1.0) || !ok(x[1], 0.05f64.ln(), 1000f64.ln()) {
+            Candidate::Viscoelastic { memory } => {
+                let memory_n = if memory { x[2] } else { 0.0 };
+                if !ok(x[0], 0.0, 1.0) || !ok(x[1], 0.05f64.ln(), 1000f64.ln()) || !ok(memory_n, -100.0, 100.0) {
                     return false;
                 }
-                p.viscoelastic = Some(viscoelastic::Params { rho: 1.0 + x[0], tau_s: x[1].exp() });
+                p.viscoelastic = Some(viscoelastic::Params { rho: 1.0 + x[0], tau_s: x[1].exp(), memory_n });
             }
             Candidate::StageBacklash => {
                 if !ok(x[0], 0.0, 0.2) {
@@ -231,6 +256,74 @@ impl Candidate {
             }
         }
         true
+    }
+}
+
+/// The commanded history as the rig lived it (docs/diagnosis.md, "The
+/// measurement"), from the recording's optional times: each move a ramp from
+/// the previous sample's pose over the time it ran, and each sample the mean
+/// of the readings over the frames it averaged (Simpson's rule on the first,
+/// middle and last frame time). Without the times a sample is a step to its
+/// pose at the previous sample's time, read at its own time.
+struct TimedHistory {
+    cmds: Vec<CommandedPose>,
+    /// Per sample: the indices of its frames' first, middle and last points in `cmds`.
+    frames: Vec<[usize; 3]>,
+}
+
+/// Intermediate poses of a ramp (the move's end is one more).
+const RAMP_POINTS: usize = 3;
+
+impl TimedHistory {
+    fn of(rec: &Recording, sparse: &[CommandedPose]) -> Option<Self> {
+        if rec.samples.iter().all(|s| s.timing.is_empty()) {
+            return None;
+        }
+        let mut cmds: Vec<CommandedPose> = Vec::with_capacity(sparse.len() * (RAMP_POINTS + 4));
+        let mut frames = Vec::with_capacity(sparse.len());
+        let push = |cmds: &mut Vec<CommandedPose>, c: CommandedPose| {
+            // Times never run backwards (the recorded ones are rounded to 1 ms).
+            let t_s = cmds.last().map_or(c.t_s, |p| c.t_s.max(p.t_s));
+            cmds.push(CommandedPose { t_s, ..c });
+            cmds.len() - 1
+        };
+        for (i, (s, c)) in rec.samples.iter().zip(sparse).enumerate() {
+            // The first sample's move came from the approach, whose poses
+            // are not recorded: it starts at its pose, as without times.
+            if let (Some((a, b)), Some(prev)) = (s.timing.move_s, i.checked_sub(1).map(|j| sparse[j])) {
+                for k in 1..=RAMP_POINTS {
+                    let f = k as f64 / (RAMP_POINTS + 1) as f64;
+                    push(
+                        &mut cmds,
+                        CommandedPose {
+                            t_s: a + f * (b - a),
+                            stage_mm: prev.stage_mm + f * (c.stage_mm - prev.stage_mm),
+                            rot_deg: prev.rot_deg + f * (c.rot_deg - prev.rot_deg),
+                        },
+                    );
+                }
+                push(&mut cmds, CommandedPose { t_s: b, ..*c });
+            }
+            let from = s.timing.frames_from_s.unwrap_or(c.t_s).min(c.t_s);
+            let first = push(&mut cmds, CommandedPose { t_s: from, ..*c });
+            let middle = push(&mut cmds, CommandedPose { t_s: 0.5 * (from + c.t_s), ..*c });
+            let last = push(&mut cmds, *c);
+            frames.push([first, middle, last]);
+        }
+        Some(Self { cmds, frames })
+    }
+
+    /// One reading per sample: the last frame's state, its gamma1 and theta1
+    /// the mean over the frames.
+    fn reduce(&self, dense: &[Reading]) -> Option<Vec<Reading>> {
+        self.frames
+            .iter()
+            .map(|&[a, m, b]| {
+                let (ra, rm, rb) = (dense.get(a)?, dense.get(m)?, dense.get(b)?);
+                let simpson = |f: fn(&Reading) -> f64| (f(ra) + 4.0 * f(rm) + f(rb)) / 6.0;
+                Some(Reading { gamma1_mm: simpson(|r| r.gamma1_mm), theta1_deg: simpson(|r| r.theta1_deg), ..*rb })
+            })
+            .collect()
     }
 }
 
@@ -301,6 +394,8 @@ impl Fitted {
 pub struct Model<'a> {
     rec: &'a Recording,
     cmds: Vec<CommandedPose>,
+    /// The history as the rig lived it, when the recording has the times.
+    timed: Option<TimedHistory>,
     /// Noise of gamma1 readings, mm; with recorded standard errors, the
     /// factor they are multiplied by (1, or the inflation the data ask for).
     pub sigma_g: f64,
@@ -318,7 +413,7 @@ pub struct Model<'a> {
 
 impl<'a> Model<'a> {
     pub fn new(rec: &'a Recording, sigma_g: f64, sigma_t: f64) -> Self {
-        let cmds = rec
+        let cmds: Vec<CommandedPose> = rec
             .samples
             .iter()
             .map(|s| CommandedPose {
@@ -328,7 +423,18 @@ impl<'a> Model<'a> {
             })
             .collect();
         let ones = vec![1.0; rec.samples.len()];
-        Self { rec, cmds, sigma_g, sigma_t, sd_g: ones.clone(), sd_t: ones, max_iterations: 40, cost_tolerance: 1e-5 }
+        let timed = TimedHistory::of(rec, &cmds);
+        Self {
+            rec,
+            cmds,
+            timed,
+            sigma_g,
+            sigma_t,
+            sd_g: ones.clone(),
+            sd_t: ones,
+            max_iterations: 40,
+            cost_tolerance: 1e-5,
+        }
     }
 
     /// Weigh each reading by its recorded standard error (the channels `sd`
@@ -368,6 +474,24 @@ impl<'a> Model<'a> {
         self.rec
     }
 
+    /// `c` as this recording fits it: the viscoelastic candidate fits the
+    /// gel's memory when the recording says the rig moved before its first
+    /// sample (`t_move_start_s` on that row: an approach the recording does
+    /// not hold; docs/diagnosis.md, "The measurement").
+    pub fn candidate(&self, c: Candidate) -> Candidate {
+        match c {
+            Candidate::Viscoelastic { .. } => {
+                Candidate::Viscoelastic { memory: self.rec.samples.first().is_some_and(|s| s.timing.move_s.is_some()) }
+            }
+            other => other,
+        }
+    }
+
+    /// The candidates a diagnosis refits, as this recording fits them.
+    pub fn fitted_candidates(&self) -> [Candidate; 8] {
+        Candidate::FITTED.map(|c| self.candidate(c))
+    }
+
     /// The sim profile of a parameter vector (None outside the bounds).
     pub fn profile(&self, cands: &[Candidate], x: &[f64]) -> Option<SimProfile> {
         let b = Base::from_internal(x);
@@ -392,13 +516,20 @@ impl<'a> Model<'a> {
     }
 
     /// Noise-free readings of the recording's commanded history under `profile`.
+    /// A profile whose rig changes with time alone (creep, drift) is run
+    /// through the history as the rig lived it where the recording says
+    /// when ([`TimedHistory`]); for the others that history reads the same.
     pub fn readings(&self, profile: &SimProfile) -> Option<Vec<Reading>> {
         let m = profile.material?;
         let pair = ContactPair {
             elastomer: Body::new(m.e1_mpa, m.nu1, self.rec.meta.elastomer_r_mm),
             indenter: self.rec.meta.indenter,
         };
-        effects::simulate(pair, profile, &self.cmds).ok()
+        let timed = self.timed.as_ref().filter(|_| profile.viscoelastic.is_some() || profile.thermal_drift.is_some());
+        match timed {
+            Some(h) => h.reduce(&effects::simulate(pair, profile, &h.cmds).ok()?),
+            None => effects::simulate(pair, profile, &self.cmds).ok(),
+        }
     }
 
     /// Weighted residuals: gamma1 of every sample (the dead band pins z0), then
@@ -509,11 +640,21 @@ impl<'a> Model<'a> {
         (Some(cov), vif)
     }
 
-    /// Central-difference Jacobian of the weighted residuals (one-sided at a bound).
+    /// Central-difference Jacobian of the weighted residuals (one-sided at a
+    /// bound). A reading that jumps inside the difference step (a sample the
+    /// model puts on the edge of losing contact: a creeping gel lets go of the
+    /// indenter early on unloading) has no derivative there: its row is left
+    /// at zero, so that it neither informs the parameters nor makes them look
+    /// interchangeable. A jump is a change of more than one standard error in
+    /// one step whose one-sided differences disagree by more than half.
     pub fn jacobian(&self, cands: &[Candidate], x: &[f64], m: usize) -> Option<DMatrix<f64>> {
         let n = x.len();
         let mut jac = DMatrix::zeros(m, n);
         let (mut rp, mut rm, mut r0) = (Vec::new(), Vec::new(), Vec::new());
+        if !self.eval(cands, x, &mut r0) || r0.len() != m {
+            return None;
+        }
+        let mut jumps = vec![false; m];
         let mut xp = x.to_vec();
         for j in 0..n {
             let h = 1e-5 * x[j].abs().max(1e-2);
@@ -524,18 +665,8 @@ impl<'a> Model<'a> {
             xp[j] = x[j];
             let (a, b, d) = match (up, down) {
                 (true, true) => (&rp, &rm, 2.0 * h),
-                (true, false) => {
-                    if r0.is_empty() && !self.eval(cands, x, &mut r0) {
-                        return None;
-                    }
-                    (&rp, &r0, h)
-                }
-                (false, true) => {
-                    if r0.is_empty() && !self.eval(cands, x, &mut r0) {
-                        return None;
-                    }
-                    (&r0, &rm, h)
-                }
+                (true, false) => (&rp, &r0, h),
+                (false, true) => (&r0, &rm, h),
                 (false, false) => return None,
             };
             if a.len() != m || b.len() != m {
@@ -543,7 +674,15 @@ impl<'a> Model<'a> {
             }
             for i in 0..m {
                 jac[(i, j)] = (a[i] - b[i]) / d;
+                if up && down {
+                    let (above, below) = (rp[i] - r0[i], r0[i] - rm[i]);
+                    let step = above.abs().max(below.abs());
+                    jumps[i] |= step > 1.0 && (above - below).abs() > 0.5 * step;
+                }
             }
+        }
+        for (i, _) in jumps.iter().enumerate().filter(|(_, j)| **j) {
+            jac.row_mut(i).fill(0.0);
         }
         Some(jac)
     }

@@ -70,7 +70,7 @@ fn singles(model: &Model, baseline: &Fitted, parallel: bool) -> Singles {
     let mut scores = Vec::new();
     let mut best: Option<(Fitted, f64)> = None;
     let mut significant: Vec<(Fitted, f64)> = Vec::new();
-    for (f, s) in try_each(model, baseline, &Candidate::FITTED, parallel) {
+    for (f, s) in try_each(model, baseline, &model.fitted_candidates(), parallel) {
         if s.significant && best.as_ref().is_none_or(|(_, b)| s.delta_bic < *b) {
             best = Some((f.clone(), s.delta_bic));
         }
@@ -132,7 +132,8 @@ fn best_pair(
         return None;
     }
     let mut best_pair: Option<(Fitted, f64)> = None;
-    let others: Vec<Candidate> = Candidate::FITTED.into_iter().filter(|c| !single.cands.contains(c)).collect();
+    let others: Vec<Candidate> =
+        base.model.fitted_candidates().into_iter().filter(|c| !single.cands.contains(c)).collect();
     for (f, s) in try_each(&base.model, single, &others, parallel) {
         if s.significant && best_pair.as_ref().is_none_or(|(_, b)| s.delta_bic < *b) {
             best_pair = Some((f, s.delta_bic));
@@ -161,7 +162,8 @@ fn degenerate_effects(f: &Fitted) -> Vec<Degenerate> {
     let mut degenerate = Vec::new();
     for (k, c) in f.cands.iter().enumerate() {
         let off = f.offset_of(k);
-        let vif = (off..off + c.n_params()).map(|j| f.vif.get(j).copied().unwrap_or(f64::INFINITY)).fold(0.0, f64::max);
+        let vif =
+            (off..off + c.n_identifying()).map(|j| f.vif.get(j).copied().unwrap_or(f64::INFINITY)).fold(0.0, f64::max);
         if vif.is_nan() || vif > VIF_DEGENERATE {
             degenerate.push(Degenerate {
                 effect: c.name(),
@@ -209,7 +211,7 @@ fn needs_fallback(add: Candidate, results: &[Fitted]) -> bool {
         return false;
     }
     match add {
-        Candidate::Viscoelastic => {
+        Candidate::Viscoelastic { .. } => {
             let worst = best.residuals.iter().map(|r| r * r).fold(0.0, f64::max);
             worst >= CLIFF_CHI2 && worst >= CLIFF_SHARE * best.chi2
         }

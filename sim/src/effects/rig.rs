@@ -130,7 +130,7 @@ impl TrueRig {
             stage_play: profile.stage_backlash.map(|p| Play::new(p.b_mm, p.engaged)),
             rot_play: profile.rotation_backlash.map(|p| Play::new(p.b_deg, p.engaged)),
             edge_a: 0.0,
-            q: 0.0,
+            q: profile.viscoelastic.map_or(0.0, |v| v.memory_n),
             f_prev: 0.0,
             t_prev: None,
             last_s: None,
@@ -545,8 +545,10 @@ mod tests {
         assert_eq!(viscoelastic::substeps(0.0), 1);
         assert_eq!(viscoelastic::substeps(1.0), 5);
         let p = pair();
-        let prof =
-            SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.5, tau_s: 5.0 }), ..Default::default() };
+        let prof = SimProfile {
+            viscoelastic: Some(viscoelastic::Params { rho: 1.5, tau_s: 5.0, memory_n: 0.0 }),
+            ..Default::default()
+        };
         let mut rig = TrueRig::new(p, &prof).unwrap();
         let s = 1.5;
         let first = rig.read(CommandedPose { t_s: 0.0, stage_mm: s, rot_deg: 0.0 }).unwrap();
@@ -561,7 +563,7 @@ mod tests {
         let p = pair();
         let clean = simulate(p, &SimProfile::default(), &sweep()).unwrap();
         let prof = SimProfile {
-            viscoelastic: Some(viscoelastic::Params { rho: 1.0, tau_s: 5.0 }),
+            viscoelastic: Some(viscoelastic::Params { rho: 1.0, tau_s: 5.0, memory_n: 0.0 }),
             frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.0 }),
             ..Default::default()
         };
@@ -596,7 +598,7 @@ mod tests {
         assert!(b[90].gamma1_mm > clean[90].gamma1_mm + 0.003);
         // Viscoelastic: unload above load at the same stage.
         let v = run(SimProfile {
-            viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }),
+            viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0, memory_n: 0.0 }),
             ..Default::default()
         });
         assert!(v[90].gamma1_mm > v[30].gamma1_mm + 0.003, "{} {}", v[90].gamma1_mm, v[30].gamma1_mm);

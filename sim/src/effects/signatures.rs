@@ -72,7 +72,10 @@ fn neutral_parameters_give_the_clean_model() {
     let close = [
         SimProfile { frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.0 }), ..Default::default() },
         SimProfile { adhesion: Some(adhesion::Params { w_mj_m2: 0.0, eta: 1.0 }), ..Default::default() },
-        SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.0, tau_s: 5.0 }), ..Default::default() },
+        SimProfile {
+            viscoelastic: Some(viscoelastic::Params { rho: 1.0, tau_s: 5.0, memory_n: 0.0 }),
+            ..Default::default()
+        },
     ];
     for p in close {
         let r = run(p.clone(), &cmds);
@@ -170,7 +173,10 @@ fn viscoelastic_creeps_during_a_hold_and_saturates_at_the_relaxed_model() {
     let cmds: Vec<CommandedPose> =
         (0..=400).map(|i| CommandedPose { t_s: i as f64 * 0.25, stage_mm: stage, rot_deg: 0.0 }).collect();
     let v = run(
-        SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() },
+        SimProfile {
+            viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0, memory_n: 0.0 }),
+            ..Default::default()
+        },
         &cmds,
     );
     let relaxed = NormalModel::new(pair()).unwrap().solve(stage).unwrap().gamma1_mm;
@@ -190,7 +196,10 @@ fn viscoelastic_creeps_during_a_hold_and_saturates_at_the_relaxed_model() {
     let mut tw: Vec<CommandedPose> =
         (0..=200).map(|i| CommandedPose { t_s: i as f64 * 0.25, stage_mm: st, rot_deg: 0.0 }).collect();
     tw.extend((1..=200).map(|i| CommandedPose { t_s: 50.0 + i as f64 * 0.25, stage_mm: st, rot_deg: 5.0 }));
-    let prof = SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() };
+    let prof = SimProfile {
+        viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0, memory_n: 0.0 }),
+        ..Default::default()
+    };
     let vt = run(prof, &tw);
     let relaxed_split = run(SimProfile::default(), &tw[400..])[0].theta1_deg;
     assert!(vt[201].theta1_deg < relaxed_split * 0.99, "{} vs {relaxed_split}", vt[201].theta1_deg);
@@ -198,7 +207,10 @@ fn viscoelastic_creeps_during_a_hold_and_saturates_at_the_relaxed_model() {
     assert!((vt[400].theta1_deg / relaxed_split - 1.0).abs() < 2e-3, "{} vs {relaxed_split}", vt[400].theta1_deg);
     // Sweep: unload above load.
     let s = run(
-        SimProfile { viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0 }), ..Default::default() },
+        SimProfile {
+            viscoelastic: Some(viscoelastic::Params { rho: 1.05, tau_s: 5.0, memory_n: 0.0 }),
+            ..Default::default()
+        },
         &sweep(),
     );
     assert!(s[90].gamma1_mm > s[30].gamma1_mm + 0.003);
@@ -408,7 +420,7 @@ fn profile_errors_name_the_effect_and_parameter() {
     let path = dir.path().join("p.toml");
     let p = SimProfile {
         material: Some(Material { e1_mpa: 0.3, nu1: 0.4 }),
-        viscoelastic: Some(viscoelastic::Params { rho: 1.03, tau_s: 4.0 }),
+        viscoelastic: Some(viscoelastic::Params { rho: 1.03, tau_s: 4.0, memory_n: 0.0 }),
         thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 1e-4, vdot_mm_per_s2: 0.0 }),
         ..Default::default()
     };
@@ -424,7 +436,7 @@ fn catalogue_parameter_names_are_the_toml_keys() {
     let p = SimProfile {
         finite_thickness: Some(finite_thickness::Params { h_mm: 5.0 }),
         adhesion: Some(adhesion::Params { w_mj_m2: 50.0, eta: 2.0 }),
-        viscoelastic: Some(viscoelastic::Params { rho: 1.02, tau_s: 5.0 }),
+        viscoelastic: Some(viscoelastic::Params { rho: 1.02, tau_s: 5.0, memory_n: 0.0 }),
         contact_offset: Some(contact_offset::Params { contact_offset_mm: 0.003 }),
         stage_backlash: Some(stage_backlash::Params { b_mm: 0.005, engaged: true }),
         frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }),

@@ -25,6 +25,13 @@ pub const INFO: EffectInfo = EffectInfo {
     params: &[
         ParamInfo { name: "rho", unit: "", min: 1.0, max: 2.0, typical: "1.005-1.1 (E0/E_inf)" },
         ParamInfo { name: "tau_s", unit: "s", min: 0.05, max: 1000.0, typical: "1-20 s (retardation time)" },
+        ParamInfo {
+            name: "memory_n",
+            unit: "N",
+            min: -100.0,
+            max: 100.0,
+            typical: "0 for a rested gel; below 0 soon after an unload the recording does not hold",
+        },
     ],
     signature: "load/unload hysteresis (gamma1 high on unload); gamma1 creeps upward and saturates during the torsion hold",
     identifiability: Identifiability::Good,
@@ -43,12 +50,19 @@ pub struct Params {
     pub rho: f64,
     /// Retardation time, s.
     pub tau_s: f64,
+    /// The gel's memory of the load before the first reading: the part of
+    /// that history's force not yet crept, q = int exp(-(t0 - s)/tau) dF(s),
+    /// N (docs/physics.md 2.3). 0 for a gel at rest; negative soon after an
+    /// unload, such as a rig's approach before its recording begins.
+    #[serde(default)]
+    pub memory_n: f64,
 }
 
 impl Params {
     pub fn validate(&self) -> Result<(), EffectError> {
         check(&INFO, 0, self.rho)?;
-        check(&INFO, 1, self.tau_s)
+        check(&INFO, 1, self.tau_s)?;
+        check(&INFO, 2, self.memory_n)
     }
 }
 

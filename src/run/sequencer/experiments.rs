@@ -254,6 +254,7 @@ where
                 gamma1_sd_mm: r.gamma1_sd_mm,
                 theta1_sd_deg: None,
                 experiment: Some(label),
+                timing: Default::default(),
             });
             to_go = to_go.saturating_sub(1);
             self.progress();

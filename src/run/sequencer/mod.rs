@@ -30,7 +30,7 @@ use std::time::{Instant, SystemTime};
 
 use devices::motion::{Axis, AxisStatus, DeviceFault, FaultKind, Identify, LinearStage, Mm, RotationMount};
 use sim::experiment::{Experiment, ExperimentSpec};
-use sim::recording::{CONTACT_SD_KEY, Direction, Metadata, Phase, RecordingWriter, Sample};
+use sim::recording::{CONTACT_SD_KEY, Direction, Metadata, Phase, RecordingWriter, Sample, Timing};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
 use crate::run::events::{DeviceStatus, FitUpdate, LogLevel, Progress, RunControl, RunEvent, RunPhase};
@@ -163,6 +163,7 @@ struct Held {
     stage_mm: f64,
     reading: GaugeReading,
     rep: Option<u32>,
+    timing: Timing,
 }
 
 /// The sensor's reading noise: measured at rest before the approach, and
@@ -187,6 +188,50 @@ struct RigClock {
     t_last: f64,
     /// Where each phase began.
     phase_marks: Vec<(&'static str, f64)>,
+    /// The times of the sample being taken (recorded with it, docs/recording-format.md).
+    pending: PendingTiming,
+}
+
+/// What the next sample's [`Timing`] will say, collected as it happens (rig time, s).
+#[derive(Debug, Default)]
+struct PendingTiming {
+    /// The first move since the last sample started (the reading before it).
+    move_start: Option<f64>,
+    /// The latest move since the last sample ended (the first reading after it).
+    move_end: Option<f64>,
+    /// A move has ended and its first reading is not in yet.
+    arriving: bool,
+    /// First frame of the mean being recorded.
+    frames_from: Option<f64>,
+}
+
+impl PendingTiming {
+    fn moving(&mut self, t_last: f64) {
+        self.move_start.get_or_insert(t_last);
+        self.arriving = true;
+    }
+
+    fn read(&mut self, t: f64) {
+        if std::mem::take(&mut self.arriving) {
+            self.move_end = Some(t);
+        }
+    }
+
+    /// A held sample's timing, to be recorded with it.
+    fn restore(t: Timing) -> Self {
+        Self {
+            move_start: t.move_s.map(|m| m.0),
+            move_end: t.move_s.map(|m| m.1),
+            arriving: false,
+            frames_from: t.frames_from_s,
+        }
+    }
+
+    /// The timing of the sample being recorded; the next one starts afresh.
+    fn take(&mut self) -> Timing {
+        let t = std::mem::take(self);
+        Timing { frames_from_s: t.frames_from, move_s: t.move_start.zip(t.move_end).filter(|(a, b)| b >= a) }
+    }
 }
 
 /// Where the procedure stands, for progress and the estimate of time left.

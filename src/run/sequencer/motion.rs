@@ -24,6 +24,7 @@ where
         if from.is_finite() {
             self.track.costs.note_move(self.clock.t_last, false, (target - from).abs());
         }
+        self.clock.pending.moving(self.clock.t_last);
         let moved =
             drive(&mut self.stage, target, timeout, &mut self.stage_mm, &mut self.controls, &mut self.pause_requested)
                 .await;
@@ -44,6 +45,7 @@ where
         if self.mount_deg.is_finite() {
             self.track.costs.note_move(self.clock.t_last, true, (target - self.mount_deg).abs());
         }
+        self.clock.pending.moving(self.clock.t_last);
         let moved =
             drive(&mut self.mount, target, timeout, &mut self.mount_deg, &mut self.controls, &mut self.pause_requested)
                 .await;

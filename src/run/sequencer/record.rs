@@ -33,6 +33,7 @@ where
             gamma1_sd_mm: r.gamma1_sd_mm,
             theta1_sd_deg: if phase == Phase::Torsion { r.theta1_sd_deg } else { None },
             experiment,
+            timing: self.clock.pending.take(),
         };
         let Some(w) = self.writer.as_mut() else {
             return Err(Halt { culprit: Culprit::Recording, message: "recording is not open".into() });

@@ -72,6 +72,7 @@ where
         let t0 = *self.clock.t0.get_or_insert(r.t_s);
         self.clock.t_last = (r.t_s - t0).max(self.clock.t_last);
         self.track.costs.note_read(self.clock.t_last);
+        self.clock.pending.read(self.clock.t_last);
         self.gamma1_mm = r.gamma1_mm;
         self.gamma1_bound_mm = self.gamma1_bound_mm.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
     }
@@ -138,6 +139,7 @@ where
                         settled.push(self.read().await?);
                     }
                     self.learn_noise(&settled);
+                    self.frames_from(&settled);
                     return Ok(mean(&settled));
                 }
                 // Sensor time bounds the wait; the read count guards against a sensor whose clock stands still.
@@ -151,6 +153,7 @@ where
                             t
                         ),
                     );
+                    self.frames_from(&buf[k - n..]);
                     return Ok(m3);
                 }
             }
@@ -169,6 +172,12 @@ where
             None => (g, t),
             Some((g0, t0)) => ((0.9 * g0 * g0 + 0.1 * g * g).sqrt(), (0.9 * t0 * t0 + 0.1 * t * t).sqrt()),
         });
+    }
+
+    /// The sample being taken averages `frames`: note when its first was read.
+    pub(super) fn frames_from(&mut self, frames: &[GaugeReading]) {
+        let t0 = self.clock.t0.unwrap_or(0.0);
+        self.clock.pending.frames_from = frames.first().map(|r| (r.t_s - t0).max(0.0));
     }
 
     /// How far one reading may lie below the truth by noise alone.

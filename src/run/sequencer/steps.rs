@@ -73,11 +73,13 @@ where
             extra,
         };
         self.meta = Some(meta.clone());
-        let w = RecordingWriter::with_standard_errors(BufWriter::new(file), &meta).map_err(|e| Halt {
+        let w = RecordingWriter::for_rig(BufWriter::new(file), &meta).map_err(|e| Halt {
             culprit: Culprit::Recording,
             message: format!("cannot write the recording {}: {e}", self.recording_path.display()),
         })?;
         self.writer = Some(w);
+        // What moved before the recording began is not a sample's move.
+        self.clock.pending = PendingTiming::default();
         Ok(())
     }
 
@@ -196,6 +198,7 @@ where
         self.log(LogLevel::Info, format!("first contact at stage {contact:.4} mm{sd_text}"));
         self.start_recording(contact_sd_mm)?;
         for h in p.held {
+            self.clock.pending = PendingTiming::restore(h.timing);
             self.record(Phase::Normal, h.stage_mm, h.reading, h.rep, Some(Direction::Load), None)?;
         }
         Ok(())
@@ -263,7 +266,7 @@ where
                 }
                 let last = r.gamma1_mm >= a.refine_to_gamma1_mm || path.len() + 1 >= a.refine_steps.max(4) * 2;
                 if let Some(p) = self.pending.as_mut() {
-                    p.held.push(Held { stage_mm: pos, reading: r, rep: Some(rep) });
+                    p.held.push(Held { stage_mm: pos, reading: r, rep: Some(rep), timing: self.clock.pending.take() });
                 }
                 if last {
                     self.place_contact()?;
@@ -368,6 +371,7 @@ where
                 rs.push(self.read().await?);
             }
             let m = mean(&rs);
+            self.frames_from(&rs);
             self.record(phase, stage_abs, m, rep, dir, None)?;
             all.push(m);
         }
