@@ -195,42 +195,48 @@ struct RigClock {
 /// What the next sample's [`Timing`] will say, collected as it happens (rig time, s).
 #[derive(Debug, Default)]
 struct PendingTiming {
-    /// The first move since the last sample started (the reading before it).
-    move_start: Option<f64>,
-    /// The latest move since the last sample ended (the first reading after it).
-    move_end: Option<f64>,
-    /// A move has ended and its first reading is not in yet.
+    /// The move timed for the sample: the longest since the last sample
+    /// (any stage move before a mount move), as (stage?, distance, start,
+    /// end). The smaller moves around it (a depth's corrections, the mount's
+    /// return to zero) are not timed: the model holds the sample's pose
+    /// after the timed move ends.
+    timed: Option<(bool, f64, f64, Option<f64>)>,
+    /// The move under way is the timed one, and its first reading is not in yet.
     arriving: bool,
     /// First frame of the mean being recorded.
     frames_from: Option<f64>,
 }
 
 impl PendingTiming {
-    fn moving(&mut self, t_last: f64) {
-        self.move_start.get_or_insert(t_last);
-        self.arriving = true;
+    /// A move of `distance` (mm on the stage, degrees on the mount) starts
+    /// after the reading at `t_last`.
+    fn moving(&mut self, t_last: f64, stage: bool, distance: f64) {
+        let longer = self.timed.is_none_or(|(s, d, _, _)| (stage, distance) >= (s, d));
+        if longer {
+            self.timed = Some((stage, distance, t_last, None));
+        }
+        self.arriving = longer;
     }
 
+    /// A reading at `t`: the first after the timed move ends it.
     fn read(&mut self, t: f64) {
-        if std::mem::take(&mut self.arriving) {
-            self.move_end = Some(t);
+        if std::mem::take(&mut self.arriving)
+            && let Some(m) = self.timed.as_mut()
+        {
+            m.3 = Some(t);
         }
     }
 
     /// A held sample's timing, to be recorded with it.
     fn restore(t: Timing) -> Self {
-        Self {
-            move_start: t.move_s.map(|m| m.0),
-            move_end: t.move_s.map(|m| m.1),
-            arriving: false,
-            frames_from: t.frames_from_s,
-        }
+        Self { timed: t.move_s.map(|(a, b)| (true, 0.0, a, Some(b))), arriving: false, frames_from: t.frames_from_s }
     }
 
     /// The timing of the sample being recorded; the next one starts afresh.
     fn take(&mut self) -> Timing {
         let t = std::mem::take(self);
-        Timing { frames_from_s: t.frames_from, move_s: t.move_start.zip(t.move_end).filter(|(a, b)| b >= a) }
+        let move_s = t.timed.and_then(|(_, _, a, b)| Some((a, b?))).filter(|(a, b)| b >= a);
+        Timing { frames_from_s: t.frames_from, move_s }
     }
 }
 

@@ -24,7 +24,8 @@ where
         if from.is_finite() {
             self.track.costs.note_move(self.clock.t_last, false, (target - from).abs());
         }
-        self.clock.pending.moving(self.clock.t_last);
+        let travel = if from.is_finite() { (target - from).abs() } else { 0.0 };
+        self.clock.pending.moving(self.clock.t_last, true, travel);
         let moved =
             drive(&mut self.stage, target, timeout, &mut self.stage_mm, &mut self.controls, &mut self.pause_requested)
                 .await;
@@ -45,7 +46,8 @@ where
         if self.mount_deg.is_finite() {
             self.track.costs.note_move(self.clock.t_last, true, (target - self.mount_deg).abs());
         }
-        self.clock.pending.moving(self.clock.t_last);
+        let turn = if self.mount_deg.is_finite() { (target - self.mount_deg).abs() } else { 0.0 };
+        self.clock.pending.moving(self.clock.t_last, false, turn);
         let moved =
             drive(&mut self.mount, target, timeout, &mut self.mount_deg, &mut self.controls, &mut self.pause_requested)
                 .await;
