@@ -12,6 +12,7 @@ use sim::recording::{Phase, Recording, Sample};
 
 use crate::diagnosis::model::{Base, Candidate, Fitted, Model};
 use crate::diagnosis::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose};
+use crate::fit::Ci95;
 
 /// A separation (sum of squared predicted differences over the noise) at or
 /// above which an experiment decides: the realised chi² gain then falls below
@@ -451,17 +452,77 @@ pub struct GainDecision {
     #[serde(rename = "E1_MPa")]
     pub e1_mpa: f64,
     pub nu1: f64,
+    /// 95 % intervals of `E1_MPa` and `nu1`: when the gain is named, those of
+    /// the refit of the corrected recording, widened by the gain's own
+    /// uncertainty ([`correct_for_gain`]); otherwise the diagnosis's.
+    pub ci95: Ci95,
     /// One line, as [`outcome_of`].
     pub outcome: String,
+}
+
+/// A recording corrected for a measured depth gain: its depth readings (and
+/// their standard errors) divided by g, diagnosed again.
+#[derive(Debug, Clone)]
+pub struct GainCorrected {
+    /// `sensor_gain` first, then what the corrected recording's diagnosis names.
+    pub effects: Vec<&'static str>,
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    /// The refit's 95 % intervals (the corrected fit's when the diagnosis
+    /// names an effect, else its baseline's), each end moved out by the
+    /// gain's share: 1.96 g_sd times the slope of the full-model fit's E1
+    /// (nu1) in g, added in quadrature.
+    pub ci95: Ci95,
+    /// What the gain's standard error alone moves E1 and nu1 by (1.96 g_sd
+    /// times the slope): the share of the intervals that is the ball's.
+    pub gain_share: [f64; 2],
+    /// The diagnosis of the corrected recording.
+    pub diagnosis: Diagnosis,
+}
+
+fn divided_by(rec: &Recording, g: f64) -> Recording {
+    let mut fixed = rec.clone();
+    for s in &mut fixed.samples {
+        s.gamma1_mm /= g;
+        s.gamma1_sd_mm = s.gamma1_sd_mm.map(|v| v / g);
+    }
+    fixed
+}
+
+/// Divide `rec`'s depth readings by the gain a rigid ball measured and
+/// diagnose it again (docs/experiments.md, "The headline after the loop").
+/// The intervals are the refit's; the gain's own standard error adds to
+/// them, through the full-model fit's slope of E1 and nu1 in g (two
+/// full-model fits, at g -+ its standard error).
+pub fn correct_for_gain(rec: &Recording, gain: &GainMeasure) -> Result<GainCorrected, PlanError> {
+    let d2 = diagnose(&divided_by(rec, gain.g), &DiagnoseOptions::default())?;
+    let fit = if d2.effects.is_empty() { &d2.baseline } else { &d2.corrected };
+    let (e1_mpa, nu1) = (fit.e1_mpa, fit.nu1);
+    let h = gain.g_sd.max(1e-5);
+    let at = |g: f64| {
+        crate::fit::calibrate(&divided_by(rec, g), &crate::fit::FitOptions::default())
+            .map(|c| (c.full.e1_mpa, c.full.nu1))
+            .map_err(|e| PlanError::Simulate(format!("cannot fit the recording divided by the gain {g:.5}: {e}")))
+    };
+    let (lo, hi) = (at(gain.g - h)?, at(gain.g + h)?);
+    // d(value)/dg times 1.96 g_sd.
+    let share = |a: f64, b: f64| ((b - a) / (2.0 * h) * 1.96 * gain.g_sd).abs();
+    let gain_share = [share(lo.0, hi.0), share(lo.1, hi.1)];
+    let widen = |v: f64, ci: [f64; 2], w: f64| [v - (v - ci[0]).hypot(w), v + (ci[1] - v).hypot(w)];
+    let ci95 =
+        Ci95 { e1_mpa: widen(e1_mpa, fit.ci95.e1_mpa, gain_share[0]), nu1: widen(nu1, fit.ci95.nu1, gain_share[1]) };
+    let mut effects = vec!["sensor_gain"];
+    effects.extend(d2.effects.iter().copied().filter(|e| *e != "sensor_gain"));
+    Ok(GainCorrected { effects, e1_mpa, nu1, ci95, gain_share, diagnosis: d2 })
 }
 
 /// Decide with a rigid-ball recording taken after `rec` (diagnosed as `d`,
 /// planned as `p`): each standing hypothesis predicts the ball's readings
 /// (its E1, nu1 and effects with the ball mounted, as the plan scored it) and
 /// the one with the least chi² stands. When that one holds the sensor gain and
-/// the measured gain is off, the recording's depth readings (and their
-/// standard errors) are divided by it and diagnosed again: E1 and nu1 are
-/// then the corrected recording's.
+/// the measured gain is off, the recording is corrected for it
+/// ([`correct_for_gain`]): E1, nu1 and their intervals are then the
+/// corrected recording's.
 pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recording) -> Result<GainDecision, PlanError> {
     let fail = |e: String| PlanError::Simulate(e);
     let gain =
@@ -487,6 +548,7 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
     let chi2: Vec<(String, f64)> = chi2.into_iter().map(|(e, c)| (e.join(" + "), c)).collect();
     let named = best.contains(&"sensor_gain") && (gain.g - 1.0).abs() > (4.0 * gain.g_sd).max(0.002);
     if !named {
+        let fit = if d.effects.is_empty() { &d.baseline } else { &d.corrected };
         return Ok(GainDecision {
             gain,
             best,
@@ -495,6 +557,7 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
             effects: d.effects.clone(),
             e1_mpa: d.e1_mpa,
             nu1: d.nu1,
+            ci95: fit.ci95,
             outcome: format!(
                 "sensor gain ruled out (rigid ball: g {:.4} +- {:.4}); {}",
                 gain.g,
@@ -503,23 +566,30 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
             ),
         });
     }
-    let mut fixed = rec.clone();
-    for s in &mut fixed.samples {
-        s.gamma1_mm /= gain.g;
-        s.gamma1_sd_mm = s.gamma1_sd_mm.map(|v| v / gain.g);
-    }
-    let d2 = diagnose(&fixed, &DiagnoseOptions::default())?;
-    let mut effects = vec!["sensor_gain"];
-    effects.extend(d2.effects.iter().copied().filter(|e| *e != "sensor_gain"));
+    let c = correct_for_gain(rec, &gain)?;
     let outcome = format!(
-        "named {} (rigid ball: g {:.4} +- {:.4}): E1 {:.4} MPa, nu1 {:.4}",
-        effects.join(" + "),
+        "named {} (rigid ball: g {:.4} +- {:.4}): E1 {:.4} MPa [{:.4}, {:.4}], nu1 {:.4} [{:.4}, {:.4}]",
+        c.effects.join(" + "),
         gain.g,
         gain.g_sd,
-        d2.e1_mpa,
-        d2.nu1
+        c.e1_mpa,
+        c.ci95.e1_mpa[0],
+        c.ci95.e1_mpa[1],
+        c.nu1,
+        c.ci95.nu1[0],
+        c.ci95.nu1[1]
     );
-    Ok(GainDecision { gain, best, chi2, named, effects, e1_mpa: d2.e1_mpa, nu1: d2.nu1, outcome })
+    Ok(GainDecision {
+        gain,
+        best,
+        chi2,
+        named,
+        effects: c.effects,
+        e1_mpa: c.e1_mpa,
+        nu1: c.nu1,
+        ci95: c.ci95,
+        outcome,
+    })
 }
 
 /// The plan as text: the hypotheses, the choice with its time and what each outcome would mean, the others.

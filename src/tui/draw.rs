@@ -353,7 +353,12 @@ fn diagnosis_lines(d: &RunDiagnosis) -> Vec<Line<'static>> {
         _ => Style::new().fg(Color::Red),
     }
     .add_modifier(Modifier::BOLD);
-    let mut head = vec!["diagnosis: ".bold(), Span::styled(verdict, style)];
+    // The closed loop's decision says which step it came after (the run's
+    // E1 and nu1 above are then the decision's too).
+    let by = d.closed_loop().and_then(|l| l.strip_prefix(crate::report::diagnosis::CLOSED_LOOP));
+    let by = by.and_then(|l| l.split(':').next());
+    let label = by.map_or_else(|| "diagnosis: ".to_string(), |by| format!("closed loop, after {by}: "));
+    let mut head = vec![label.bold(), Span::styled(verdict, style)];
     let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
     if !names.is_empty() {
         head.push(format!(" ({})", names.join(", ")).into());
