@@ -362,23 +362,50 @@ fn assert_headline_is_the_gain(
 #[test]
 #[ignore = "a rate study (10 emulated runs)"]
 fn rigid_ball_rates_over_seeds() {
-    let mut ok = 0;
+    let (mut ok, mut headline, mut extra) = (0, 0, Vec::new());
     for seed in 100..110 {
-        let BallRun { steps, named, e1, nu1, .. } = ball_run(seed, 0.99);
+        let BallRun { steps, named, e1, nu1, report, truth, .. } = ball_run(seed, 0.99);
         let good = named.first() == Some(&"sensor_gain") && e1.abs() < 1.0 && nu1.abs() < 2.0;
         ok += usize::from(good);
+        extra.push(steps.iter().map(|s| s.rig_time_s).sum::<f64>());
+        // The report's headline: the gain named, within 1 %/2 %, intervals holding the truth.
+        let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+        let holds = |ci: &serde_json::Value, t: f64| f(&ci[0]) <= t && t <= f(&ci[1]);
+        let h = report["effects"][0] == "sensor_gain"
+            && (f(&report["E1_MPa"]) / truth.e1_mpa - 1.0).abs() < 0.01
+            && (f(&report["nu1"]) / truth.nu1 - 1.0).abs() < 0.02
+            && holds(&report["ci95"]["E1_MPa"], truth.e1_mpa)
+            && holds(&report["ci95"]["nu1"], truth.nu1);
+        headline += usize::from(h);
+        println!(
+            "gain seed {seed} headline: {h} {} E1 {} {} nu1 {} {}",
+            report["effects"], report["E1_MPa"], report["ci95"]["E1_MPa"], report["nu1"], report["ci95"]["nu1"]
+        );
         println!(
             "gain seed {seed}: {good} {named:?} E1 {e1:+.3} % nu1 {nu1:+.3} % extra {:.0} s {:?}",
             steps.iter().map(|s| s.rig_time_s).sum::<f64>(),
             steps.iter().map(|s| (s.name, s.outcome.as_str())).collect::<Vec<_>>()
         );
     }
-    println!("RATE sensor_gain with the rigid ball: {ok}/10");
+    extra.sort_by(f64::total_cmp);
+    println!(
+        "RATE sensor_gain with the rigid ball: {ok}/10; headline within 1 %/2 % with intervals holding the truth \
+         {headline}/10; median extra rig time {:.1} s",
+        0.5 * (extra[4] + extra[5])
+    );
     assert!(ok >= 9, "{ok}/10");
+    assert!(headline >= 9, "{headline}/10");
 }
 
+/// Why the plan called a second torsion decisive between a layer and a
+/// sensor gain (docs/experiments.md, "Why the loop used to run two torsions
+/// before the ball"): for two sensor-gain runs, the recorded standard errors
+/// per phase, the plan on the recording before the loop's first step, each
+/// hypothesis's predicted readings for the step the loop ran beside the
+/// observed ones, and the plan after it. Printed only.
+/// `cargo test --release --test rig_experiments torsion_prediction_probe -- --ignored --nocapture`.
 #[test]
-#[ignore = "probe"]
+#[ignore = "a probe: prints predictions against observations"]
 fn torsion_prediction_probe() {
     for seed in [100u64, 101] {
         let BallRun { steps, rec, .. } = ball_run(seed, 0.99);
@@ -458,7 +485,7 @@ fn adaptive_rate(label: &str, effect: &str, profile: SimProfile) -> (usize, f64)
         let (o, _) = emulated::run_script(seed, profile.clone(), script.clone());
         let ok = o.named == [effect] && o.corrected.0.abs() < 1.0 && o.corrected.1.abs() < 2.0;
         named += usize::from(ok);
-        extra.push(o.adaptive.iter().map(|s| s.rig_time_s).sum::<f64>());
+        extra.push(o.adaptive.iter().map(|s| s.rig_time_s).sum::<f64>() + 0.0);
         println!(
             "{label} seed {seed}: {ok} {} {:?} E1 {:+.3} % nu1 {:+.3} % {:?}",
             o.verdict,
