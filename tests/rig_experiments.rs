@@ -180,7 +180,7 @@ fn closed_loop_rates_over_seeds() {
 /// it may not mount the rigid ball. Printed, with one bar: it never names an
 /// effect the rig does not have. `cargo test --release --test rig_experiments gain -- --ignored --nocapture`.
 #[test]
-#[ignore = "a rate study (5 emulated runs); fails today: seed 103 names finite_thickness (report-c14)"]
+#[ignore = "a rate study (5 emulated runs)"]
 fn closed_loop_on_a_sensor_gain_without_an_operator() {
     let script = Script {
         limits: easycalib::run::script::LimitsSection { max_gamma1_mm: 8.0, ..Default::default() },

@@ -102,7 +102,9 @@ where
             // reading over their frames (`settle::mean`): one reading here,
             // in contact where the rig stands, gives it. Without declared
             // errors, the reading noise as the settling learnt it in contact.
-            let frames = (2 * self.script.settle.readings).max(EXPERIMENT_FRAMES).max(1) as f64;
+            // (With EXPERIMENT_FRAMES 0: more frames would read on at rest; the guard below says so.)
+            const _: () = assert!(EXPERIMENT_FRAMES == 0, "the plan's experiment noise assumes the settling's frames");
+            let frames = (2 * self.script.settle.readings).max(1) as f64;
             let now = self.read().await?;
             let declared = now.gamma1_sd_mm.zip(now.theta1_sd_deg).map(|(g, t)| [g, t]);
             let reading = declared.or_else(|| self.noise.live.map(|(g, t)| [g, t]));
