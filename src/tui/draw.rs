@@ -473,3 +473,38 @@ fn draw_help(frame: &mut Frame, area: Rect) {
     frame.render_widget(Clear, rect);
     frame.render_widget(Paragraph::new(lines).block(Block::bordered().title(Line::from(" help: keys ".bold()))), rect);
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::Ci95;
+
+    fn diagnosis(summary: &str) -> RunDiagnosis {
+        RunDiagnosis {
+            verdict: VerdictClass::Effects,
+            summary: summary.into(),
+            effects: vec![crate::report::EffectFound { name: "sensor_gain", params: vec![] }],
+            e1_mpa: 0.33,
+            nu1: 0.39,
+            ci95: Ci95 { e1_mpa: [0.3298, 0.3302], nu1: [0.386, 0.394] },
+            error: None,
+            wall_time_s: 0.1,
+        }
+    }
+
+    fn text(l: &Line) -> String {
+        l.spans.iter().map(|s| s.content.as_ref()).collect()
+    }
+
+    /// The final panel heads the closed loop's decision with the step it came
+    /// after, and a recording's own diagnosis as a diagnosis.
+    #[test]
+    fn the_final_panel_says_when_the_closed_loop_decided() {
+        let decided = diagnosis("CLOSED LOOP, after rigid_ball: EFFECTS: sensor_gain.\n  corrected E1 ...\n");
+        let l = diagnosis_lines(&decided);
+        assert_eq!(text(&l[0]), "closed loop, after rigid_ball: EFFECTS (sensor_gain)");
+        assert!(text(&l[1]).contains("corrected E1  = 0.3300 MPa  95% [0.3298, 0.3302]"), "{:?}", text(&l[1]));
+        let own = diagnosis("EFFECTS: sensor_gain.\n");
+        assert_eq!(text(&diagnosis_lines(&own)[0]), "diagnosis: EFFECTS (sensor_gain)");
+    }
+}
