@@ -12,6 +12,7 @@ use sim::recording::{Phase, Recording, Sample};
 
 use crate::diagnosis::model::{Base, Candidate, Fitted, Model};
 use crate::diagnosis::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose};
+use crate::fit::Ci95;
 
 /// A separation (sum of squared predicted differences over the noise) at or
 /// above which an experiment decides: the realised chi² gain then falls below
@@ -32,12 +33,43 @@ pub const OPERATOR_EFFORT_S: f64 = 300.0;
 pub struct PlanOptions {
     /// Operator-assisted steps (an indenter swap) may be proposed (`--no-operator`: not).
     pub operator: bool,
+    /// The standard error one experiment sample will be recorded with
+    /// (gamma1 mm, theta1 deg), when the caller knows it (a run: its reading
+    /// noise over the frames an experiment sample averages). An experiment
+    /// sample averages fewer frames than a sweep's, so it is noisier: the
+    /// separations are computed against it ([`experiment_noise`]).
+    pub experiment_sd: Option<[f64; 2]>,
 }
 
 impl Default for PlanOptions {
     fn default() -> Self {
-        Self { operator: true }
+        Self { operator: true, experiment_sd: None }
     }
+}
+
+/// How much noisier an experiment's samples are than the sweeps' (gamma1,
+/// theta1 ratios of their standard errors): the recording's own experiment
+/// samples when it has some (measured), else `opts.experiment_sd` over the
+/// sweeps' median recorded standard error, else 1 (as noisy as the sweeps).
+pub fn experiment_noise(rec: &Recording, opts: &PlanOptions) -> [f64; 2] {
+    let med = |v: Vec<f64>| (!v.is_empty()).then(|| crate::numerics::stats::median(&mut v.clone()));
+    let sd = |keep: &dyn Fn(&Sample) -> bool, theta: bool| {
+        med(rec
+            .samples
+            .iter()
+            .filter(|s| keep(s) && (!theta || s.phase == Phase::Torsion))
+            .filter_map(|s| if theta { s.theta1_sd_deg } else { s.gamma1_sd_mm })
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .collect())
+    };
+    let sweep = |s: &Sample| s.in_sweep();
+    let experiment = |s: &Sample| s.experiment.is_some();
+    let ratio = |theta: bool| {
+        let base = sd(&sweep, theta)?;
+        let own = sd(&experiment, theta).or_else(|| opts.experiment_sd.map(|e| e[usize::from(theta)]))?;
+        Some(own / base).filter(|r| r.is_finite() && *r > 0.0)
+    };
+    [ratio(false).unwrap_or(1.0), ratio(true).unwrap_or(1.0)]
 }
 
 /// The operator-assisted steps a plan weighs for `rec`: a steel ball of the
@@ -80,6 +112,9 @@ pub struct Hypothesis {
     pub chi2: f64,
     #[serde(skip)]
     pub profile: SimProfile,
+    /// The refit itself (a plan refits it again with an experiment's predicted samples added).
+    #[serde(skip)]
+    pub fitted: Fitted,
 }
 
 /// One candidate experiment, scored.
@@ -93,11 +128,26 @@ pub struct Scored {
     pub operator: bool,
     /// What it is weighed at: its rig time, plus [`OPERATOR_EFFORT_S`] for an operator step, s.
     pub cost_s: f64,
-    /// Sum over its samples of the squared difference between the two best
-    /// hypotheses' predictions, each over its reading's noise.
+    /// How far it separates the best hypothesis from the second: for a step
+    /// the rig runs alone, the growth of the chi² gap once its samples, as
+    /// the best predicts them (weighed at an experiment sample's noise), are
+    /// added and both are refitted; for an operator step (another indenter, a
+    /// recording of its own) `separation_no_refit`.
     pub separation: f64,
+    /// The same without refitting: the sum over its samples of the squared
+    /// difference between the two predictions, each over its reading's noise
+    /// (an upper bound on what a refit leaves).
+    pub separation_no_refit: f64,
     /// `separation` >= [`DECISIVE_SEPARATION`].
     pub decisive: bool,
+    /// How many of the other hypotheses it separates from the best (refitted
+    /// separation >= [`DECISIVE_SEPARATION`]); a step that separates one is
+    /// worth running even when it leaves another pair for a later step.
+    pub separates: usize,
+    /// Every hypothesis after the best it would leave standing beside it
+    /// (separation, refitted as above, below [`DECISIVE_SEPARATION`]), with
+    /// that separation.
+    pub leaves: Vec<(String, f64)>,
     /// The largest gamma1 the best hypothesis predicts during it, mm (a rig
     /// checks it against its soft limit before running it).
     pub peak_gamma1_mm: f64,
@@ -163,6 +213,8 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
     let sigma_g = d.noise.normal_um * 1e-3;
     let sigma_t = d.noise.torsion_deg;
     let model = Model::new(rec, sigma_g, sigma_t);
+    // An experiment's samples are weighed at their own noise.
+    let [ratio_g, ratio_t] = experiment_noise(rec, &opts);
     let base_x =
         Base { e1_mpa: d.baseline.e1_mpa, nu1: d.baseline.nu1, contact_offset_mm: d.baseline.contact_offset_mm }
             .internal();
@@ -176,10 +228,54 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
     }
     let mut experiments = Vec::new();
     let mut left_to_operator = Vec::new();
+    let best = &hypotheses[0];
     for spec in candidates().into_iter().chain(operator_candidates(rec)) {
         let step_time_s = step_time(rec, spec.phase().kind());
-        let (separation, peak_gamma1_mm) =
-            separation(rec, &hypotheses[0], &hypotheses[1], &spec, step_time_s, sigma_g, sigma_t)?;
+        // The best's run of the step, appended to the recording, refits the
+        // best once and every other hypothesis: what the diagnosis would see.
+        let refitted = match spec.is_operator() {
+            true => None,
+            false => {
+                let mut aug = rec.clone();
+                aug.samples.extend(run_under(rec, best, &spec, step_time_s)?);
+                Some(aug)
+            }
+        };
+        let weights = |aug: &Recording| {
+            let n = rec.samples.len();
+            let w = |r: f64| Some((0..aug.samples.len()).map(|i| if i < n { 1.0 } else { r }).collect());
+            crate::fit::weights::SampleSd { gamma1_mm: w(ratio_g), theta1_deg: w(ratio_t) }
+        };
+        let aug_model =
+            refitted.as_ref().map(|aug| Model::new(aug, sigma_g, sigma_t).with_standard_errors(&weights(aug)));
+        let best_after = aug_model.as_ref().and_then(|m| m.fit(&best.fitted.cands, &best.fitted.x));
+        let (mut sep, mut separation_no_refit, mut peak_gamma1_mm) = (0.0, 0.0, 0.0f64);
+        let mut leaves = Vec::new();
+        let mut separates = 0;
+        for (i, other) in hypotheses.iter().enumerate().skip(1) {
+            let (bound, peak) = separation(rec, best, other, &spec, step_time_s, sigma_g * ratio_g, sigma_t * ratio_t)?;
+            peak_gamma1_mm = peak_gamma1_mm.max(peak);
+            // Refitted: the gap's growth (the best's own chi² grows too when
+            // the new samples pull its parameters); the bound if a refit fails.
+            let after = match (&aug_model, &best_after) {
+                (Some(m), Some(fa)) => m
+                    .fit(&other.fitted.cands, &other.fitted.x)
+                    .map_or(bound, |fb| ((fb.chi2 - other.chi2) - (fa.chi2 - best.chi2)).max(0.0)),
+                _ => bound,
+            };
+            if after < DECISIVE_SEPARATION {
+                leaves.push((other.effects.join(" + "), after));
+            } else {
+                separates += 1;
+            }
+            // Scored against the second best (docs/experiments.md): against
+            // all, a step that names the first of three when it holds would
+            // lose to an operator's swap whenever the other two are one
+            // pair no motion separates (a layer and a sensor gain).
+            if i == 1 {
+                (sep, separation_no_refit) = (after, bound);
+            }
+        }
         let rig_time_s = spec.rig_time_s(step_time_s) + seek_time(rec, &spec);
         let scored = Scored {
             name: spec.name(),
@@ -188,8 +284,11 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
             rig_time_s,
             operator: spec.is_operator(),
             cost_s: rig_time_s + if spec.is_operator() { OPERATOR_EFFORT_S } else { 0.0 },
-            separation,
-            decisive: separation >= DECISIVE_SEPARATION,
+            separation: sep,
+            separation_no_refit,
+            decisive: sep >= DECISIVE_SEPARATION,
+            separates,
+            leaves,
             peak_gamma1_mm,
         };
         if scored.operator && !opts.operator {
@@ -198,16 +297,22 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
             experiments.push(scored);
         }
     }
-    // Decisive first, the cheapest of them (the better separating at equal
-    // cost); then the rest by separation per second of cost.
+    // Those that separate the best from another first, the cheapest of them
+    // (then the one separating more, then the larger separation from the
+    // second); then the rest by separation per second of cost.
     experiments.sort_by(|a, b| {
-        b.decisive.cmp(&a.decisive).then_with(|| match a.decisive {
-            true => a.cost_s.total_cmp(&b.cost_s).then(b.separation.total_cmp(&a.separation)),
+        let (ua, ub) = (a.separates > 0, b.separates > 0);
+        ub.cmp(&ua).then_with(|| match ua {
+            true => a
+                .cost_s
+                .total_cmp(&b.cost_s)
+                .then(b.separates.cmp(&a.separates))
+                .then(b.separation.total_cmp(&a.separation)),
             false => (b.separation / b.cost_s).total_cmp(&(a.separation / a.cost_s)),
         })
     });
     // Without an operator: say what only a swap would have decided.
-    if !experiments.iter().any(|e| e.decisive)
+    if !experiments.iter().any(|e| e.separates > 0)
         && let Some(o) = left_to_operator.iter().filter(|o| o.decisive).min_by(|a, b| a.cost_s.total_cmp(&b.cost_s))
     {
         let names: Vec<String> = hypotheses.iter().take(2).map(|h| h.effects.join(" + ")).collect();
@@ -246,13 +351,13 @@ fn refit(model: &Model, base: &Fitted, effects: &[&'static str]) -> Option<Hypot
     }
     let profile = model.profile(&fit.cands, &fit.x)?;
     let b = fit.base();
-    Some(Hypothesis { effects: effects.to_vec(), e1_mpa: b.e1_mpa, nu1: b.nu1, chi2: fit.chi2, profile })
+    Some(Hypothesis { effects: effects.to_vec(), e1_mpa: b.e1_mpa, nu1: b.nu1, chi2: fit.chi2, profile, fitted: fit })
 }
 
 /// The recording's time per settled sample of this kind: the median step
 /// between consecutive samples of its sweep, s (a twist settles longer than a
 /// stage step on most rigs).
-fn step_time(rec: &Recording, kind: Phase) -> f64 {
+pub fn step_time(rec: &Recording, kind: Phase) -> f64 {
     let mut dt: Vec<f64> = rec
         .samples
         .windows(2)
@@ -296,7 +401,7 @@ fn pair_of(rec: &Recording, profile: &SimProfile) -> Option<ContactPair> {
 }
 
 /// A predicted reading: gamma1 (mm), and theta1 (degrees) for a torsion-kind sample.
-type Reading = (f64, Option<f64>);
+pub type Reading = (f64, Option<f64>);
 
 /// How far apart `spec`'s outcomes are under hypotheses `a` and `b`, and the
 /// largest gamma1 `a` predicts during it, mm. Both predict the step's
@@ -318,6 +423,30 @@ fn separation(
     sigma_g: f64,
     sigma_t: f64,
 ) -> Result<(f64, f64), PlanError> {
+    let (pa, pb) = predictions(rec, a, b, spec, step_time_s)?;
+    let d = pa
+        .iter()
+        .zip(&pb)
+        .map(|((ga, ta), (gb, tb))| {
+            let t = match (ta, tb) {
+                (Some(ta), Some(tb)) => ((ta - tb) / sigma_t).powi(2),
+                _ => 0.0,
+            };
+            ((ga - gb) / sigma_g).powi(2) + t
+        })
+        .sum();
+    Ok((d, pa.iter().map(|p| p.0).fold(0.0, f64::max)))
+}
+
+/// The readings hypotheses `a` and `b` predict for `spec` after `rec`, sample
+/// by sample (as [`separation`] compares them).
+pub fn predictions(
+    rec: &Recording,
+    a: &Hypothesis,
+    b: &Hypothesis,
+    spec: &ExperimentSpec,
+    step_time_s: f64,
+) -> Result<(Vec<Reading>, Vec<Reading>), PlanError> {
     let fail = |e: String| PlanError::Simulate(e);
     // (gamma1, theta1 when torsion-kind) of each sample under a, then under b.
     let (pa, pb): (Vec<Reading>, Vec<Reading>) = match spec.operator_indenter() {
@@ -347,17 +476,10 @@ fn separation(
         }
         None => {
             let hist = history(rec);
-            let (Some(pair_a), Some(pair_b)) = (pair_of(rec, &a.profile), pair_of(rec, &b.profile)) else {
+            let Some(pair_b) = pair_of(rec, &b.profile) else {
                 return Err(fail("a hypothesis has no material".into()));
             };
-            let mut rig = TrueRig::new(pair_a, &a.profile).map_err(|e| fail(e.to_string()))?;
-            for p in &hist {
-                rig.read(*p).map_err(|e| fail(e.to_string()))?;
-            }
-            let Some(last) = rec.samples.last() else { return Err(fail("the recording is empty".into())) };
-            let (last_t, hold) = (last.t_s, last.stage_mm);
-            let run: Vec<Sample> = sim::generator::continue_run(rig, last_t + step_time_s, hold, &[*spec], step_time_s)
-                .map_err(|e| fail(e.to_string()))?;
+            let run = run_under(rec, a, spec, step_time_s)?;
             let mut cmds = hist.clone();
             cmds.extend(run.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }));
             let pred_b = simulate(pair_b, &b.profile, &cmds).map_err(|e| fail(e.to_string()))?;
@@ -371,18 +493,27 @@ fn separation(
             (pa, pb)
         }
     };
-    let d = pa
-        .iter()
-        .zip(&pb)
-        .map(|((ga, ta), (gb, tb))| {
-            let t = match (ta, tb) {
-                (Some(ta), Some(tb)) => ((ta - tb) / sigma_t).powi(2),
-                _ => 0.0,
-            };
-            ((ga - gb) / sigma_g).powi(2) + t
-        })
-        .sum();
-    Ok((d, pa.iter().map(|p| p.0).fold(0.0, f64::max)))
+    Ok((pa, pb))
+}
+
+/// The samples a rig that behaves as `h` records during `spec` (one the rig
+/// runs alone) after `rec`, noise-free: it runs from the stage of the
+/// recording's last sample, with the whole recorded history behind it.
+fn run_under(
+    rec: &Recording,
+    h: &Hypothesis,
+    spec: &ExperimentSpec,
+    step_time_s: f64,
+) -> Result<Vec<Sample>, PlanError> {
+    let fail = |e: String| PlanError::Simulate(e);
+    let pair = pair_of(rec, &h.profile).ok_or_else(|| fail("a hypothesis has no material".into()))?;
+    let mut rig = TrueRig::new(pair, &h.profile).map_err(|e| fail(e.to_string()))?;
+    for p in history(rec) {
+        rig.read(p).map_err(|e| fail(e.to_string()))?;
+    }
+    let Some(last) = rec.samples.last() else { return Err(fail("the recording is empty".into())) };
+    sim::generator::continue_run(rig, last.t_s + step_time_s, last.stage_mm, &[*spec], step_time_s)
+        .map_err(|e| fail(e.to_string()))
 }
 
 /// The sensor's depth gain as a rigid-ball sweep measures it (docs/experiments.md,
@@ -451,17 +582,77 @@ pub struct GainDecision {
     #[serde(rename = "E1_MPa")]
     pub e1_mpa: f64,
     pub nu1: f64,
+    /// 95 % intervals of `E1_MPa` and `nu1`: when the gain is named, those of
+    /// the refit of the corrected recording, widened by the gain's own
+    /// uncertainty ([`correct_for_gain`]); otherwise the diagnosis's.
+    pub ci95: Ci95,
     /// One line, as [`outcome_of`].
     pub outcome: String,
+}
+
+/// A recording corrected for a measured depth gain: its depth readings (and
+/// their standard errors) divided by g, diagnosed again.
+#[derive(Debug, Clone)]
+pub struct GainCorrected {
+    /// `sensor_gain` first, then what the corrected recording's diagnosis names.
+    pub effects: Vec<&'static str>,
+    pub e1_mpa: f64,
+    pub nu1: f64,
+    /// The refit's 95 % intervals (the corrected fit's when the diagnosis
+    /// names an effect, else its baseline's), each end moved out by the
+    /// gain's share: 1.96 g_sd times the slope of the full-model fit's E1
+    /// (nu1) in g, added in quadrature.
+    pub ci95: Ci95,
+    /// What the gain's standard error alone moves E1 and nu1 by (1.96 g_sd
+    /// times the slope): the share of the intervals that is the ball's.
+    pub gain_share: [f64; 2],
+    /// The diagnosis of the corrected recording.
+    pub diagnosis: Diagnosis,
+}
+
+fn divided_by(rec: &Recording, g: f64) -> Recording {
+    let mut fixed = rec.clone();
+    for s in &mut fixed.samples {
+        s.gamma1_mm /= g;
+        s.gamma1_sd_mm = s.gamma1_sd_mm.map(|v| v / g);
+    }
+    fixed
+}
+
+/// Divide `rec`'s depth readings by the gain a rigid ball measured and
+/// diagnose it again (docs/experiments.md, "The headline after the loop").
+/// The intervals are the refit's; the gain's own standard error adds to
+/// them, through the full-model fit's slope of E1 and nu1 in g (two
+/// full-model fits, at g -+ its standard error).
+pub fn correct_for_gain(rec: &Recording, gain: &GainMeasure) -> Result<GainCorrected, PlanError> {
+    let d2 = diagnose(&divided_by(rec, gain.g), &DiagnoseOptions::default())?;
+    let fit = if d2.effects.is_empty() { &d2.baseline } else { &d2.corrected };
+    let (e1_mpa, nu1) = (fit.e1_mpa, fit.nu1);
+    let h = gain.g_sd.max(1e-5);
+    let at = |g: f64| {
+        crate::fit::calibrate(&divided_by(rec, g), &crate::fit::FitOptions::default())
+            .map(|c| (c.full.e1_mpa, c.full.nu1))
+            .map_err(|e| PlanError::Simulate(format!("cannot fit the recording divided by the gain {g:.5}: {e}")))
+    };
+    let (lo, hi) = (at(gain.g - h)?, at(gain.g + h)?);
+    // d(value)/dg times 1.96 g_sd.
+    let share = |a: f64, b: f64| ((b - a) / (2.0 * h) * 1.96 * gain.g_sd).abs();
+    let gain_share = [share(lo.0, hi.0), share(lo.1, hi.1)];
+    let widen = |v: f64, ci: [f64; 2], w: f64| [v - (v - ci[0]).hypot(w), v + (ci[1] - v).hypot(w)];
+    let ci95 =
+        Ci95 { e1_mpa: widen(e1_mpa, fit.ci95.e1_mpa, gain_share[0]), nu1: widen(nu1, fit.ci95.nu1, gain_share[1]) };
+    let mut effects = vec!["sensor_gain"];
+    effects.extend(d2.effects.iter().copied().filter(|e| *e != "sensor_gain"));
+    Ok(GainCorrected { effects, e1_mpa, nu1, ci95, gain_share, diagnosis: d2 })
 }
 
 /// Decide with a rigid-ball recording taken after `rec` (diagnosed as `d`,
 /// planned as `p`): each standing hypothesis predicts the ball's readings
 /// (its E1, nu1 and effects with the ball mounted, as the plan scored it) and
 /// the one with the least chi² stands. When that one holds the sensor gain and
-/// the measured gain is off, the recording's depth readings (and their
-/// standard errors) are divided by it and diagnosed again: E1 and nu1 are
-/// then the corrected recording's.
+/// the measured gain is off, the recording is corrected for it
+/// ([`correct_for_gain`]): E1, nu1 and their intervals are then the
+/// corrected recording's.
 pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recording) -> Result<GainDecision, PlanError> {
     let fail = |e: String| PlanError::Simulate(e);
     let gain =
@@ -487,6 +678,7 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
     let chi2: Vec<(String, f64)> = chi2.into_iter().map(|(e, c)| (e.join(" + "), c)).collect();
     let named = best.contains(&"sensor_gain") && (gain.g - 1.0).abs() > (4.0 * gain.g_sd).max(0.002);
     if !named {
+        let fit = if d.effects.is_empty() { &d.baseline } else { &d.corrected };
         return Ok(GainDecision {
             gain,
             best,
@@ -495,6 +687,7 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
             effects: d.effects.clone(),
             e1_mpa: d.e1_mpa,
             nu1: d.nu1,
+            ci95: fit.ci95,
             outcome: format!(
                 "sensor gain ruled out (rigid ball: g {:.4} +- {:.4}); {}",
                 gain.g,
@@ -503,23 +696,30 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
             ),
         });
     }
-    let mut fixed = rec.clone();
-    for s in &mut fixed.samples {
-        s.gamma1_mm /= gain.g;
-        s.gamma1_sd_mm = s.gamma1_sd_mm.map(|v| v / gain.g);
-    }
-    let d2 = diagnose(&fixed, &DiagnoseOptions::default())?;
-    let mut effects = vec!["sensor_gain"];
-    effects.extend(d2.effects.iter().copied().filter(|e| *e != "sensor_gain"));
+    let c = correct_for_gain(rec, &gain)?;
     let outcome = format!(
-        "named {} (rigid ball: g {:.4} +- {:.4}): E1 {:.4} MPa, nu1 {:.4}",
-        effects.join(" + "),
+        "named {} (rigid ball: g {:.4} +- {:.4}): E1 {:.4} MPa [{:.4}, {:.4}], nu1 {:.4} [{:.4}, {:.4}]",
+        c.effects.join(" + "),
         gain.g,
         gain.g_sd,
-        d2.e1_mpa,
-        d2.nu1
+        c.e1_mpa,
+        c.ci95.e1_mpa[0],
+        c.ci95.e1_mpa[1],
+        c.nu1,
+        c.ci95.nu1[0],
+        c.ci95.nu1[1]
     );
-    Ok(GainDecision { gain, best, chi2, named, effects, e1_mpa: d2.e1_mpa, nu1: d2.nu1, outcome })
+    Ok(GainDecision {
+        gain,
+        best,
+        chi2,
+        named,
+        effects: c.effects,
+        e1_mpa: c.e1_mpa,
+        nu1: c.nu1,
+        ci95: c.ci95,
+        outcome,
+    })
 }
 
 /// The plan as text: the hypotheses, the choice with its time and what each outcome would mean, the others.
@@ -543,7 +743,14 @@ pub fn report(p: &Plan) -> String {
         }
     }
     if let (Some(c), [a, b, ..]) = (p.choice(), p.hypotheses.as_slice()) {
-        let verdict = if c.decisive { "decides" } else { "separates best per second, but may not decide" };
+        let verdict = match (c.decisive, c.leaves.is_empty(), c.separates) {
+            (true, true, _) => "decides".to_string(),
+            (_, _, n) if n > 0 => {
+                let left: Vec<&str> = c.leaves.iter().map(|(h, _)| h.as_str()).collect();
+                format!("separates the best from {n} of the others, leaves {} standing with it", left.join(", "))
+            }
+            _ => "separates best per second, but may not decide".to_string(),
+        };
         let _ = writeln!(
             s,
             "Run: {}{} {:?} ({} samples, about {:.0} s of rig time): separation {:.1} (decisive at {DECISIVE_SEPARATION}), {verdict}.",
@@ -562,10 +769,16 @@ pub fn report(p: &Plan) -> String {
                 h.e1_mpa, h.nu1
             );
         }
-        let _ = writeln!(s, "Candidates (separation, rig time):");
+        let _ = writeln!(s, "Candidates (separation refitted, without refit, rig time; what each leaves standing):");
         for e in &p.experiments {
             let who = if e.operator { " + operator" } else { "" };
-            let _ = writeln!(s, "  {:<18} {:>8.1} {:>6.0} s{who}  {:?}", e.name, e.separation, e.rig_time_s, e.spec);
+            let leaves: Vec<String> = e.leaves.iter().map(|(h, d)| format!("{h} ({d:.1})")).collect();
+            let leaves = if leaves.is_empty() { String::new() } else { format!("; leaves {}", leaves.join(", ")) };
+            let _ = writeln!(
+                s,
+                "  {:<18} {:>8.1} {:>8.1} {:>6.0} s{who}  {:?}{leaves}",
+                e.name, e.separation, e.separation_no_refit, e.rig_time_s, e.spec
+            );
         }
     }
     for o in &p.operator_steps {

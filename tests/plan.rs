@@ -91,7 +91,7 @@ fn gain_case(g: f64, seed: u64) -> (bool, f64, f64, f64) {
     let c = p.choice().expect("an experiment is proposed");
     assert!(c.operator && c.decisive && c.name == "rigid_ball", "seed {seed}: {c:?}");
     // Without an operator the swap is not proposed, and the plan says what it leaves.
-    let bare = easycalib::plan::plan_for(&rec, &d, PlanOptions { operator: false }).unwrap();
+    let bare = easycalib::plan::plan_for(&rec, &d, PlanOptions { operator: false, experiment_sd: None }).unwrap();
     assert!(bare.experiments.iter().all(|e| !e.operator), "seed {seed}");
     assert!(bare.operator_steps.iter().any(|o| o.contains("rigid_ball")), "seed {seed}: {:?}", bare.operator_steps);
     let t = rec.samples.last().unwrap().t_s + 1.0;
@@ -129,7 +129,7 @@ fn loop_on_generator(cfg: &GeneratorConfig) -> (Vec<&'static str>, f64, f64, Vec
             return (d.effects.clone(), d.e1_mpa, d.nu1, ran);
         }
         let p = easycalib::plan::plan_for(&rec, &d, PlanOptions::default()).unwrap();
-        let Some(c) = p.choice().filter(|c| c.decisive).cloned() else {
+        let Some(c) = p.choice().filter(|c| c.separates > 0).cloned() else {
             return (d.effects.clone(), d.e1_mpa, d.nu1, ran);
         };
         ran.push(c.name);

@@ -120,9 +120,10 @@ fn the_closed_loop_runs_a_deciding_experiment_only_when_something_is_left_to_dec
     // experiment the loop ran, as the loop picks (decisive, within its gamma1 room).
     let first = rec.samples.iter().position(|s| s.experiment.is_some()).expect("the loop's samples");
     let before = sim::recording::Recording { meta: rec.meta.clone(), samples: rec.samples[..first].to_vec() };
-    let p = easycalib::plan::plan(&before, easycalib::plan::PlanOptions { operator: false }).unwrap();
+    let p =
+        easycalib::plan::plan(&before, easycalib::plan::PlanOptions { operator: false, experiment_sd: None }).unwrap();
     let room = 0.8 * 8.0;
-    let pick = p.experiments.iter().find(|c| c.decisive && c.peak_gamma1_mm <= room).map(|c| c.spec);
+    let pick = p.experiments.iter().find(|c| c.separates > 0 && c.peak_gamma1_mm <= room).map(|c| c.spec);
     assert_eq!(pick, Some(out.adaptive[0].spec), "{}", easycalib::plan::report(&p));
 
     let (clean, rec) = emulated::run_script(5, SimProfile::default(), adaptive());
@@ -179,7 +180,7 @@ fn closed_loop_rates_over_seeds() {
 /// it may not mount the rigid ball. Printed, with one bar: it never names an
 /// effect the rig does not have. `cargo test --release --test rig_experiments gain -- --ignored --nocapture`.
 #[test]
-#[ignore = "a rate study (5 emulated runs); fails today: seed 103 names finite_thickness (report-c14)"]
+#[ignore = "a rate study (5 emulated runs)"]
 fn closed_loop_on_a_sensor_gain_without_an_operator() {
     let script = Script {
         limits: easycalib::run::script::LimitsSection { max_gamma1_mm: 8.0, ..Default::default() },
@@ -217,6 +218,12 @@ struct BallRun {
     rec: Recording,
     /// `None` when the loop never chose the rigid ball.
     ball: Option<Recording>,
+    /// The run's report.json, its report.md, and the run's headline diagnosis
+    /// (`RunResult::diagnosis`, what the CLI and the TUI's final panel show).
+    report: serde_json::Value,
+    markdown: String,
+    headline: Option<easycalib::report::RunDiagnosis>,
+    truth: sim::physics::Material,
 }
 
 fn ball_run(seed: u64, g: f64) -> BallRun {
@@ -233,8 +240,13 @@ fn ball_run(seed: u64, g: f64) -> BallRun {
         assert_eq!(r.outcome.status, easycalib::run::RunStatus::Completed, "seed {seed}: {:?}", r.outcome.status);
         let rec = Recording::read_path(&r.outcome.recording).unwrap();
         let steps = r.outcome.adaptive.clone();
+        let files = r.report.as_ref().expect("a report");
+        let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&files.json).unwrap()).unwrap();
+        let markdown = std::fs::read_to_string(&files.markdown).unwrap();
+        let headline = r.diagnosis.clone();
         let Some(step) = steps.iter().find(|s| s.name == "rigid_ball") else {
-            return BallRun { named: vec![], e1: f64::NAN, nu1: f64::NAN, steps, rec, ball: None };
+            let (e1, nu1) = (f64::NAN, f64::NAN);
+            return BallRun { named: vec![], e1, nu1, steps, rec, ball: None, report, markdown, headline, truth };
         };
         let path = step.recording.as_ref().expect("the step's recording");
         let ball = Recording::read_path(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
@@ -245,6 +257,10 @@ fn ball_run(seed: u64, g: f64) -> BallRun {
             steps,
             rec,
             ball: Some(ball),
+            report,
+            markdown,
+            headline,
+            truth,
         }
     })
 }
@@ -265,7 +281,7 @@ fn gain_script() -> Script {
 /// E1 within 1 % and nu1 within 2 % of the rig's truth.
 #[test]
 fn the_emulated_rig_mounts_the_rigid_ball_and_the_loop_names_the_sensor_gain() {
-    let BallRun { steps, named, e1, nu1, rec, ball } = ball_run(101, 0.99);
+    let BallRun { steps, named, e1, nu1, rec, ball, report, markdown, headline, truth } = ball_run(101, 0.99);
     let ball = ball.unwrap_or_else(|| panic!("no rigid-ball step: {steps:#?}"));
     println!(
         "gain seed 101: {named:?} E1 {e1:+.3} % nu1 {nu1:+.3} % steps {:?}",
@@ -284,6 +300,60 @@ fn the_emulated_rig_mounts_the_rigid_ball_and_the_loop_names_the_sensor_gain() {
     assert!((g.g - 0.99).abs() < 0.002, "{g:?}");
     assert_eq!(named.first(), Some(&"sensor_gain"), "{steps:#?}");
     assert!(e1.abs() < 1.0 && nu1.abs() < 2.0, "E1 {e1} %, nu1 {nu1} %");
+    assert_headline_is_the_gain(&report, &markdown, headline.as_ref(), truth);
+}
+
+/// The report's headline after a rigid ball that named the gain (docs/experiments.md,
+/// "The headline after the loop"): report.json's `effects`, `E1_MPa`, `nu1`
+/// and `ci95` are the decision's, within 1 % and 2 % of the rig's truth with
+/// intervals that contain it, taken from the refit of the corrected recording
+/// (not the calibration's); the run recording's own diagnosis stays under
+/// `standard`; report.md and the run's headline diagnosis (the CLI's last
+/// lines, the TUI's final panel) say the same.
+fn assert_headline_is_the_gain(
+    j: &serde_json::Value,
+    markdown: &str,
+    headline: Option<&easycalib::report::RunDiagnosis>,
+    truth: sim::physics::Material,
+) {
+    let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"));
+    let show = serde_json::to_string_pretty(j).unwrap();
+    assert_eq!(j["effects"][0], "sensor_gain", "{show}");
+    assert_eq!(j["decided_by"], "rigid_ball", "{show}");
+    let (e1, nu1) = (f(&j["E1_MPa"]), f(&j["nu1"]));
+    println!(
+        "headline E1 {e1:.5} {} nu1 {nu1:.5} {} (truth {} {})",
+        j["ci95"]["E1_MPa"], j["ci95"]["nu1"], truth.e1_mpa, truth.nu1
+    );
+    assert!((e1 / truth.e1_mpa - 1.0).abs() < 0.01, "E1 {e1} vs {}", truth.e1_mpa);
+    assert!((nu1 / truth.nu1 - 1.0).abs() < 0.02, "nu1 {nu1} vs {}", truth.nu1);
+    let inside = |ci: &serde_json::Value, t: f64| f(&ci[0]) <= t && t <= f(&ci[1]);
+    assert!(inside(&j["ci95"]["E1_MPa"], truth.e1_mpa), "E1 interval {} misses {}", j["ci95"]["E1_MPa"], truth.e1_mpa);
+    assert!(inside(&j["ci95"]["nu1"], truth.nu1), "nu1 interval {} misses {}", j["ci95"]["nu1"], truth.nu1);
+    // The decision's own intervals, not the uncorrected fit's.
+    assert_ne!(
+        j["ci95"],
+        j["full"]["ci95"]
+            .clone()
+            .as_object()
+            .map(|o| { serde_json::json!({"E1_MPa": o["E1_MPa"], "nu1": o["nu1"]}) })
+            .unwrap(),
+        "{show}"
+    );
+    assert_ne!(f(&j["E1_MPa"]), f(&j["full"]["E1_MPa"]));
+    // The diagnosis is the decision; the run's recording alone stays under `standard`.
+    assert_eq!(j["diagnosis"]["verdict"], "effects", "{show}");
+    assert_eq!(j["diagnosis"]["E1_MPa"], j["E1_MPa"]);
+    assert!(
+        j["diagnosis"]["summary"].as_str().is_some_and(|s| s.starts_with("CLOSED LOOP, after rigid_ball")),
+        "{show}"
+    );
+    assert!(j["standard"]["verdict"].as_str().is_some_and(|v| v != "not_made"), "{show}");
+    assert!(markdown.contains("the closed loop's decision after `rigid_ball`"), "{markdown}");
+    assert!(markdown.contains("The run's recording alone"), "{markdown}");
+    let h = headline.expect("the run's headline diagnosis");
+    assert_eq!((h.e1_mpa, h.nu1), (e1, nu1));
+    assert!(h.closed_loop().is_some() && h.effects[0].name == "sensor_gain", "{h:?}");
 }
 
 /// Rate of the rigid-ball decision over seeds: sensor_gain named with E1
@@ -292,17 +362,169 @@ fn the_emulated_rig_mounts_the_rigid_ball_and_the_loop_names_the_sensor_gain() {
 #[test]
 #[ignore = "a rate study (10 emulated runs)"]
 fn rigid_ball_rates_over_seeds() {
-    let mut ok = 0;
+    let (mut ok, mut headline, mut extra) = (0, 0, Vec::new());
     for seed in 100..110 {
-        let BallRun { steps, named, e1, nu1, .. } = ball_run(seed, 0.99);
+        let BallRun { steps, named, e1, nu1, report, truth, .. } = ball_run(seed, 0.99);
         let good = named.first() == Some(&"sensor_gain") && e1.abs() < 1.0 && nu1.abs() < 2.0;
         ok += usize::from(good);
+        extra.push(steps.iter().map(|s| s.rig_time_s).sum::<f64>());
+        // The report's headline: the gain named, within 1 %/2 %, intervals holding the truth.
+        let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+        let holds = |ci: &serde_json::Value, t: f64| f(&ci[0]) <= t && t <= f(&ci[1]);
+        let h = report["effects"][0] == "sensor_gain"
+            && (f(&report["E1_MPa"]) / truth.e1_mpa - 1.0).abs() < 0.01
+            && (f(&report["nu1"]) / truth.nu1 - 1.0).abs() < 0.02
+            && holds(&report["ci95"]["E1_MPa"], truth.e1_mpa)
+            && holds(&report["ci95"]["nu1"], truth.nu1);
+        headline += usize::from(h);
+        println!(
+            "gain seed {seed} headline: {h} {} E1 {} {} nu1 {} {}",
+            report["effects"], report["E1_MPa"], report["ci95"]["E1_MPa"], report["nu1"], report["ci95"]["nu1"]
+        );
         println!(
             "gain seed {seed}: {good} {named:?} E1 {e1:+.3} % nu1 {nu1:+.3} % extra {:.0} s {:?}",
             steps.iter().map(|s| s.rig_time_s).sum::<f64>(),
             steps.iter().map(|s| (s.name, s.outcome.as_str())).collect::<Vec<_>>()
         );
     }
-    println!("RATE sensor_gain with the rigid ball: {ok}/10");
+    extra.sort_by(f64::total_cmp);
+    println!(
+        "RATE sensor_gain with the rigid ball: {ok}/10; headline within 1 %/2 % with intervals holding the truth \
+         {headline}/10; median extra rig time {:.1} s",
+        0.5 * (extra[4] + extra[5])
+    );
     assert!(ok >= 9, "{ok}/10");
+    assert!(headline >= 9, "{headline}/10");
+}
+
+/// Why the plan called a second torsion decisive between a layer and a
+/// sensor gain (docs/experiments.md, "Why the loop used to run two torsions
+/// before the ball"): for two sensor-gain runs, the recorded standard errors
+/// per phase, the plan on the recording before the loop's first step, each
+/// hypothesis's predicted readings for the step the loop ran beside the
+/// observed ones, and the plan after it. Printed only.
+/// `cargo test --release --test rig_experiments torsion_prediction_probe -- --ignored --nocapture`.
+#[test]
+#[ignore = "a probe: prints predictions against observations"]
+fn torsion_prediction_probe() {
+    for seed in [100u64, 101] {
+        let BallRun { steps, rec, .. } = ball_run(seed, 0.99);
+        println!("seed {seed}: {:?}", steps.iter().map(|s| (s.name, s.spec, s.rig_time_s)).collect::<Vec<_>>());
+        {
+            use std::collections::BTreeMap;
+            let mut m: BTreeMap<String, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+            for s in &rec.samples {
+                let e = m.entry(format!("{:?}/{:?}", s.phase, s.experiment)).or_default();
+                if let Some(v) = s.gamma1_sd_mm {
+                    e.0.push(v * 1e3)
+                }
+                if let Some(v) = s.theta1_sd_deg {
+                    e.1.push(v)
+                }
+            }
+            for (k, (mut g, mut t)) in m {
+                g.sort_by(f64::total_cmp);
+                t.sort_by(f64::total_cmp);
+                println!(
+                    "SD {k}: n {} gamma1 um median {:?}, theta1 deg median {:?}",
+                    g.len(),
+                    g.get(g.len() / 2),
+                    t.get(t.len() / 2)
+                );
+            }
+            println!("meta extra {:?}", rec.meta.extra);
+        }
+        let Some(first) = rec.samples.iter().position(|s| s.experiment.is_some()) else { continue };
+        let before = Recording { meta: rec.meta.clone(), samples: rec.samples[..first].to_vec() };
+        let d = easycalib::diagnosis::diagnose(&before, &Default::default()).unwrap();
+        let p = easycalib::plan::plan_for(
+            &before,
+            &d,
+            easycalib::plan::PlanOptions { operator: true, experiment_sd: None },
+        )
+        .unwrap();
+        print!("{}", easycalib::plan::report(&p));
+        let spec = steps[0].spec;
+        let (h0, h1) = (&p.hypotheses[0], &p.hypotheses[1]);
+        let st = easycalib::plan::step_time(&before, spec.phase().kind());
+        let (pa, pb) = easycalib::plan::predictions(&before, h0, h1, &spec, st).unwrap();
+        let (qa, _) = easycalib::plan::predictions(&before, h0, h0, &spec, st).unwrap();
+        let obs: Vec<_> =
+            rec.samples[first..].iter().take_while(|s| s.experiment == rec.samples[first].experiment).collect();
+        println!("noise g {} um t {} deg", d.noise.normal_um, d.noise.torsion_deg);
+        println!("i  obs(g,t)  {}(g,t)  {}(g,t) selfcheck", h0.effects.join("+"), h1.effects.join("+"));
+        for (i, ((a, b), q)) in pa.iter().zip(&pb).zip(&qa).enumerate() {
+            let o = obs.get(i).map(|s| (s.gamma1_mm, s.theta1_deg, s.stage_mm, s.rot_deg));
+            println!("{i:2} {o:?} | {:.5} {:?} | {:.5} {:?} | {:.5}", a.0, a.1, b.0, b.1, q.0);
+        }
+        let after = Recording { meta: rec.meta.clone(), samples: rec.samples[..first + obs.len()].to_vec() };
+        let d2 = easycalib::diagnosis::diagnose(&after, &Default::default()).unwrap();
+        let p2 = easycalib::plan::plan_for(
+            &after,
+            &d2,
+            easycalib::plan::PlanOptions { operator: true, experiment_sd: None },
+        )
+        .unwrap();
+        println!("AFTER: {}", p2.verdict);
+        print!("{}", easycalib::plan::report(&p2));
+    }
+}
+
+/// One rate study of `run --adaptive` on the emulated rig (issue 14, "Must
+/// show"): over seeds 100-109, the runs whose headline names `effect` alone
+/// with E1 within 1 % and nu1 within 2 % of the truth, and the median extra
+/// rig time. Printed as RATE lines; returns (named, median extra s).
+fn adaptive_rate(label: &str, effect: &str, profile: SimProfile) -> (usize, f64) {
+    let script = Script {
+        limits: easycalib::run::script::LimitsSection { max_gamma1_mm: 8.0, ..Default::default() },
+        adaptive: easycalib::run::script::AdaptiveSection { enabled: true, ..Default::default() },
+        ..Script::default()
+    };
+    let (mut named, mut extra) = (0, Vec::new());
+    for seed in 100..110 {
+        let (o, _) = emulated::run_script(seed, profile.clone(), script.clone());
+        let ok = o.named == [effect] && o.corrected.0.abs() < 1.0 && o.corrected.1.abs() < 2.0;
+        named += usize::from(ok);
+        extra.push(o.adaptive.iter().map(|s| s.rig_time_s).sum::<f64>() + 0.0);
+        println!(
+            "{label} seed {seed}: {ok} {} {:?} E1 {:+.3} % nu1 {:+.3} % {:?}",
+            o.verdict,
+            o.named,
+            o.corrected.0,
+            o.corrected.1,
+            o.adaptive.iter().map(|s| (s.name, s.rig_time_s, s.outcome.as_str())).collect::<Vec<_>>()
+        );
+    }
+    extra.sort_by(f64::total_cmp);
+    let median = 0.5 * (extra[4] + extra[5]);
+    println!("RATE {label}: {effect} named alone within 1 %/2 % in {named}/10; median extra rig time {median:.1} s");
+    (named, median)
+}
+
+/// Rotation backlash (lost motion of the mount, b 0.2 deg, engaged) with
+/// `--adaptive`, seeds 100-109: named alone with E1 within 1 % and nu1
+/// within 2 % in at least 9/10. `cargo test --release --test rig_experiments
+/// rotation_backlash_rates -- --ignored --nocapture`.
+#[test]
+#[ignore = "a rate study (10 emulated runs)"]
+fn rotation_backlash_rates_over_seeds() {
+    let profile = SimProfile {
+        rotation_backlash: Some(sim::effects::rotation_backlash::Params { b_deg: 0.2, engaged: true }),
+        ..SimProfile::default()
+    };
+    let (named, _) = adaptive_rate("rotation_backlash", "rotation_backlash", profile);
+    assert!(named >= 9, "{named}/10");
+}
+
+/// Partial slip at the contact's edge (mu 0.3) with `--adaptive`, seeds
+/// 100-109: named alone with E1 within 1 % and nu1 within 2 % in at least
+/// 9/10. `cargo test --release --test rig_experiments partial_slip_rates --
+/// --ignored --nocapture`.
+#[test]
+#[ignore = "a rate study (10 emulated runs)"]
+fn partial_slip_rates_over_seeds() {
+    let profile =
+        SimProfile { partial_slip: Some(sim::effects::partial_slip::Params { mu: 0.3 }), ..SimProfile::default() };
+    let (named, _) = adaptive_rate("partial_slip", "partial_slip", profile);
+    assert!(named >= 9, "{named}/10");
 }

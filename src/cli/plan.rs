@@ -11,7 +11,7 @@ use crate::plan::{PlanError, PlanOptions, plan, report};
 pub fn run(args: &PlanArgs) -> Result<(), CliError> {
     let rec = Recording::read_path(&args.recording)
         .map_err(|e| CliError::bad_input(format!("{}: {e}", args.recording.display())))?;
-    let p = plan(&rec, PlanOptions { operator: !args.no_operator }).map_err(|e| match e {
+    let p = plan(&rec, PlanOptions { operator: !args.no_operator, experiment_sd: None }).map_err(|e| match e {
         PlanError::Diagnose(DiagnoseError::Options(m)) => CliError::bad_input(m),
         PlanError::Diagnose(DiagnoseError::Fit(FitError::Implausible(m))) => {
             CliError::bad_input(format!("{}: {m}", args.recording.display()))

@@ -114,7 +114,16 @@ impl RunDiagnosis {
     pub fn corrected(&self) -> bool {
         self.verdict == VerdictClass::Effects
     }
+
+    /// The first line of a closed loop's decision ([`Decided`]), which names
+    /// the step it came after; `None` for a recording's own diagnosis.
+    pub fn closed_loop(&self) -> Option<&str> {
+        self.summary.lines().next().filter(|l| l.starts_with(CLOSED_LOOP))
+    }
 }
+
+/// How the summary of a closed loop's decision begins ([`RunDiagnosis::closed_loop`]).
+pub const CLOSED_LOOP: &str = "CLOSED LOOP, after ";
 
 /// The calibration's full-model E1, nu1 and intervals.
 fn baseline(cal: &Calibration) -> (f64, f64, Ci95) {
@@ -137,5 +146,88 @@ pub fn diagnose_run(rec: &Recording, cal: &Calibration, opts: &DiagnoseOptions) 
             let what = crate::run::sequencer::panic_message(panic.as_ref());
             RunDiagnosis::not_made(format!("the diagnosis panicked: {what}"), cal, took)
         }
+    }
+}
+
+/// The closed loop's decision as a run reports it (docs/experiments.md, "The
+/// headline after the loop"): the report's best estimate, its `diagnosis`,
+/// the CLI's last lines and the TUI's final panel show it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decided {
+    /// The loop's step the decision came after.
+    pub by: &'static str,
+    pub decision: RunDiagnosis,
+    /// The run recording's own diagnosis, when the decision is not it (the
+    /// rigid ball's samples are in a recording of their own).
+    pub standard: Option<RunDiagnosis>,
+}
+
+impl Decided {
+    /// After rig-only steps, whose samples are in the run's recording: its
+    /// diagnosis is the decision when it names effects.
+    pub fn by_recording(by: &'static str, d: &RunDiagnosis) -> Option<Self> {
+        let summary = format!("{CLOSED_LOOP}{by}: {}", d.summary);
+        d.corrected().then(|| Self { by, decision: RunDiagnosis { summary, ..d.clone() }, standard: None })
+    }
+
+    /// After a rigid ball that named the sensor gain: the run's recording
+    /// corrected for the measured gain (`c`), with `standard` the run
+    /// recording's own diagnosis (absent with `--no-diagnose`).
+    pub fn by_ball(
+        c: &crate::plan::GainCorrected,
+        gain: &crate::plan::GainMeasure,
+        standard: Option<RunDiagnosis>,
+        wall_time_s: f64,
+    ) -> Self {
+        use std::fmt::Write;
+        let half = 1.96 * gain.g_sd;
+        let g = ParamEstimate {
+            name: "g",
+            unit: "",
+            value: gain.g,
+            ci95: [Some(gain.g - half), Some(gain.g + half)],
+            well_determined: true,
+        };
+        let mut effects = vec![EffectFound { name: "sensor_gain", params: vec![g] }];
+        effects.extend(
+            c.diagnosis
+                .explanation
+                .iter()
+                .filter(|e| e.effect != "sensor_gain" && c.effects.contains(&e.effect))
+                .map(|e| EffectFound { name: e.effect, params: e.params.clone() }),
+        );
+        let names: Vec<&str> = effects.iter().map(|e| e.name).collect();
+        let mut summary = format!("{CLOSED_LOOP}rigid_ball: EFFECTS: {}.\n", names.join(", "));
+        for e in &effects {
+            let params: Vec<String> = e.params.iter().map(prose::param).collect();
+            let _ = writeln!(summary, "  {}: {}", e.name, params.join(", "));
+        }
+        let _ = writeln!(
+            summary,
+            "  corrected E1 = {:.4} MPa [{:.4}, {:.4}], nu1 = {:.4} [{:.4}, {:.4}] (the gain's share of each \
+             half-width: {:.4} MPa, {:.4})",
+            c.e1_mpa,
+            c.ci95.e1_mpa[0],
+            c.ci95.e1_mpa[1],
+            c.nu1,
+            c.ci95.nu1[0],
+            c.ci95.nu1[1],
+            c.gain_share[0],
+            c.gain_share[1]
+        );
+        if let Some(first) = standard.as_ref().and_then(|s| s.summary.lines().next()) {
+            let _ = writeln!(summary, "  the run's recording alone: {first}");
+        }
+        let decision = RunDiagnosis {
+            verdict: VerdictClass::Effects,
+            summary,
+            effects,
+            e1_mpa: c.e1_mpa,
+            nu1: c.nu1,
+            ci95: c.ci95,
+            error: None,
+            wall_time_s,
+        };
+        Self { by: "rigid_ball", decision, standard }
     }
 }

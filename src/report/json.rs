@@ -12,11 +12,17 @@ use crate::fit::{Calibration, Ci95, FullFit, PaperFit, Warning};
 pub struct CalibrationOutput {
     pub recording: Option<String>,
     pub samples: SampleCounts,
-    /// Best estimate: the full-model fit.
+    /// Effects the best estimate is corrected for: those the closed loop
+    /// named when it decided (docs/experiments.md); empty otherwise.
+    pub effects: Vec<&'static str>,
+    /// Best estimate: the closed loop's decision when it decided, else the full-model fit.
     #[serde(rename = "E1_MPa")]
     pub e1_mpa: f64,
     pub nu1: f64,
     pub ci95: Ci95,
+    /// The closed-loop step whose outcome the best estimate is (absent: the full-model fit).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub decided_by: Option<&'static str>,
     pub paper: PaperFit,
     pub full: FullFit,
     /// Everything the reader of the estimate should know (empty when nothing).
@@ -26,10 +32,28 @@ pub struct CalibrationOutput {
     /// How long the run took, when a run made the recording (docs/run.md).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub run: Option<RunTimings>,
-    /// The diagnosis at the end of a run (docs/run.md); the top-level E1_MPa
-    /// and nu1 stay the calibration's, the corrected values are in here.
+    /// The diagnosis at the end of a run (docs/run.md): the closed loop's
+    /// decision when it decided (then also the top-level values); otherwise
+    /// the run recording's, whose corrected values stay in here (the
+    /// top-level E1_MPa and nu1 are then the calibration's).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub diagnosis: Option<super::RunDiagnosis>,
+    /// The run recording's own diagnosis when the decision rests on samples
+    /// outside it (a rigid ball's recording): what the standard sweeps (and
+    /// the loop's rig-only steps) said by themselves.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub standard: Option<super::RunDiagnosis>,
+}
+
+impl CalibrationOutput {
+    /// Make the closed loop's decision the report's headline.
+    pub fn apply(&mut self, d: super::Decided) {
+        self.effects = d.decision.effects.iter().map(|e| e.name).collect();
+        (self.e1_mpa, self.nu1, self.ci95) = (d.decision.e1_mpa, d.decision.nu1, d.decision.ci95);
+        self.decided_by = Some(d.by);
+        self.diagnosis = Some(d.decision);
+        self.standard = d.standard;
+    }
 }
 
 /// A run's timings: rig time (the sensor's clock, homing included), wall
@@ -62,15 +86,18 @@ pub fn calibration_output(
     CalibrationOutput {
         recording: path.map(|p| p.display().to_string()),
         samples: SampleCounts { normal: rec.phase(Phase::Normal).count(), torsion: rec.phase(Phase::Torsion).count() },
+        effects: Vec::new(),
         e1_mpa: cal.full.e1_mpa,
         nu1: cal.full.nu1,
         ci95: Ci95 { e1_mpa: cal.full.ci95.e1_mpa, nu1: cal.full.ci95.nu1 },
         paper: cal.paper.clone(),
         full: cal.full.clone(),
         warnings: cal.warnings.clone(),
+        decided_by: None,
         sim_truth: truth,
         run: None,
         diagnosis: None,
+        standard: None,
     }
 }
 

@@ -91,14 +91,35 @@ fn write_result(s: &mut String, out: &CalibrationOutput) {
     let f = &out.full;
     let p = &out.paper;
     let _ = writeln!(s, "## Result\n");
-    let _ = writeln!(
-        s,
-        "Best estimate: **E1 = {} ± {} MPa**, **nu1 = {} ± {}** (full-model fit; ± is the half-width of the 95 % interval).\n",
-        num(f.e1_mpa, 4),
-        num(pm(f.ci95.e1_mpa), 4),
-        num(f.nu1, 4),
-        num(pm(f.ci95.nu1), 4)
-    );
+    match out.decided_by {
+        Some(by) => {
+            let _ = writeln!(
+                s,
+                "Best estimate: **E1 = {} MPa {}**, **nu1 = {} {}** (95 % intervals): the closed loop's decision \
+                 after `{by}`, corrected for {} (Diagnosis, below). The full-model fit of the recording alone, \
+                 uncorrected: E1 = {} ± {} MPa, nu1 = {} ± {}.\n",
+                num(out.e1_mpa, 4),
+                interval(out.ci95.e1_mpa, 4),
+                num(out.nu1, 4),
+                interval(out.ci95.nu1, 4),
+                out.effects.iter().map(|e| format!("`{e}`")).collect::<Vec<_>>().join(", "),
+                num(f.e1_mpa, 4),
+                num(pm(f.ci95.e1_mpa), 4),
+                num(f.nu1, 4),
+                num(pm(f.ci95.nu1), 4)
+            );
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "Best estimate: **E1 = {} ± {} MPa**, **nu1 = {} ± {}** (full-model fit; ± is the half-width of the 95 % interval).\n",
+                num(f.e1_mpa, 4),
+                num(pm(f.ci95.e1_mpa), 4),
+                num(f.nu1, 4),
+                num(pm(f.ci95.nu1), 4)
+            );
+        }
+    }
     if !out.warnings.is_empty() {
         let _ = writeln!(s, "**Warnings**\n");
         for w in &out.warnings {
@@ -134,12 +155,24 @@ fn write_diagnosis(s: &mut String, out: &CalibrationOutput) {
         "## Diagnosis
 "
     );
-    let _ = writeln!(
-        s,
-        "Verdict: **{}** (`easycalib diagnose` on the recording, {:.2} s).\n",
-        d.verdict.as_str(),
-        d.wall_time_s
-    );
+    match out.decided_by {
+        Some(by) => {
+            let _ = writeln!(
+                s,
+                "Verdict: **{}**, the closed loop's decision after `{by}` ({:.2} s).\n",
+                d.verdict.as_str(),
+                d.wall_time_s
+            );
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "Verdict: **{}** (`easycalib diagnose` on the recording, {:.2} s).\n",
+                d.verdict.as_str(),
+                d.wall_time_s
+            );
+        }
+    }
     let _ = writeln!(s, "```text\n{}```\n", d.summary);
     for e in &d.effects {
         let params: Vec<String> = e.params.iter().map(crate::diagnosis::prose::param).collect();
@@ -164,15 +197,32 @@ fn write_diagnosis(s: &mut String, out: &CalibrationOutput) {
             interval(dci, 4)
         );
     }
-    let _ = writeln!(
-        s,
-        "\nThe report's best estimate stays the calibration's; {}.\n",
-        if d.corrected() {
-            "the diagnosis' values are corrected for the effects it named"
-        } else {
-            "the diagnosis named nothing, so its values are the calibration's"
-        }
-    );
+    if out.decided_by.is_some() {
+        let _ = writeln!(s, "\nThe report's best estimate is the diagnosis' (the closed loop decided).\n");
+    } else {
+        let _ = writeln!(
+            s,
+            "\nThe report's best estimate stays the calibration's; {}.\n",
+            if d.corrected() {
+                "the diagnosis' values are corrected for the effects it named"
+            } else {
+                "the diagnosis named nothing, so its values are the calibration's"
+            }
+        );
+    }
+    if let Some(st) = &out.standard {
+        let _ = writeln!(
+            s,
+            "The run's recording alone (`standard` in report.json; the decision rests on samples outside it), \
+             verdict **{}**: E1 = {} MPa {}, nu1 = {} {}.\n",
+            st.verdict.as_str(),
+            num(st.e1_mpa, 4),
+            interval(st.ci95.e1_mpa, 4),
+            num(st.nu1, 4),
+            interval(st.ci95.nu1, 4)
+        );
+        let _ = writeln!(s, "```text\n{}```\n", st.summary);
+    }
 }
 
 /// The simulated rig's true elastomer and each method's error against it (simulated runs only).
@@ -187,12 +237,20 @@ fn write_truth(s: &mut String, out: &CalibrationOutput) {
         let _ = writeln!(s, "| full model error | {} | {} |", err(f.e1_mpa, t.e1_mpa), err(f.nu1, t.nu1));
         let _ = writeln!(s, "| paper's method error | {} | {} |", err(p.e1_mpa, t.e1_mpa), err(p.nu1, t.nu1));
         if let Some(d) = &out.diagnosis {
+            let what = match out.decided_by {
+                Some(by) => format!("the closed loop's decision after {by}"),
+                None if d.corrected() => "corrected".to_string(),
+                None => "nothing named: the full model's".to_string(),
+            };
+            let _ = writeln!(s, "| diagnosis ({what}) error | {} | {} |", err(d.e1_mpa, t.e1_mpa), err(d.nu1, t.nu1));
+        }
+        if let Some(st) = &out.standard {
             let _ = writeln!(
                 s,
-                "| diagnosis ({}) error | {} | {} |",
-                if d.corrected() { "corrected" } else { "nothing named: the full model's" },
-                err(d.e1_mpa, t.e1_mpa),
-                err(d.nu1, t.nu1)
+                "| the run's recording alone ({}) error | {} | {} |",
+                st.verdict.as_str(),
+                err(st.e1_mpa, t.e1_mpa),
+                err(st.nu1, t.nu1)
             );
         }
         let _ = writeln!(s);

@@ -14,7 +14,7 @@ use sim::recording::{Recording, RecordingError};
 
 use crate::fit::{Calibration, FitError};
 
-pub use diagnosis::{EffectFound, RunDiagnosis, VerdictClass, diagnose_run};
+pub use diagnosis::{Decided, EffectFound, RunDiagnosis, VerdictClass, diagnose_run};
 pub use json::{CalibrationOutput, RunTimings, Truth, calibration_output};
 pub use markdown::render_markdown;
 pub use plot::{NORMAL_TEXT, PlotText, SweepPlot, TORSION_TEXT, normal_plot, render_svg, torsion_plot};
@@ -88,6 +88,23 @@ pub fn write_report_for(
     truth: Option<Truth>,
     extras: RunExtras,
 ) -> Result<ReportFiles, ReportError> {
+    write_report_decided(out_dir, rec, recording_path, cal, truth, extras, None)
+}
+
+/// As [`write_report_for`], with the closed loop's decision when it decided
+/// (docs/experiments.md, "The headline after the loop"): the top-level
+/// `effects`, `E1_MPa`, `nu1`, `ci95` and the `diagnosis` are then the
+/// decision's, the run recording's own diagnosis goes under `standard` when
+/// it is not the decision, and the calibration stays under `full`.
+pub fn write_report_decided(
+    out_dir: &Path,
+    rec: &Recording,
+    recording_path: Option<&Path>,
+    cal: &Calibration,
+    truth: Option<Truth>,
+    extras: RunExtras,
+    decided: Option<Decided>,
+) -> Result<ReportFiles, ReportError> {
     std::fs::create_dir_all(out_dir).map_err(|source| ReportError::Io { path: out_dir.to_path_buf(), source })?;
     // Figures first: a model that cannot be evaluated fails before any file is written.
     let normal = render_svg(&normal_plot(rec, cal)?, &NORMAL_TEXT)?;
@@ -95,6 +112,9 @@ pub fn write_report_for(
     let mut out = calibration_output(rec, cal, recording_path, truth);
     out.run = extras.timings;
     out.diagnosis = extras.diagnosis;
+    if let Some(d) = decided {
+        out.apply(d);
+    }
     let json = json::to_json_explained(&out)?;
     let md = render_markdown(&out, rec, NORMAL_SVG_FILE, TORSION_SVG_FILE);
     Ok(ReportFiles {

@@ -10,7 +10,9 @@ use super::connect::{ConnectError, RigSpec, open_rig};
 use crate::diagnosis::DiagnoseOptions;
 use crate::fit::zero::{StageZero, ZeroKept, refine_stage_zero};
 use crate::fit::{Calibration, FitOptions, calibrate};
-use crate::report::{ReportFiles, RunDiagnosis, RunExtras, RunTimings, Truth, diagnose_run, write_report_for};
+use crate::report::{
+    Decided, ReportFiles, RunDiagnosis, RunExtras, RunTimings, Truth, diagnose_run, write_report_decided,
+};
 use crate::run::events::{LogLevel, RunControl, RunEvent};
 use crate::run::{RunOutcome, Script, ScriptError, Sequencer};
 use crate::sensing::SensingConfig;
@@ -43,9 +45,14 @@ pub struct RunResult {
     pub report: Option<ReportFiles>,
     /// Why there is no fit or report after a completed run.
     pub fit_error: Option<String>,
-    /// The diagnosis of the recording, when asked for and the fit succeeded
-    /// (a failed diagnosis is here too, as `not_made`).
+    /// The run's diagnosis, when asked for and the fit succeeded (a failed
+    /// diagnosis is here too, as `not_made`): the closed loop's decision when
+    /// it decided (docs/experiments.md, "The headline after the loop"), else
+    /// the recording's.
     pub diagnosis: Option<RunDiagnosis>,
+    /// The run recording's own diagnosis when the decision above is not it
+    /// (after a rigid ball).
+    pub standard: Option<RunDiagnosis>,
 }
 
 /// Why a run could not start.
@@ -67,6 +74,9 @@ pub struct Reported {
     pub diagnosis: Option<RunDiagnosis>,
     /// The stage zero the full fit placed, or why the recorded one was kept.
     pub stage_zero: Result<StageZero, ZeroKept>,
+    /// The closed loop's decision, the report's headline, when it decided;
+    /// or why a decision it made could not be carried into the report.
+    pub decided: Result<Option<Decided>, String>,
 }
 
 /// Fit a finished recording, diagnose it when `diagnose` is set (a failed
@@ -90,10 +100,44 @@ pub fn fit_and_report(
         Err(kept) => (rec, cal, Err(kept)),
     };
     let diagnosis = diagnose.then(|| diagnose_run(&rec, &cal, &DiagnoseOptions::default()));
+    let decided = loop_decision(&rec, &timings.experiments, diagnosis.as_ref());
     let extras = RunExtras { timings: Some(timings), diagnosis: diagnosis.clone() };
-    let files = write_report_for(out_dir, &rec, Some(recording), &cal, truth, extras)
-        .map_err(|e| format!("cannot write the report: {e}"))?;
-    Ok(Reported { calibration: cal, files, diagnosis, stage_zero })
+    let files =
+        write_report_decided(out_dir, &rec, Some(recording), &cal, truth, extras, decided.clone().ok().flatten())
+            .map_err(|e| format!("cannot write the report: {e}"))?;
+    Ok(Reported { calibration: cal, files, diagnosis, stage_zero, decided })
+}
+
+/// What the closed loop decided, given the steps it ran (docs/experiments.md,
+/// "The headline after the loop"):
+/// - after a rigid ball that named the sensor gain: `rec` (the run's
+///   recording as the report fits it) corrected for the gain its sweep
+///   measures, diagnosed again, with intervals from that refit and the
+///   gain's own uncertainty ([`crate::plan::correct_for_gain`]);
+/// - after rig-only steps (their samples are in `rec`): the recording's
+///   diagnosis when it names effects;
+/// - else (no step, a ball that ruled the gain out, a second indenter left to
+///   `easycalib diagnose`, nothing named): no decision.
+fn loop_decision(
+    rec: &sim::recording::Recording,
+    steps: &[crate::run::AdaptiveStep],
+    diagnosis: Option<&RunDiagnosis>,
+) -> Result<Option<Decided>, String> {
+    let Some(last) = steps.last() else { return Ok(None) };
+    match (last.name, &last.recording) {
+        ("rigid_ball", Some(path)) if last.effects.contains(&"sensor_gain") => {
+            let start = std::time::Instant::now();
+            let ball = sim::recording::Recording::read_path(path)
+                .map_err(|e| format!("cannot read the rigid ball's recording {}: {e}", path.display()))?;
+            let gain = crate::plan::rigid_ball_gain(&ball)
+                .ok_or_else(|| format!("the rigid ball's recording {} gives no gain", path.display()))?;
+            let c = crate::plan::correct_for_gain(rec, &gain)
+                .map_err(|e| format!("cannot correct the recording for the gain {:.5}: {e}", gain.g))?;
+            Ok(Some(Decided::by_ball(&c, &gain, diagnosis.cloned(), start.elapsed().as_secs_f64())))
+        }
+        (_, Some(_)) => Ok(None),
+        (by, None) => Ok(diagnosis.and_then(|d| Decided::by_recording(by, d))),
+    }
 }
 
 /// Write `zeroed` over the recording at `path` (the streamed one kept beside
@@ -196,7 +240,14 @@ pub async fn run_calibration_with(
     gauge.close().await;
     drop((stage, mount, gauge));
     if !outcome.completed() {
-        return Ok(RunResult { outcome, calibration: None, report: None, fit_error: None, diagnosis: None });
+        return Ok(RunResult {
+            outcome,
+            calibration: None,
+            report: None,
+            fit_error: None,
+            diagnosis: None,
+            standard: None,
+        });
     }
     let timings = RunTimings {
         rig_time_s: outcome.rig_time_s,
@@ -209,7 +260,7 @@ pub async fn run_calibration_with(
         let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
     }
     match fit_and_report(&outcome.recording, &req.out_dir, req.truth, timings, req.diagnose) {
-        Ok(Reported { calibration: cal, files, diagnosis, stage_zero }) => {
+        Ok(Reported { calibration: cal, files, diagnosis, stage_zero, decided }) => {
             let (level, message) = match stage_zero {
                 Ok(z) if z.beyond_declared() => (
                     LogLevel::Warn,
@@ -232,28 +283,45 @@ pub async fn run_calibration_with(
                 Err(kept) => (LogLevel::Info, format!("stage zero kept as recorded: {kept}")),
             };
             let _ = events.send(RunEvent::Log { level, message });
+            let decided = decided.unwrap_or_else(|why| {
+                let message = format!("closed loop: its decision is not in the report: {why}");
+                let _ = events.send(RunEvent::Log { level: LogLevel::Warn, message });
+                None
+            });
+            let mut summary = outcome.summary(Some(&cal));
+            summary.report = Some(files.json.display().to_string());
+            // The headline: the loop's decision when it decided.
+            let (diagnosis, standard) = match decided {
+                Some(d) => {
+                    let message = format!(
+                        "closed loop, decided after {}: the report's best estimate and diagnosis are the decision{}",
+                        d.by,
+                        if d.standard.is_some() { "; the run recording's own diagnosis is its `standard`" } else { "" }
+                    );
+                    let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
+                    (summary.e1_mpa, summary.nu1) = (Some(d.decision.e1_mpa), Some(d.decision.nu1));
+                    (summary.e1_ci95, summary.nu1_ci95) = (Some(d.decision.ci95.e1_mpa), Some(d.decision.ci95.nu1));
+                    (Some(d.decision), d.standard)
+                }
+                None => (diagnosis, None),
+            };
             if let Some(d) = &diagnosis {
                 let _ = events.send(RunEvent::Diagnosis(Box::new(d.clone())));
             }
-            // An operator step's decision rests on samples outside the run's
-            // recording (its own file): the diagnosis above does not see them.
-            if let Some(step) = outcome.adaptive.iter().rev().find(|s| s.recording.is_some()) {
-                let message = format!(
-                    "closed loop, after {}: {} (the diagnosis above is the run recording's alone; the decision is \
-                     the last entry of report.json's run.experiments)",
-                    step.name, step.outcome
-                );
-                let _ = events.send(RunEvent::Log { level: LogLevel::Info, message });
-            }
-            let mut summary = outcome.summary(Some(&cal));
-            summary.report = Some(files.json.display().to_string());
             let _ = events.send(RunEvent::Finished { summary });
-            Ok(RunResult { outcome, calibration: Some(cal), report: Some(files), fit_error: None, diagnosis })
+            Ok(RunResult { outcome, calibration: Some(cal), report: Some(files), fit_error: None, diagnosis, standard })
         }
         Err(e) => {
             let _ = events.send(RunEvent::Log { level: LogLevel::Error, message: e.clone() });
             let _ = events.send(RunEvent::Finished { summary: outcome.summary(None) });
-            Ok(RunResult { outcome, calibration: None, report: None, fit_error: Some(e), diagnosis: None })
+            Ok(RunResult {
+                outcome,
+                calibration: None,
+                report: None,
+                fit_error: Some(e),
+                diagnosis: None,
+                standard: None,
+            })
         }
     }
 }

@@ -353,7 +353,12 @@ fn diagnosis_lines(d: &RunDiagnosis) -> Vec<Line<'static>> {
         _ => Style::new().fg(Color::Red),
     }
     .add_modifier(Modifier::BOLD);
-    let mut head = vec!["diagnosis: ".bold(), Span::styled(verdict, style)];
+    // The closed loop's decision says which step it came after (the run's
+    // E1 and nu1 above are then the decision's too).
+    let by = d.closed_loop().and_then(|l| l.strip_prefix(crate::report::diagnosis::CLOSED_LOOP));
+    let by = by.and_then(|l| l.split(':').next());
+    let label = by.map_or_else(|| "diagnosis: ".to_string(), |by| format!("closed loop, after {by}: "));
+    let mut head = vec![label.bold(), Span::styled(verdict, style)];
     let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
     if !names.is_empty() {
         head.push(format!(" ({})", names.join(", ")).into());
@@ -467,4 +472,39 @@ fn draw_help(frame: &mut Frame, area: Rect) {
     let rect = area.centered(Constraint::Length(width), Constraint::Length(height));
     frame.render_widget(Clear, rect);
     frame.render_widget(Paragraph::new(lines).block(Block::bordered().title(Line::from(" help: keys ".bold()))), rect);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::Ci95;
+
+    fn diagnosis(summary: &str) -> RunDiagnosis {
+        RunDiagnosis {
+            verdict: VerdictClass::Effects,
+            summary: summary.into(),
+            effects: vec![crate::report::EffectFound { name: "sensor_gain", params: vec![] }],
+            e1_mpa: 0.33,
+            nu1: 0.39,
+            ci95: Ci95 { e1_mpa: [0.3298, 0.3302], nu1: [0.386, 0.394] },
+            error: None,
+            wall_time_s: 0.1,
+        }
+    }
+
+    fn text(l: &Line) -> String {
+        l.spans.iter().map(|s| s.content.as_ref()).collect()
+    }
+
+    /// The final panel heads the closed loop's decision with the step it came
+    /// after, and a recording's own diagnosis as a diagnosis.
+    #[test]
+    fn the_final_panel_says_when_the_closed_loop_decided() {
+        let decided = diagnosis("CLOSED LOOP, after rigid_ball: EFFECTS: sensor_gain.\n  corrected E1 ...\n");
+        let l = diagnosis_lines(&decided);
+        assert_eq!(text(&l[0]), "closed loop, after rigid_ball: EFFECTS (sensor_gain)");
+        assert!(text(&l[1]).contains("corrected E1  = 0.3300 MPa  95% [0.3298, 0.3302]"), "{:?}", text(&l[1]));
+        let own = diagnosis("EFFECTS: sensor_gain.\n");
+        assert_eq!(text(&diagnosis_lines(&own)[0]), "diagnosis: EFFECTS (sensor_gain)");
+    }
 }

@@ -97,7 +97,29 @@ where
         for _ in 0..=a.max_steps {
             let Some(meta) = self.meta.clone() else { return Ok(()) };
             let rec = sim::recording::Recording { meta, samples: self.samples.clone() };
-            let opts = crate::plan::PlanOptions { operator: a.operator };
+            // One experiment sample averages the settling's last two windows
+            // and records the standard error the sensor declares for each
+            // reading over their frames (`settle::mean`): one reading here,
+            // in contact where the rig stands, gives it. Without declared
+            // errors, the reading noise as the settling learnt it in contact.
+            // (With EXPERIMENT_FRAMES 0: more frames would read on at rest; the guard below says so.)
+            const _: () = assert!(EXPERIMENT_FRAMES == 0, "the plan's experiment noise assumes the settling's frames");
+            let frames = (2 * self.script.settle.readings).max(1) as f64;
+            let now = self.read().await?;
+            let declared = now.gamma1_sd_mm.zip(now.theta1_sd_deg).map(|(g, t)| [g, t]);
+            let reading = declared.or_else(|| self.noise.live.map(|(g, t)| [g, t]));
+            let experiment_sd =
+                reading.filter(|r| r.iter().all(|v| v.is_finite() && *v > 0.0)).map(|r| r.map(|v| v / frames.sqrt()));
+            let opts = crate::plan::PlanOptions { operator: a.operator, experiment_sd };
+            if let Some([g, t]) = experiment_sd {
+                self.log(
+                    LogLevel::Info,
+                    format!(
+                        "adaptive: an experiment sample's expected noise: gamma1 {:.3} um, theta1 {t:.5} deg",
+                        g * 1e3
+                    ),
+                );
+            }
             let planned = tokio::task::spawn_blocking(move || {
                 let d = crate::diagnosis::diagnose(&rec, &crate::diagnosis::DiagnoseOptions::default())?;
                 let p = crate::plan::plan_for(&rec, &d, opts)?;
@@ -126,7 +148,7 @@ where
             // The guard would stop the run at a move that could pass the gamma1
             // limit: only experiments well inside it (its bound grows by each inward move).
             let room = 0.8 * self.script.limits.max_gamma1_mm;
-            let Some(c) = p.experiments.iter().find(|c| c.decisive && c.peak_gamma1_mm <= room).cloned() else {
+            let Some(c) = p.experiments.iter().find(|c| c.separates > 0 && c.peak_gamma1_mm <= room).cloned() else {
                 let why = p.nothing_because.clone().unwrap_or_else(|| "no experiment decides".into());
                 self.log(LogLevel::Info, format!("adaptive: no experiment run: {why}"));
                 return Ok(());
