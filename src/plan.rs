@@ -98,6 +98,8 @@ pub fn candidates() -> Vec<ExperimentSpec> {
         ExperimentSpec::TwistReversal { amplitude_deg: 4.0, step_deg: 0.5 },
         ExperimentSpec::TorsionAtDepth { beta: 0.1, amplitude_deg: 8.0, step_deg: 0.4 },
         ExperimentSpec::TorsionAtDepth { beta: 0.3, amplitude_deg: 8.0, step_deg: 0.4 },
+        ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 3, dwell_s: 8.0 },
+        ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 4, speed_mm_s: 0.1 },
     ]
 }
 
@@ -276,7 +278,8 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
                 (sep, separation_no_refit) = (after, bound);
             }
         }
-        let rig_time_s = spec.rig_time_s(step_time_s) + seek_time(rec, &spec);
+        let travel_mm = rec.samples.last().map_or(0.0, |s| s.stage_mm);
+        let rig_time_s = spec.rig_time_s(step_time_s) + seek_time(rec, &spec) + spec.slow_travel_s(travel_mm);
         let scored = Scored {
             name: spec.name(),
             spec,
@@ -480,15 +483,36 @@ pub fn predictions(
                 return Err(fail("a hypothesis has no material".into()));
             };
             let run = run_under(rec, a, spec, step_time_s)?;
+            // The run's own poses, each timed move ramped (an approach at
+            // another speed) as the generator drove it; one reading per sample.
             let mut cmds = hist.clone();
-            cmds.extend(run.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }));
+            let mut at = Vec::with_capacity(run.len());
+            let mut prev = hist.last().copied();
+            for s in &run {
+                let here = CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg };
+                if let (Some((t0, t1)), Some(p)) = (s.timing.move_s, prev) {
+                    let n = sim::effects::viscoelastic::substeps(t1 - t0);
+                    cmds.push(CommandedPose { t_s: t0.max(p.t_s), ..p });
+                    for k in 1..=n {
+                        let f = k as f64 / n as f64;
+                        cmds.push(CommandedPose {
+                            t_s: (t0 + f * (t1 - t0)).max(p.t_s),
+                            stage_mm: p.stage_mm + f * (here.stage_mm - p.stage_mm),
+                            rot_deg: p.rot_deg + f * (here.rot_deg - p.rot_deg),
+                        });
+                    }
+                }
+                at.push(cmds.len());
+                cmds.push(here);
+                prev = Some(here);
+            }
             let pred_b = simulate(pair_b, &b.profile, &cmds).map_err(|e| fail(e.to_string()))?;
             let torsion = |s: &Sample| s.phase == Phase::Torsion;
             let pa = run.iter().map(|s| (s.gamma1_mm, torsion(s).then_some(s.theta1_deg))).collect();
             let pb = run
                 .iter()
-                .zip(&pred_b[hist.len()..])
-                .map(|(s, r)| (r.gamma1_mm, torsion(s).then_some(r.theta1_deg)))
+                .zip(&at)
+                .map(|(s, &i)| (pred_b[i].gamma1_mm, torsion(s).then_some(pred_b[i].theta1_deg)))
                 .collect();
             (pa, pb)
         }

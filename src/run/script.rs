@@ -146,6 +146,16 @@ home_s = 120.0
 # beta = 0.1
 # amplitude_deg = 8.0
 # step_deg = 0.5
+# [[experiment]]
+# kind = "slow_repeat"        # unload to fraction, load back waiting dwell_s at each stop
+# fraction = 0.5
+# steps = 3
+# dwell_s = 8.0
+# [[experiment]]
+# kind = "approach_speed"     # unload to fraction, load back at speed_mm_s (restored after)
+# fraction = 0.5
+# steps = 4
+# speed_mm_s = 0.1
 
 # Closed loop (docs/experiments.md): after the sweeps and the experiment steps,
 # while the diagnosis of the recording so far leaves explanations standing,
