@@ -410,8 +410,10 @@ where
         Ok(())
     }
 
-    /// Wait `wait_s` of rig time (the sensor's clock), reading as the sensor streams.
+    /// Wait `wait_s` of rig time (the sensor's clock) from now, reading as
+    /// the sensor streams (one reading first: the clock stood still during a move).
     async fn wait_rig(&mut self, wait_s: f64) -> Step<()> {
+        self.read().await?;
         let due = self.clock.t_last + wait_s;
         while self.clock.t_last < due {
             self.checkpoint().await?;
