@@ -279,7 +279,7 @@ fn with_creep_and_drift_both_standing_the_slow_steps_separate_them() {
             delta_bic: 0.0,
             e1_mpa: d.e1_mpa,
             nu1: d.nu1,
-            ci95: d.baseline.ci95.clone(),
+            ci95: d.baseline.ci95,
         };
         d.ambiguous = vec![standing("viscoelastic"), standing("thermal_drift")];
         let p = plan_for(&rec, &d, PlanOptions { operator: false, experiment_sd: None }).unwrap();
