@@ -365,3 +365,46 @@ fn an_approach_at_another_speed_tells_creep_from_drift() {
         assert!((r05 - r10).abs() > 0.2 * r05.abs().max(r10.abs()), "creep follows the time: {r10} vs {r05} mm/s");
     }
 }
+
+#[path = "support/simrig.rs"]
+mod simrig;
+
+/// A stage whose driver cannot set its speed (the in-process simulated
+/// rig's, like the GRBL driver, keeps `Axis::set_max_speed`'s "cannot"):
+/// an `approach_speed` step stops the run by the one abort path with a
+/// message naming the step and the stage, after its move out and before
+/// any move at the wrong speed; the stage backs off. A slow repeat on the
+/// same rig runs: its stops wait their dwell on the rig's clock.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_approach_at_another_speed_stops_on_a_stage_that_cannot_set_its_speed() {
+    use easycalib::run::{Backoff, Culprit, RunStatus, Sequencer};
+    use simrig::{SimRig, SimRigConfig, stepwise_script};
+    let run = |spec: ExperimentSpec| async move {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("recording.csv");
+        let rig = SimRig::new(SimRigConfig::default()).unwrap();
+        let script = easycalib::run::Script { experiment: vec![spec], ..stepwise_script() };
+        let mut seq = Sequencer::new(script, rig.stage(), rig.mount(), rig.gauge(), &path).unwrap();
+        let out = seq.run().await;
+        drop(seq);
+        let rec = Recording::read_path(&path).unwrap();
+        (out, rec)
+    };
+    let (out, rec) = run(ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 3, speed_mm_s: 0.1 }).await;
+    let RunStatus::Aborted(info) = &out.status else { panic!("not aborted: {:?}", out.status) };
+    assert_eq!(info.culprit, Culprit::Procedure);
+    assert!(info.message.contains("approach_speed") && info.message.contains("cannot set its speed"), "{info}");
+    assert!(matches!(info.backoff, Backoff::To(_)), "{info}");
+    // Only the move out was sampled.
+    let samples: Vec<_> = rec.samples.iter().filter(|s| s.experiment == Some(Experiment::ApproachSpeed)).collect();
+    assert_eq!(samples.len(), 1);
+
+    let (out, rec) = run(ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 2, dwell_s: 5.0 }).await;
+    assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
+    let slow: Vec<_> = rec.samples.iter().filter(|s| s.experiment == Some(Experiment::SlowRepeat)).collect();
+    assert_eq!(slow.len(), 3);
+    for s in slow {
+        let (_, end) = s.timing.move_s.expect("a move before each stop");
+        assert!(s.t_s - end >= 5.0, "waited {} s", s.t_s - end);
+    }
+}
