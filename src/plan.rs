@@ -98,6 +98,8 @@ pub fn candidates() -> Vec<ExperimentSpec> {
         ExperimentSpec::TwistReversal { amplitude_deg: 4.0, step_deg: 0.5 },
         ExperimentSpec::TorsionAtDepth { beta: 0.1, amplitude_deg: 8.0, step_deg: 0.4 },
         ExperimentSpec::TorsionAtDepth { beta: 0.3, amplitude_deg: 8.0, step_deg: 0.4 },
+        ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 3, dwell_s: 8.0 },
+        ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 4, speed_mm_s: 0.1 },
     ]
 }
 
@@ -169,6 +171,9 @@ pub struct Plan {
     pub nothing_because: Option<String>,
     /// Separations of effects no rig experiment can reach (degenerate ones), with what would.
     pub operator_steps: Vec<String>,
+    /// Candidates left out because a hypothesis's rig could not run them
+    /// (e.g. a second depth its contact model cannot reach), each with why.
+    pub skipped: Vec<String>,
 }
 
 impl Plan {
@@ -206,6 +211,7 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
         experiments: vec![],
         nothing_because: Some(why.to_string()),
         operator_steps: operator_steps.clone(),
+        skipped: Vec::new(),
     };
     if d.ambiguous.len() < 2 {
         return Ok(empty("the diagnosis leaves no two explanations standing: nothing to separate"));
@@ -228,6 +234,7 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
     }
     let mut experiments = Vec::new();
     let mut left_to_operator = Vec::new();
+    let mut skipped = Vec::new();
     let best = &hypotheses[0];
     for spec in candidates().into_iter().chain(operator_candidates(rec)) {
         let step_time_s = step_time(rec, spec.phase().kind());
@@ -237,7 +244,13 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
             true => None,
             false => {
                 let mut aug = rec.clone();
-                aug.samples.extend(run_under(rec, best, &spec, step_time_s)?);
+                match run_under(rec, best, &spec, step_time_s) {
+                    Ok(run) => aug.samples.extend(run),
+                    Err(e) => {
+                        skipped.push(format!("{} {spec:?}: {e}", spec.name()));
+                        continue;
+                    }
+                }
                 Some(aug)
             }
         };
@@ -252,8 +265,17 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
         let (mut sep, mut separation_no_refit, mut peak_gamma1_mm) = (0.0, 0.0, 0.0f64);
         let mut leaves = Vec::new();
         let mut separates = 0;
+        let mut failed = false;
         for (i, other) in hypotheses.iter().enumerate().skip(1) {
-            let (bound, peak) = separation(rec, best, other, &spec, step_time_s, sigma_g * ratio_g, sigma_t * ratio_t)?;
+            let (bound, peak) =
+                match separation(rec, best, other, &spec, step_time_s, sigma_g * ratio_g, sigma_t * ratio_t) {
+                    Ok(x) => x,
+                    Err(e) => {
+                        skipped.push(format!("{} {spec:?} under {}: {e}", spec.name(), other.effects.join(" + ")));
+                        failed = true;
+                        break;
+                    }
+                };
             peak_gamma1_mm = peak_gamma1_mm.max(peak);
             // Refitted: the gap's growth (the best's own chi² grows too when
             // the new samples pull its parameters); the bound if a refit fails.
@@ -276,7 +298,11 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
                 (sep, separation_no_refit) = (after, bound);
             }
         }
-        let rig_time_s = spec.rig_time_s(step_time_s) + seek_time(rec, &spec);
+        let travel_mm = rec.samples.last().map_or(0.0, |s| s.stage_mm);
+        if failed {
+            continue;
+        }
+        let rig_time_s = spec.rig_time_s(step_time_s) + seek_time(rec, &spec) + spec.slow_travel_s(travel_mm);
         let scored = Scored {
             name: spec.name(),
             spec,
@@ -324,7 +350,16 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
             o.separation
         ));
     }
-    Ok(Plan { verdict, e1_mpa: d.e1_mpa, nu1: d.nu1, hypotheses, experiments, nothing_because: None, operator_steps })
+    Ok(Plan {
+        verdict,
+        e1_mpa: d.e1_mpa,
+        nu1: d.nu1,
+        hypotheses,
+        experiments,
+        nothing_because: None,
+        operator_steps,
+        skipped,
+    })
 }
 
 /// A diagnosis in one line: what it named (with the corrected E1, nu1), what
@@ -480,15 +515,36 @@ pub fn predictions(
                 return Err(fail("a hypothesis has no material".into()));
             };
             let run = run_under(rec, a, spec, step_time_s)?;
+            // The run's own poses, each timed move ramped (an approach at
+            // another speed) as the generator drove it; one reading per sample.
             let mut cmds = hist.clone();
-            cmds.extend(run.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg }));
+            let mut at = Vec::with_capacity(run.len());
+            let mut prev = hist.last().copied();
+            for s in &run {
+                let here = CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: s.rot_deg };
+                if let (Some((t0, t1)), Some(p)) = (s.timing.move_s, prev) {
+                    let n = sim::effects::viscoelastic::substeps(t1 - t0);
+                    cmds.push(CommandedPose { t_s: t0.max(p.t_s), ..p });
+                    for k in 1..=n {
+                        let f = k as f64 / n as f64;
+                        cmds.push(CommandedPose {
+                            t_s: (t0 + f * (t1 - t0)).max(p.t_s),
+                            stage_mm: p.stage_mm + f * (here.stage_mm - p.stage_mm),
+                            rot_deg: p.rot_deg + f * (here.rot_deg - p.rot_deg),
+                        });
+                    }
+                }
+                at.push(cmds.len());
+                cmds.push(here);
+                prev = Some(here);
+            }
             let pred_b = simulate(pair_b, &b.profile, &cmds).map_err(|e| fail(e.to_string()))?;
             let torsion = |s: &Sample| s.phase == Phase::Torsion;
             let pa = run.iter().map(|s| (s.gamma1_mm, torsion(s).then_some(s.theta1_deg))).collect();
             let pb = run
                 .iter()
-                .zip(&pred_b[hist.len()..])
-                .map(|(s, r)| (r.gamma1_mm, torsion(s).then_some(r.theta1_deg)))
+                .zip(&at)
+                .map(|(s, &i)| (pred_b[i].gamma1_mm, torsion(s).then_some(pred_b[i].theta1_deg)))
                 .collect();
             (pa, pb)
         }
@@ -783,6 +839,9 @@ pub fn report(p: &Plan) -> String {
     }
     for o in &p.operator_steps {
         let _ = writeln!(s, "Beyond what the rig can run alone: {o}");
+    }
+    for k in &p.skipped {
+        let _ = writeln!(s, "Not weighed: {k}");
     }
     s
 }

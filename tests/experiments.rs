@@ -128,10 +128,16 @@ fn recordings_with_every_experiment_round_trip_and_fit() {
             ExperimentSpec::Reload { fraction: 0.5, steps: 4, cycles: 2 },
             ExperimentSpec::TwistReversal { amplitude_deg: 3.0, step_deg: 0.5 },
             ExperimentSpec::TorsionAtDepth { beta: 0.1, amplitude_deg: 6.0, step_deg: 0.5 },
+            ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 3, dwell_s: 5.0 },
+            ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 4, speed_mm_s: 0.1 },
         ],
         ..GeneratorConfig::default()
     };
     let rec = generate(&cfg).unwrap();
+    // The approach's load moves carry their times (ramps the diagnosis replays).
+    let timed: Vec<_> = rec.samples.iter().filter(|s| s.timing.move_s.is_some()).collect();
+    assert_eq!(timed.len(), 4);
+    assert!(timed.iter().all(|s| s.experiment == Some(Experiment::ApproachSpeed)));
     // The writer rounds (docs/recording-format.md); what it wrote reads back and writes again the same.
     let back = Recording::parse(&rec.to_csv_string()).unwrap();
     assert_eq!(Recording::parse(&back.to_csv_string()).unwrap().samples, back.samples);
@@ -231,4 +237,174 @@ fn a_script_refuses_operator_steps_naming_why() {
     let text = "[[experiment]]\nkind = \"rigid_ball\"\nr_mm = 5.0\ntravel_mm = 2.0\nsteps = 8\n";
     let e = easycalib::run::Script::from_toml(text).unwrap_err().to_string();
     assert!(e.contains("experiment 0 (rigid_ball)") && e.contains("operator"), "{e}");
+}
+
+/// gamma1 at each stop of `phase`'s samples, with their rig times.
+fn stops(rec: &Recording, phase: Experiment) -> Vec<(f64, f64, f64)> {
+    rec.samples.iter().filter(|s| s.experiment == Some(phase)).map(|s| (s.stage_mm, s.t_s, s.gamma1_mm)).collect()
+}
+
+fn creep() -> SimProfile {
+    SimProfile {
+        viscoelastic: Some(viscoelastic::Params { rho: 1.06, tau_s: 8.0, memory_n: 0.0 }),
+        ..SimProfile::default()
+    }
+}
+
+fn drift() -> SimProfile {
+    SimProfile {
+        thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 2.5e-3, vdot_mm_per_s2: 0.0 }),
+        ..SimProfile::default()
+    }
+}
+
+/// docs/experiments.md, `slow_repeat` (noise-free): out to half the travel,
+/// then the top half of the loading branch again, waiting 0.01, 20 or 40 s
+/// at each stop on top of the settling. A creeping gel (rho 1.06, tau 8 s)
+/// moves toward its relaxed curve the longer it waits: shallower at the
+/// bottom, just unloaded (it recovers), deeper at the top, just loaded; the
+/// second 20 s add little (the creep saturates). Under a drifting frame
+/// (2.5 um/s) the change is the drift's own, deeper everywhere and
+/// proportional to the time elapsed: twice the wait, twice the change. A
+/// clean rig reads the same at the same stage whatever the wait.
+#[test]
+fn a_slow_repeat_moves_toward_the_relaxed_curve_under_creep_and_by_the_elapsed_time_under_drift() {
+    let run = |profile: SimProfile, dwell_s: f64| {
+        let cfg = GeneratorConfig {
+            noise: noiseless(),
+            profile,
+            experiments: vec![ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 3, dwell_s }],
+            ..GeneratorConfig::default()
+        };
+        stops(&generate(&cfg).unwrap(), Experiment::SlowRepeat)
+    };
+    let quick = run(SimProfile::default(), 0.01);
+    assert_eq!(quick.len(), 4);
+    for slow in [run(SimProfile::default(), 20.0), run(SimProfile::default(), 40.0)] {
+        for (q, s) in quick.iter().zip(&slow) {
+            assert_eq!(q.0, s.0, "the same stops");
+            assert!((q.2 - s.2).abs() < 1e-12, "clean: {q:?} vs {s:?}");
+        }
+    }
+    let change = |profile: SimProfile| {
+        let (q, s20, s40) = (run(profile.clone(), 0.01), run(profile.clone(), 20.0), run(profile, 40.0));
+        let d = |s: &[(f64, f64, f64)]| s.iter().zip(&q).map(|(a, b)| a.2 - b.2).collect::<Vec<f64>>();
+        (d(&s20), d(&s40))
+    };
+    let (c20, c40) = change(creep());
+    println!("creep: slow - quick at each stop, 20 s {c20:?}, 40 s {c40:?}");
+    let largest = c20.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    assert!(c20[0] < -1e-3, "creep: the bottom recovers after its unload: {} mm", c20[0]);
+    assert!(c20[3] > 1e-3, "creep: the top reads deeper after the wait: {} mm", c20[3]);
+    for (a, b) in c20.iter().zip(&c40) {
+        assert!((b - a).abs() < 0.2 * largest, "creep saturates: 40 s {b} vs 20 s {a}");
+    }
+    let (d20, d40) = change(drift());
+    println!("drift: slow - quick at each stop, 20 s {d20:?}, 40 s {d40:?}");
+    for (k, (a, b)) in d20.iter().zip(&d40).enumerate() {
+        // By stop k the slow run is (k + 1) waits later; the gel takes its share of v t.
+        let extra = (k + 1) as f64 * 20.0;
+        assert!(*a > 0.5 * 2.5e-3 * extra && *a < 2.5e-3 * extra, "drift at stop {k}: {a} mm over {extra} s");
+        assert!((b / a - 2.0).abs() < 0.03, "drift scales with the time: {b} vs {a}");
+    }
+}
+
+/// docs/experiments.md, `approach_speed` (noise-free): the top half of the
+/// loading branch again with the stage at 1, 0.1 or 0.05 mm/s. Under a
+/// drifting frame the change from the quick approach at each stop is the
+/// drift's rate (the gel's share of it) times the extra time elapsed,
+/// whatever the speed (change over extra time: one ratio at a stop for
+/// both speeds). A creeping gel moves toward its relaxed curve during a
+/// slower approach: the first stops, just after the unload, read shallower
+/// (the gel recovered more), and the change over the extra time differs
+/// from one speed to the other: it follows the loading history, not the clock.
+#[test]
+fn an_approach_at_another_speed_tells_creep_from_drift() {
+    let run = |profile: SimProfile, speed_mm_s: f64| {
+        let cfg = GeneratorConfig {
+            noise: noiseless(),
+            profile,
+            experiments: vec![ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 4, speed_mm_s }],
+            ..GeneratorConfig::default()
+        };
+        stops(&generate(&cfg).unwrap(), Experiment::ApproachSpeed)
+    };
+    let quick = run(SimProfile::default(), 1.0);
+    assert_eq!(quick.len(), 5);
+    let slow = run(SimProfile::default(), 0.05);
+    // The same stops; the slow moves take their time (travel / speed).
+    for k in 1..5 {
+        assert_eq!(quick[k].0, slow[k].0);
+        let step = quick[k].0 - quick[k - 1].0;
+        assert!(step > 0.1, "a load step of {step} mm");
+        let dt = (slow[k].1 - slow[k - 1].1) - (quick[k].1 - quick[k - 1].1);
+        assert!((dt - step * (1.0 / 0.05 - 1.0)).abs() < 1e-6, "stop {k}: {dt} s more");
+        assert!((quick[k].2 - slow[k].2).abs() < 1e-12, "clean: the same reading at the same stage");
+    }
+    let changes = |profile: SimProfile| {
+        let q = run(profile.clone(), 1.0);
+        [0.1, 0.05].map(|v| {
+            let s = run(profile.clone(), v);
+            s.iter().zip(&q).skip(1).map(|(a, b)| (a.2 - b.2, a.1 - b.1)).collect::<Vec<(f64, f64)>>()
+        })
+    };
+    let [d10, d05] = changes(drift());
+    println!("drift: slow - quick (mm, s) at 0.1 mm/s {d10:?}, at 0.05 mm/s {d05:?}");
+    for ((g10, t10), (g05, t05)) in d10.iter().zip(&d05) {
+        // The gel's share of the drift's 2.5 um/s, the same at one stop whatever the speed.
+        let (r10, r05) = (g10 / t10, g05 / t05);
+        assert!(r10 > 0.5 * 2.5e-3 && r10 < 2.5e-3, "drift: {r10} mm/s seen by the gel");
+        assert!((r05 / r10 - 1.0).abs() < 0.01, "drift: {g10} mm over {t10} s, {g05} mm over {t05} s");
+    }
+    let [c10, c05] = changes(creep());
+    println!("creep: slow - quick (mm, s) at 0.1 mm/s {c10:?}, at 0.05 mm/s {c05:?}");
+    // The first stop, just unloaded, has recovered the more the slower the approach.
+    assert!(c10[0].0 < -1e-3 && c05[0].0 < c10[0].0, "creep: {c10:?} {c05:?}");
+    for ((g10, t10), (g05, t05)) in c10.iter().zip(&c05) {
+        let (r10, r05) = (g10 / t10, g05 / t05);
+        assert!((r05 - r10).abs() > 0.2 * r05.abs().max(r10.abs()), "creep follows the time: {r10} vs {r05} mm/s");
+    }
+}
+
+#[path = "support/simrig.rs"]
+mod simrig;
+
+/// A stage whose driver cannot set its speed (the in-process simulated
+/// rig's, like the GRBL driver, keeps `Axis::set_max_speed`'s "cannot"):
+/// an `approach_speed` step stops the run by the one abort path with a
+/// message naming the step and the stage, after its move out and before
+/// any move at the wrong speed; the stage backs off. A slow repeat on the
+/// same rig runs: its stops wait their dwell on the rig's clock.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_approach_at_another_speed_stops_on_a_stage_that_cannot_set_its_speed() {
+    use easycalib::run::{Backoff, Culprit, RunStatus, Sequencer};
+    use simrig::{SimRig, SimRigConfig, stepwise_script};
+    let run = |spec: ExperimentSpec| async move {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("recording.csv");
+        let rig = SimRig::new(SimRigConfig::default()).unwrap();
+        let script = easycalib::run::Script { experiment: vec![spec], ..stepwise_script() };
+        let mut seq = Sequencer::new(script, rig.stage(), rig.mount(), rig.gauge(), &path).unwrap();
+        let out = seq.run().await;
+        drop(seq);
+        let rec = Recording::read_path(&path).unwrap();
+        (out, rec)
+    };
+    let (out, rec) = run(ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 3, speed_mm_s: 0.1 }).await;
+    let RunStatus::Aborted(info) = &out.status else { panic!("not aborted: {:?}", out.status) };
+    assert_eq!(info.culprit, Culprit::Procedure);
+    assert!(info.message.contains("approach_speed") && info.message.contains("cannot set its speed"), "{info}");
+    assert!(matches!(info.backoff, Backoff::To(_)), "{info}");
+    // Only the move out was sampled.
+    let samples: Vec<_> = rec.samples.iter().filter(|s| s.experiment == Some(Experiment::ApproachSpeed)).collect();
+    assert_eq!(samples.len(), 1);
+
+    let (out, rec) = run(ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 2, dwell_s: 5.0 }).await;
+    assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
+    let slow: Vec<_> = rec.samples.iter().filter(|s| s.experiment == Some(Experiment::SlowRepeat)).collect();
+    assert_eq!(slow.len(), 3);
+    for s in slow {
+        let (_, end) = s.timing.move_s.expect("a move before each stop");
+        assert!(s.t_s - end >= 5.0, "waited {} s", s.t_s - end);
+    }
 }

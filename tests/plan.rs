@@ -196,3 +196,102 @@ fn plan_command_weighs_operator_steps_and_leaves_them_out_on_request() {
     let left = bare["operator_steps"].as_array().unwrap();
     assert!(left.iter().any(|o| o.as_str().is_some_and(|o| o.contains("rigid_ball"))), "{bare:#}");
 }
+
+/// A probe (issue 14, creep against drift): over weak creep and drift on the
+/// generator, where the standard sweeps may leave the two standing together,
+/// what the plan scores for each candidate, the slow repeat and the approach
+/// at another speed among them. Prints one line per recording whose
+/// diagnosis lists both; run by hand:
+/// `cargo test --release --test plan -- --ignored --nocapture creep_against_drift`.
+#[test]
+#[ignore = "a probe over 45 generated recordings"]
+fn creep_against_drift_probe() {
+    use sim::effects::{thermal_drift, viscoelastic};
+    let mut cases: Vec<(String, SimProfile)> = Vec::new();
+    for (rho, tau) in [(1.003, 5.0), (1.005, 20.0), (1.01, 60.0), (1.01, 200.0), (1.02, 100.0)] {
+        let p = SimProfile {
+            viscoelastic: Some(viscoelastic::Params { rho, tau_s: tau, memory_n: 0.0 }),
+            ..SimProfile::default()
+        };
+        cases.push((format!("creep rho {rho} tau {tau}"), p));
+    }
+    for v in [5e-6, 1e-5, 2e-5, 5e-5] {
+        let p = SimProfile {
+            thermal_drift: Some(thermal_drift::Params { v_mm_per_s: v, vdot_mm_per_s2: 0.0 }),
+            ..SimProfile::default()
+        };
+        cases.push((format!("drift {} nm/s", v * 1e6), p));
+    }
+    let (mut both, mut chosen) = (0, 0);
+    for (label, profile) in &cases {
+        for seed in 1..=5 {
+            let cfg = GeneratorConfig { seed, profile: profile.clone(), ..GeneratorConfig::default() };
+            let rec = generate(&cfg).unwrap();
+            let p = plan(&rec, PlanOptions::default()).unwrap();
+            let listed: Vec<&str> = p.hypotheses.iter().flat_map(|h| h.effects.iter().copied()).collect();
+            if !(listed.contains(&"viscoelastic") && listed.contains(&"thermal_drift")) {
+                println!("{label} seed {seed}: {}", p.verdict);
+                continue;
+            }
+            both += 1;
+            let scores: Vec<String> = p
+                .experiments
+                .iter()
+                .map(|e| format!("{} {:.1} ({:.0} s)", e.name, e.separation, e.rig_time_s))
+                .collect();
+            let pick = p.experiments.iter().find(|c| c.separates > 0).map(|c| c.name);
+            chosen += usize::from(matches!(pick, Some("slow_repeat" | "approach_speed")));
+            println!("{label} seed {seed}: {} | pick {pick:?} | {}", p.verdict, scores.join(", "));
+        }
+    }
+    println!("PROBE creep/drift both standing in {both} recordings; slow_repeat or approach_speed chosen in {chosen}");
+}
+
+/// The plan's predictions for the slow repeat and the approach at another
+/// speed under creep and under drift (issue 14). At the emulated rig's sizes
+/// (creep rho 1.06, tau 8 s; drift 2.5 um/s) the standard sweeps already
+/// name either; here the diagnosis is made to leave both standing, as it
+/// would for a pair it cannot rank, and the plan refits both and scores
+/// every candidate: both new steps must separate the two decisively (their
+/// predicted samples differ by more than the noise under the two refitted
+/// hypotheses), and the diagnosis of the recording with the one the plan
+/// ranks first among them names the truth.
+#[test]
+fn with_creep_and_drift_both_standing_the_slow_steps_separate_them() {
+    use easycalib::diagnosis::Alternative;
+    use easycalib::plan::plan_for;
+    use sim::effects::{thermal_drift, viscoelastic};
+    let creep = SimProfile {
+        viscoelastic: Some(viscoelastic::Params { rho: 1.06, tau_s: 8.0, memory_n: 0.0 }),
+        ..SimProfile::default()
+    };
+    let drift = SimProfile {
+        thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 2.5e-3, vdot_mm_per_s2: 0.0 }),
+        ..SimProfile::default()
+    };
+    for (truth, profile) in [("viscoelastic", creep), ("thermal_drift", drift)] {
+        let cfg = GeneratorConfig { seed: 1, profile, ..GeneratorConfig::default() };
+        let rec = generate(&cfg).unwrap();
+        let mut d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        assert_eq!(d.effects, [truth], "{}", d.verdict);
+        let standing = |name: &'static str| Alternative {
+            effects: vec![name],
+            delta_bic: 0.0,
+            e1_mpa: d.e1_mpa,
+            nu1: d.nu1,
+            ci95: d.baseline.ci95,
+        };
+        d.ambiguous = vec![standing("viscoelastic"), standing("thermal_drift")];
+        let p = plan_for(&rec, &d, PlanOptions { operator: false, experiment_sd: None }).unwrap();
+        println!("{truth}:\n{}", easycalib::plan::report(&p));
+        assert_eq!(p.hypotheses[0].effects, [truth], "the truth refits best");
+        let new: Vec<_> = p.experiments.iter().filter(|e| matches!(e.name, "slow_repeat" | "approach_speed")).collect();
+        assert_eq!(new.len(), 2);
+        for e in &new {
+            assert!(e.decisive && e.separates == 1, "{truth}: {} separates by {:.1}", e.name, e.separation);
+        }
+        let with = GeneratorConfig { experiments: vec![new[0].spec], ..cfg };
+        let after = diagnose(&generate(&with).unwrap(), &DiagnoseOptions::default()).unwrap();
+        assert_eq!(after.effects, [truth], "{truth} after {}: {}", new[0].name, after.verdict);
+    }
+}

@@ -31,6 +31,10 @@ pub enum Experiment {
     Reversal,
     /// A torsion sweep at a second depth.
     Torsion2,
+    /// A stretch of the loading branch again, with a long dwell before each sample.
+    SlowRepeat,
+    /// A stretch of the loading branch again, the stage at another speed.
+    ApproachSpeed,
     /// A normal sweep with a rigid ball the operator mounted (operator-assisted).
     RigidBall,
     /// A normal sweep with a second indenter the operator mounted (operator-assisted).
@@ -38,11 +42,13 @@ pub enum Experiment {
 }
 
 impl Experiment {
-    pub const ALL: [Experiment; 6] = [
+    pub const ALL: [Experiment; 8] = [
         Experiment::Dwell,
         Experiment::Reload,
         Experiment::Reversal,
         Experiment::Torsion2,
+        Experiment::SlowRepeat,
+        Experiment::ApproachSpeed,
         Experiment::RigidBall,
         Experiment::SwapIndenter,
     ];
@@ -54,6 +60,8 @@ impl Experiment {
             Experiment::Reload => "reload",
             Experiment::Reversal => "reversal",
             Experiment::Torsion2 => "torsion2",
+            Experiment::SlowRepeat => "slow_repeat",
+            Experiment::ApproachSpeed => "approach_speed",
             Experiment::RigidBall => "rigid_ball",
             Experiment::SwapIndenter => "swap_indenter",
         }
@@ -67,7 +75,12 @@ impl Experiment {
     /// position) or a torsion-state one (also theta1 at a mount angle).
     pub fn kind(self) -> Phase {
         match self {
-            Experiment::Dwell | Experiment::Reload | Experiment::RigidBall | Experiment::SwapIndenter => Phase::Normal,
+            Experiment::Dwell
+            | Experiment::Reload
+            | Experiment::SlowRepeat
+            | Experiment::ApproachSpeed
+            | Experiment::RigidBall
+            | Experiment::SwapIndenter => Phase::Normal,
             Experiment::Reversal | Experiment::Torsion2 => Phase::Torsion,
         }
     }
@@ -89,6 +102,19 @@ pub enum ExperimentSpec {
     TwistReversal { amplitude_deg: f64, step_deg: f64 },
     /// Go to depth `beta` (gamma2/R2 as measured), twist out to `amplitude_deg` and back.
     TorsionAtDepth { beta: f64, amplitude_deg: f64, step_deg: f64 },
+    /// Repeat the top of the loading branch slowly: unload to `fraction` of
+    /// the stage travel past contact, then load back to where the stage
+    /// stood in `steps` steps, waiting `dwell_s` at each stop (the bottom
+    /// too) before its settled sample. A creeping gel reads deeper at the
+    /// same stage than on the sweep's quick stops; a rate-independent
+    /// effect reads the same (drift: by its rate times the extra time).
+    SlowRepeat { fraction: f64, steps: u32, dwell_s: f64 },
+    /// Load the top of the branch again at another stage speed: unload to
+    /// `fraction` of the travel past contact at the stage's own speed, then
+    /// load back in `steps` steps with the stage's top speed set to
+    /// `speed_mm_s` (restored after), one settled sample per stop. Creep
+    /// depends on the loading rate, drift on the time elapsed only.
+    ApproachSpeed { fraction: f64, steps: u32, speed_mm_s: f64 },
     /// Operator-assisted: the rig retracts to park, the operator mounts a
     /// rigid (steel) ball of radius `r_mm` with its apex where the indenter's
     /// was, and the rig loads it `travel_mm` past contact in `steps` steps and
@@ -121,6 +147,8 @@ impl ExperimentSpec {
             ExperimentSpec::Reload { .. } => "reload",
             ExperimentSpec::TwistReversal { .. } => "twist_reversal",
             ExperimentSpec::TorsionAtDepth { .. } => "torsion_at_depth",
+            ExperimentSpec::SlowRepeat { .. } => "slow_repeat",
+            ExperimentSpec::ApproachSpeed { .. } => "approach_speed",
             ExperimentSpec::RigidBall { .. } => "rigid_ball",
             ExperimentSpec::SwapIndenter { .. } => "swap_indenter",
         }
@@ -147,6 +175,8 @@ impl ExperimentSpec {
             ExperimentSpec::Reload { .. } => Experiment::Reload,
             ExperimentSpec::TwistReversal { .. } => Experiment::Reversal,
             ExperimentSpec::TorsionAtDepth { .. } => Experiment::Torsion2,
+            ExperimentSpec::SlowRepeat { .. } => Experiment::SlowRepeat,
+            ExperimentSpec::ApproachSpeed { .. } => Experiment::ApproachSpeed,
             ExperimentSpec::RigidBall { .. } => Experiment::RigidBall,
             ExperimentSpec::SwapIndenter { .. } => Experiment::SwapIndenter,
         }
@@ -161,16 +191,33 @@ impl ExperimentSpec {
             ExperimentSpec::TorsionAtDepth { amplitude_deg, step_deg, .. } => {
                 sweep_angles(amplitude_deg, step_deg).len()
             }
+            ExperimentSpec::SlowRepeat { steps, .. } | ExperimentSpec::ApproachSpeed { steps, .. } => {
+                steps as usize + 1
+            }
             ExperimentSpec::RigidBall { steps, .. } | ExperimentSpec::SwapIndenter { steps, .. } => 2 * steps as usize,
         }
     }
 
     /// Rig time the step takes, s, at `step_time_s` per settled sample (a dwell
-    /// takes its hold whatever the sample time).
+    /// takes its hold whatever the sample time, a slow repeat its dwells on
+    /// top). An approach at another speed also takes [`Self::slow_travel_s`].
     pub fn rig_time_s(&self, step_time_s: f64) -> f64 {
         match *self {
             ExperimentSpec::Dwell { hold_s, .. } => hold_s,
+            ExperimentSpec::SlowRepeat { dwell_s, .. } => self.samples() as f64 * (step_time_s + dwell_s),
             _ => self.samples() as f64 * step_time_s,
+        }
+    }
+
+    /// Rig time of the moves at the step's own stage speed, s, when the
+    /// stage stands `travel_mm` past contact as the step begins: the load
+    /// back from `fraction` of that travel (0 for the other steps).
+    pub fn slow_travel_s(&self, travel_mm: f64) -> f64 {
+        match *self {
+            ExperimentSpec::ApproachSpeed { fraction, speed_mm_s, .. } => {
+                (1.0 - fraction) * travel_mm.max(0.0) / speed_mm_s
+            }
+            _ => 0.0,
         }
     }
 
@@ -206,7 +253,21 @@ impl ExperimentSpec {
                 in_range("amplitude_deg", amplitude_deg, 0.0, max_twist_deg)?;
                 in_range("step_deg", step_deg, 0.0, amplitude_deg)?;
             }
+            ExperimentSpec::SlowRepeat { fraction, steps, .. }
+            | ExperimentSpec::ApproachSpeed { fraction, steps, .. } => {
+                if !(fraction.is_finite() && (0.0..1.0).contains(&fraction)) {
+                    return Err(fail("fraction", format!("must lie in [0, 1), got {fraction}")));
+                }
+                if !(1..=200).contains(&steps) {
+                    return Err(fail("steps", format!("must be 1..=200, got {steps}")));
+                }
+            }
             ExperimentSpec::RigidBall { .. } | ExperimentSpec::SwapIndenter { .. } => {}
+        }
+        match *self {
+            ExperimentSpec::SlowRepeat { dwell_s, .. } => in_range("dwell_s", dwell_s, 0.0, 600.0)?,
+            ExperimentSpec::ApproachSpeed { speed_mm_s, .. } => in_range("speed_mm_s", speed_mm_s, 0.0, 10.0)?,
+            _ => {}
         }
         if let ExperimentSpec::RigidBall { travel_mm, steps, .. }
         | ExperimentSpec::SwapIndenter { travel_mm, steps, .. } = *self
@@ -285,6 +346,18 @@ pub fn operator_path(travel_mm: f64, steps: u32) -> Vec<(f64, Direction)> {
     out
 }
 
+/// Stage positions of a slow repeat or an approach at another speed: from
+/// `top_mm`, one move out to `fraction` of the travel past `contact_mm`
+/// (`unload`), then back to `top_mm` in `steps` equal steps (`load`).
+pub fn repeat_path(top_mm: f64, contact_mm: f64, fraction: f64, steps: u32) -> Vec<(f64, Direction)> {
+    let n = steps.max(1);
+    let bottom = contact_mm + fraction * (top_mm - contact_mm);
+    let at = |i: u32| bottom + (top_mm - bottom) * i as f64 / n as f64;
+    let mut out = vec![(bottom, Direction::Unload)];
+    out.extend((1..=n).map(|i| (at(i), Direction::Load)));
+    out
+}
+
 /// Stage positions of reload cycles between `top_mm` and the stage at
 /// `fraction` of the travel past `contact_mm`: down in `steps` steps, back up.
 pub fn reload_path(top_mm: f64, contact_mm: f64, fraction: f64, steps: u32, cycles: u32) -> Vec<(f64, Direction)> {
@@ -319,6 +392,13 @@ mod tests {
         let o: Vec<f64> = operator_path(1.0, 2).iter().map(|a| a.0).collect();
         assert_eq!(o, vec![0.5, 1.0, 0.5, 0.0]);
         assert_eq!(ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 1.0, steps: 2 }.samples(), o.len());
+        let r = repeat_path(1.0, 0.0, 0.5, 2);
+        assert_eq!(r, vec![(0.5, Direction::Unload), (0.75, Direction::Load), (1.0, Direction::Load)]);
+        let slow = ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 2, dwell_s: 10.0 };
+        assert_eq!((slow.samples(), slow.rig_time_s(1.0)), (r.len(), 33.0));
+        let fast = ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 2, speed_mm_s: 0.1 };
+        assert_eq!(fast.samples(), r.len());
+        assert!((fast.slow_travel_s(2.0) - 10.0).abs() < 1e-12);
     }
 
     #[test]
@@ -342,6 +422,14 @@ mod tests {
         assert_eq!((e.index, e.key), (1, "nu2"));
         let e = ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 0.0, steps: 4 }.validate(0, 10.0).unwrap_err();
         assert_eq!(e.key, "travel_mm");
+        let e = ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 3, dwell_s: 0.0 }.validate(4, 10.0).unwrap_err();
+        assert_eq!((e.index, e.key), (4, "dwell_s"));
+        let e =
+            ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 3, speed_mm_s: 50.0 }.validate(0, 10.0).unwrap_err();
+        assert_eq!(e.key, "speed_mm_s");
+        let e =
+            ExperimentSpec::ApproachSpeed { fraction: 1.2, steps: 3, speed_mm_s: 0.1 }.validate(0, 10.0).unwrap_err();
+        assert_eq!(e.key, "fraction");
         let ball = ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 1.0, steps: 4 };
         assert!(ball.validate(0, 10.0).is_ok() && ball.is_operator());
         assert!(!ExperimentSpec::Dwell { hold_s: 10.0, every_s: 2.0 }.is_operator());

@@ -17,7 +17,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::effects::{CommandedPose, EffectError, SimProfile, TrueRig};
-use crate::experiment::{ExperimentSpec, reload_path, reversal_angles, sweep_angles};
+use crate::experiment::{ExperimentSpec, reload_path, repeat_path, reversal_angles, sweep_angles};
 use crate::physics::{ContactPair, NormalError, NormalModel, ParamError, torsion_at};
 use crate::recording::{Direction, Metadata, Phase, Recording, Sample};
 use crate::rng::Rng;
@@ -356,6 +356,26 @@ impl Continued {
         Ok(())
     }
 
+    /// Drive the stage from `from` to `to` at `speed_mm_s`, starting one
+    /// sample time after the last reading (as every move of the generator
+    /// does): the rig lives the ramp (a pose at most every
+    /// [`crate::effects::viscoelastic::MAX_STEP_S`]), and the next reading
+    /// comes one sample time after it ends. Returns the move's (start, end), s.
+    fn ramp(&mut self, from: f64, to: f64, speed_mm_s: f64) -> Result<(f64, f64), GenerateError> {
+        let dt = self.step_time_s;
+        let a = self.samples.last().map_or(self.t - dt, |s| (self.t - dt).max(s.t_s));
+        let to = quantize(to, self.noise.stage_resolution_mm);
+        let d = (to - from).abs() / speed_mm_s;
+        let n = crate::effects::viscoelastic::substeps(d);
+        self.rig.read(CommandedPose { t_s: a, stage_mm: from, rot_deg: 0.0 })?;
+        for k in 1..=n {
+            let f = k as f64 / n as f64;
+            self.rig.read(CommandedPose { t_s: a + f * d, stage_mm: from + f * (to - from), rot_deg: 0.0 })?;
+        }
+        self.t = a + d + dt;
+        Ok((a, a + d))
+    }
+
     /// Run one experiment step from the stage `hold`; returns where the stage stands after it.
     fn experiment(&mut self, spec: &ExperimentSpec, hold: f64, top_stage: f64) -> Result<f64, GenerateError> {
         let dt = self.step_time_s;
@@ -387,6 +407,32 @@ impl Continued {
                     self.take(spec, stage, rot, Some(dir), dt)?;
                 }
                 Ok(stage)
+            }
+            ExperimentSpec::SlowRepeat { fraction, steps, dwell_s } => {
+                // Each stop waits `dwell_s` on top of the usual settling.
+                for (stage, dir) in repeat_path(hold, 0.0, fraction, steps) {
+                    self.t += dwell_s;
+                    self.take(spec, stage, 0.0, Some(dir), dt)?;
+                }
+                Ok(hold)
+            }
+            ExperimentSpec::ApproachSpeed { fraction, steps, speed_mm_s } => {
+                // Out at the generator's usual (instant) stage, back in ramps at `speed_mm_s`.
+                let mut from = hold;
+                for (k, (stage, dir)) in repeat_path(hold, 0.0, fraction, steps).into_iter().enumerate() {
+                    if k == 0 {
+                        self.take(spec, stage, 0.0, Some(dir), dt)?;
+                    } else {
+                        let span = self.ramp(from, stage, speed_mm_s)?;
+                        self.take(spec, stage, 0.0, Some(dir), dt)?;
+                        if let Some(s) = self.samples.last_mut() {
+                            s.timing.move_s = Some(span);
+                        }
+                    }
+                    // From where the stage stood (at the stage's resolution).
+                    from = self.samples.last().map_or(stage, |s| s.stage_mm);
+                }
+                Ok(hold)
             }
             ExperimentSpec::RigidBall { .. } | ExperimentSpec::SwapIndenter { .. } => {
                 Err(GenerateError::Plan(format!(

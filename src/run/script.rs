@@ -146,6 +146,16 @@ home_s = 120.0
 # beta = 0.1
 # amplitude_deg = 8.0
 # step_deg = 0.5
+# [[experiment]]
+# kind = "slow_repeat"        # unload to fraction, load back waiting dwell_s at each stop
+# fraction = 0.5
+# steps = 3
+# dwell_s = 8.0
+# [[experiment]]
+# kind = "approach_speed"     # unload to fraction, load back at speed_mm_s (restored after)
+# fraction = 0.5
+# steps = 4
+# speed_mm_s = 0.1
 
 # Closed loop (docs/experiments.md): after the sweeps and the experiment steps,
 # while the diagnosis of the recording so far leaves explanations standing,
@@ -858,6 +868,27 @@ mod tests {
         assert!(e.to_string().contains("amplitude_deg"), "{e}");
         let e = Script::from_toml(&text.replace("\"dwell\"", "\"nap\"")).unwrap_err();
         assert!(e.to_string().contains("nap"), "{e}");
+        // The slow repeat and the approach at another speed, as the default script shows them.
+        let slow = "[[experiment]]\nkind = \"slow_repeat\"\nfraction = 0.5\nsteps = 3\ndwell_s = 8.0\n\
+                    [[experiment]]\nkind = \"approach_speed\"\nfraction = 0.5\nsteps = 4\nspeed_mm_s = 0.1\n";
+        assert_eq!(
+            Script::from_toml(slow).unwrap().experiment,
+            vec![
+                ExperimentSpec::SlowRepeat { fraction: 0.5, steps: 3, dwell_s: 8.0 },
+                ExperimentSpec::ApproachSpeed { fraction: 0.5, steps: 4, speed_mm_s: 0.1 }
+            ]
+        );
+        let e = Script::from_toml(&slow.replace("speed_mm_s = 0.1", "speed_mm_s = 0.0")).unwrap_err();
+        assert!(e.to_string().contains("experiment 1 (approach_speed) `speed_mm_s`"), "{e}");
+        let uncommented: String = DEFAULT_SCRIPT_TOML
+            .lines()
+            .skip_while(|l| !l.starts_with("# [[experiment]]"))
+            .take_while(|l| l.starts_with('#'))
+            .filter_map(|l| l.strip_prefix("# "))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let listed = Script::from_toml(&uncommented).unwrap().experiment;
+        assert_eq!(listed.len(), 6, "{uncommented}");
         let e = Script::from_toml(&text.replace("every_s", "each_s")).unwrap_err();
         assert!(e.to_string().contains("each_s"), "{e}");
     }

@@ -250,6 +250,13 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send, U: Unit> Axis for AptAxis<T, U> {
         let s = self.link.query_status().await?;
         Ok(self.link.axis_status(&s))
     }
+    /// MOT_REQ_VELPARAMS for the speed and acceleration in force, then
+    /// MOT_SET_VELPARAMS with the new top speed and the same acceleration.
+    async fn set_max_speed(&mut self, speed: f64) -> Result<Option<f64>, AptError> {
+        let (old, accel) = self.link.velocity_params().await?;
+        self.link.set_velocity_params(speed, accel).await?;
+        Ok(Some(old))
+    }
 }
 
 /// Ask whatever answers on `port_path` whether it is an APT unit: open the

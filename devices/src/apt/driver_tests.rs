@@ -180,3 +180,20 @@ async fn homing_sets_the_home_velocity_first_and_keeps_the_units_other_home_para
     let (homed, ()) = tokio::join!(stage.home(Duration::from_secs(5)), unit);
     homed.unwrap();
 }
+
+#[tokio::test]
+async fn set_max_speed_asks_the_units_velocity_parameters_and_keeps_its_acceleration() {
+    use crate::apt::codec::VelParams;
+    let (mut stage, mut dev) = connected().await;
+    let unit = async {
+        // MOT_REQ_VELPARAMS; the unit answers 2.3 mm/s, 4 mm/s² (1 777 857, 1055).
+        expect(&mut dev, "14 04 01 00 50 01").await;
+        let own = VelParams { chan: 1, min_velocity: 0, acceleration: 1055, max_velocity: 1_777_857 };
+        reply(&mut dev, &M::MotGetVelParams(own)).await;
+        // MOT_SET_VELPARAMS: 0.1 mm/s (77 298 = 0x012DF2), the same 4 mm/s².
+        expect(&mut dev, "13 04 0E 00 D0 01 01 00 00 00 00 00 1F 04 00 00 F2 2D 01 00").await;
+    };
+    let (was, ()) = tokio::join!(stage.set_max_speed(0.1), unit);
+    let was = was.unwrap().expect("the APT stage sets its speed");
+    assert!((was - 2.3).abs() < 1e-6, "{was}");
+}

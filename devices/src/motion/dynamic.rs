@@ -99,6 +99,9 @@ impl<A: Axis> Axis for Erased<A> {
     async fn status(&mut self) -> Result<AxisStatus, AxisFault> {
         self.0.status().await.map_err(AxisFault::new)
     }
+    async fn set_max_speed(&mut self, speed: f64) -> Result<Option<f64>, AxisFault> {
+        self.0.set_max_speed(speed).await.map_err(AxisFault::new)
+    }
 }
 
 #[async_trait]
@@ -136,5 +139,8 @@ impl<A: Axis + ?Sized> Axis for Box<A> {
     }
     async fn status(&mut self) -> Result<AxisStatus, A::Error> {
         (**self).status().await
+    }
+    async fn set_max_speed(&mut self, speed: f64) -> Result<Option<f64>, A::Error> {
+        (**self).set_max_speed(speed).await
     }
 }

@@ -115,6 +115,12 @@ pub trait Axis: Identify {
     async fn stop(&mut self) -> Result<(), Self::Error>;
     async fn position(&mut self) -> Result<Self::Unit, Self::Error>;
     async fn status(&mut self) -> Result<AxisStatus, Self::Error>;
+    /// Set the top speed of the moves that follow, units per second, and
+    /// return the one it replaces (to restore it). `Ok(None)`: this driver
+    /// cannot set its speed, and nothing was changed.
+    async fn set_max_speed(&mut self, _speed: f64) -> Result<Option<f64>, Self::Error> {
+        Ok(None)
+    }
 
     /// Absolute move that waits for completion.
     async fn move_to(&mut self, target: Self::Unit, timeout: Duration) -> Result<Self::Unit, Self::Error> {

@@ -4,7 +4,7 @@
 //! sample through `record`, with the experiment as its phase.
 
 use super::*;
-use sim::experiment::{dwell_count, reload_path, reversal_angles, sweep_angles};
+use sim::experiment::{dwell_count, reload_path, repeat_path, reversal_angles, sweep_angles};
 use sim::recording::Recording;
 
 /// Where an operator step's recording goes: beside the run's, the step's
@@ -72,6 +72,57 @@ where
                     format!("holding beta {reached:.4} at stage {:.4} mm for the second torsion sweep", self.stage_mm),
                 );
                 self.twist_path(&sweep_angles(amplitude_deg, step_deg), label, &mut to_go).await?;
+            }
+            ExperimentSpec::SlowRepeat { fraction, steps, dwell_s } => {
+                let contact = self.contact_mm.unwrap_or(hold);
+                for (pos, dir) in repeat_path(hold, contact, fraction, steps) {
+                    self.track.cursor = Cursor::Experiment { left: to_go };
+                    self.move_stage(pos, "slow repeat experiment").await?;
+                    self.wait_rig(dwell_s).await?;
+                    let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
+                    self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
+                    to_go = to_go.saturating_sub(1);
+                }
+            }
+            ExperimentSpec::ApproachSpeed { fraction, steps, speed_mm_s } => {
+                let contact = self.contact_mm.unwrap_or(hold);
+                let path = repeat_path(hold, contact, fraction, steps);
+                // A move's timeout is the script's: a step that would take
+                // most of it at this speed is refused before anything moves.
+                let step_mm = (hold - contact) * (1.0 - fraction) / steps.max(1) as f64;
+                let takes = step_mm / speed_mm_s;
+                if takes > 0.5 * self.script.timeouts.move_s {
+                    return Err(Halt {
+                        culprit: Culprit::Procedure,
+                        message: format!(
+                            "approach_speed: a step of {step_mm:.3} mm at {speed_mm_s} mm/s takes {takes:.0} s, \
+                             more than half the move timeout (timeouts.move_s = {} s)",
+                            self.script.timeouts.move_s
+                        ),
+                    });
+                }
+                for (k, &(pos, dir)) in path.iter().enumerate() {
+                    self.track.cursor = Cursor::Experiment { left: to_go };
+                    if k == 1 {
+                        let usual = self.set_stage_speed(speed_mm_s).await?;
+                        self.log(
+                            LogLevel::Info,
+                            format!("approach_speed: stage top speed {speed_mm_s} mm/s (was {usual} mm/s)"),
+                        );
+                        // Put the usual speed back whatever the load does: an
+                        // abort backs off at the speed in force.
+                        let loaded = self.slow_load(&path[1..], label, &mut to_go).await;
+                        let restored = self.set_stage_speed(usual).await;
+                        loaded?;
+                        restored?;
+                        self.log(LogLevel::Info, format!("approach_speed: stage top speed back to {usual} mm/s"));
+                        break;
+                    }
+                    self.move_stage(pos, "approach speed experiment").await?;
+                    let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
+                    self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
+                    to_go = to_go.saturating_sub(1);
+                }
             }
             // The script refuses them: only the closed loop runs them, through `operator_step`.
             ExperimentSpec::RigidBall { .. } | ExperimentSpec::SwapIndenter { .. } => {
@@ -356,6 +407,47 @@ where
         }
         self.log(LogLevel::Info, format!("{step}: the operator confirmed the indenter"));
         self.emit(RunEvent::OperatorConfirmed { step });
+        Ok(())
+    }
+
+    /// Wait `wait_s` of rig time (the sensor's clock) from now, reading as
+    /// the sensor streams (one reading first: the clock stood still during a move).
+    async fn wait_rig(&mut self, wait_s: f64) -> Step<()> {
+        self.read().await?;
+        let due = self.clock.t_last + wait_s;
+        while self.clock.t_last < due {
+            self.checkpoint().await?;
+            self.read().await?;
+        }
+        Ok(())
+    }
+
+    /// Set the stage's top speed, mm/s; returns the one it replaced. A
+    /// driver that cannot set it stops the step (its samples would not be
+    /// what the step says).
+    async fn set_stage_speed(&mut self, speed_mm_s: f64) -> Step<f64> {
+        match self.stage.set_max_speed(speed_mm_s).await {
+            Ok(Some(was)) => Ok(was),
+            Ok(None) => Err(Halt {
+                culprit: Culprit::Procedure,
+                message: format!(
+                    "approach_speed: the {} driver cannot set its speed (the step needs {speed_mm_s} mm/s)",
+                    self.stage_name
+                ),
+            }),
+            Err(e) => Err(self.stage_fault(&format!("set top speed {speed_mm_s} mm/s"), e)),
+        }
+    }
+
+    /// The loading moves of an approach at another speed (the speed already set).
+    async fn slow_load(&mut self, path: &[(f64, Direction)], label: Experiment, to_go: &mut usize) -> Step<()> {
+        for &(pos, dir) in path {
+            self.track.cursor = Cursor::Experiment { left: *to_go };
+            self.move_stage(pos, "approach speed experiment").await?;
+            let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
+            self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
+            *to_go = to_go.saturating_sub(1);
+        }
         Ok(())
     }
 
