@@ -2,6 +2,9 @@
 //! experiment it chooses separates the explanations, and the diagnosis of
 //! the recording with that experiment names the truth.
 
+#[path = "support/creep_drift.rs"]
+mod creep_drift;
+
 use easycalib::diagnosis::{DiagnoseOptions, diagnose};
 use easycalib::plan::{DECISIVE_SEPARATION, PlanOptions, decide_with_ball, plan};
 use sim::effects::{SimProfile, finite_thickness, frame_compliance, sensor_gain};
@@ -260,16 +263,7 @@ fn creep_against_drift_probe() {
 fn with_creep_and_drift_both_standing_the_slow_steps_separate_them() {
     use easycalib::diagnosis::Alternative;
     use easycalib::plan::plan_for;
-    use sim::effects::{thermal_drift, viscoelastic};
-    let creep = SimProfile {
-        viscoelastic: Some(viscoelastic::Params { rho: 1.06, tau_s: 8.0, memory_n: 0.0 }),
-        ..SimProfile::default()
-    };
-    let drift = SimProfile {
-        thermal_drift: Some(thermal_drift::Params { v_mm_per_s: 2.5e-3, vdot_mm_per_s2: 0.0 }),
-        ..SimProfile::default()
-    };
-    for (truth, profile) in [("viscoelastic", creep), ("thermal_drift", drift)] {
+    for (truth, profile) in creep_drift::creep_and_drift() {
         let cfg = GeneratorConfig { seed: 1, profile, ..GeneratorConfig::default() };
         let rec = generate(&cfg).unwrap();
         let mut d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
