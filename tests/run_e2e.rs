@@ -224,10 +224,22 @@ fn stage_cable_cut_mid_sweep() {
         // Nobody can move a stage whose cable is cut: the abort says so.
         assert!(matches!(&info.backoff, Backoff::Failed(m) if m.contains("disconnected")), "{:?}", info.backoff);
         let rec = check_recording(&r, &events, 25);
-        // The stage did not go deeper than the sweep had taken it (one step at most).
+        // The stage did not go past the move it was given when the cable was
+        // cut, and that move was one step of the sweep beyond its deepest
+        // sample (the step the sweep takes there: 0.05, 0.1 or 1.3 mm).
         let deepest = rec.samples.iter().map(|s| s.stage_mm).fold(f64::MIN, f64::max) + r.outcome.contact_mm.unwrap();
+        let target: f64 = info
+            .message
+            .split("move to ")
+            .nth(1)
+            .and_then(|t| t.split(" mm").next())
+            .and_then(|t| t.parse().ok())
+            .unwrap_or_else(|| panic!("the abort names the move: {}", info.message));
+        let n = Script::default().normal;
+        let step = n.step_mm.max(n.window_step_mm).max(Script::default().approach.step_mm);
+        assert!(target <= deepest + step + 1e-3, "move to {target} mm past one step ({step} mm) from {deepest}");
         tokio::time::sleep(Duration::from_millis(20)).await;
-        assert!(rig.pose().stage_mm <= deepest + 0.05 + 1e-3, "{:?} vs {deepest}", rig.pose());
+        assert!(rig.pose().stage_mm <= target + 1e-3, "{:?} vs the move's target {target}", rig.pose());
     });
 }
 
