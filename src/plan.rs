@@ -702,6 +702,28 @@ pub fn correct_for_gain(rec: &Recording, gain: &GainMeasure) -> Result<GainCorre
     Ok(GainCorrected { effects, e1_mpa, nu1, ci95, gain_share, diagnosis: d2 })
 }
 
+/// chi² of the rigid ball's resolved readings against their prediction
+/// under `profile` (its material and effects, the ball mounted).
+fn ball_chi2(
+    rec: &Recording,
+    profile: &SimProfile,
+    ball: &Recording,
+    cmds: &[CommandedPose],
+    sigma_g: f64,
+) -> Result<f64, PlanError> {
+    let fail = |e: String| PlanError::Simulate(e);
+    let pair = pair_of(rec, profile).ok_or_else(|| fail("a hypothesis has no material".into()))?;
+    let pair = ContactPair { indenter: ball.meta.indenter, ..pair };
+    let r = simulate(pair, profile, cmds).map_err(|e| fail(e.to_string()))?;
+    Ok(ball
+        .samples
+        .iter()
+        .zip(&r)
+        .filter(|(s, _)| ball_resolved(ball, s))
+        .map(|(s, r)| ((s.gamma1_mm - r.gamma1_mm) / sigma_g).powi(2))
+        .sum())
+}
+
 /// Decide with a rigid-ball recording taken after `rec` (diagnosed as `d`,
 /// planned as `p`): each standing hypothesis predicts the ball's readings
 /// (its E1, nu1 and effects with the ball mounted, as the plan scored it) and
@@ -718,22 +740,69 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
         ball.samples.iter().map(|s| CommandedPose { t_s: s.t_s, stage_mm: s.stage_mm, rot_deg: 0.0 }).collect();
     let mut chi2 = Vec::new();
     for h in &p.hypotheses {
-        let pair = pair_of(rec, &h.profile).ok_or_else(|| fail("a hypothesis has no material".into()))?;
-        let pair = ContactPair { indenter: ball.meta.indenter, ..pair };
-        let r = simulate(pair, &h.profile, &cmds).map_err(|e| fail(e.to_string()))?;
-        let c: f64 = ball
-            .samples
-            .iter()
-            .zip(&r)
-            .filter(|(s, _)| ball_resolved(ball, s))
-            .map(|(s, r)| ((s.gamma1_mm - r.gamma1_mm) / sigma_g).powi(2))
-            .sum();
-        chi2.push((h.effects.clone(), c));
+        chi2.push((h.effects.clone(), ball_chi2(rec, &h.profile, ball, &cmds, sigma_g)?));
     }
     let best = chi2.iter().min_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0.clone()).unwrap_or_default();
-    let chi2: Vec<(String, f64)> = chi2.into_iter().map(|(e, c)| (e.join(" + "), c)).collect();
     let named = best.contains(&"sensor_gain") && (gain.g - 1.0).abs() > (4.0 * gain.g_sd).max(0.002);
     if !named {
+        // The gain is ruled out, but the ball weighed the rest too: a
+        // compliant frame gives under the ball's load as under the
+        // indenter's, a layer stiffens the ball's contact in its own way,
+        // and the recording's baseline (no effect) predicts its readings
+        // as well. One of those that fits the ball by DECISIVE_SEPARATION
+        // better than each other one (the baseline included) stands.
+        let base =
+            Base { e1_mpa: d.baseline.e1_mpa, nu1: d.baseline.nu1, contact_offset_mm: d.baseline.contact_offset_mm };
+        let model = Model::new(rec, sigma_g, d.noise.torsion_deg);
+        let none = model
+            .profile(&[], &base.internal())
+            .and_then(|profile| ball_chi2(rec, &profile, ball, &cmds, sigma_g).ok());
+        let mut rest: Vec<(&[&'static str], f64)> =
+            chi2.iter().filter(|(e, _)| !e.contains(&"sensor_gain")).map(|(e, c)| (e.as_slice(), *c)).collect();
+        rest.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let stands = match (rest.first(), none) {
+            (Some(&(effects, c)), Some(c0)) => {
+                let next = rest.get(1).map_or(f64::INFINITY, |r| r.1).min(c0);
+                (c + DECISIVE_SEPARATION <= next).then(|| effects.to_vec())
+            }
+            _ => None,
+        };
+        let chi2_text: Vec<String> = chi2
+            .iter()
+            .map(|(e, c)| format!("{} {c:.1}", e.join(" + ")))
+            .chain(none.map(|c| format!("no effect {c:.1}")))
+            .collect();
+        let ruled_out = format!(
+            "sensor gain ruled out (rigid ball: g {:.4} +- {:.4}; ball chi2 {})",
+            gain.g,
+            gain.g_sd,
+            chi2_text.join(", ")
+        );
+        let chi2: Vec<(String, f64)> = chi2.into_iter().map(|(e, c)| (e.join(" + "), c)).collect();
+        if let Some(effects) = stands
+            && let Some(alt) = d.ambiguous.iter().find(|a| a.effects == effects)
+        {
+            return Ok(GainDecision {
+                gain,
+                best: effects.clone(),
+                chi2,
+                named: false,
+                effects: effects.clone(),
+                e1_mpa: alt.e1_mpa,
+                nu1: alt.nu1,
+                ci95: alt.ci95,
+                outcome: format!(
+                    "{ruled_out}; the ball names {}: E1 {:.4} MPa [{:.4}, {:.4}], nu1 {:.4} [{:.4}, {:.4}]",
+                    effects.join(" + "),
+                    alt.e1_mpa,
+                    alt.ci95.e1_mpa[0],
+                    alt.ci95.e1_mpa[1],
+                    alt.nu1,
+                    alt.ci95.nu1[0],
+                    alt.ci95.nu1[1]
+                ),
+            });
+        }
         let fit = if d.effects.is_empty() { &d.baseline } else { &d.corrected };
         return Ok(GainDecision {
             gain,
@@ -744,14 +813,10 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
             e1_mpa: d.e1_mpa,
             nu1: d.nu1,
             ci95: fit.ci95,
-            outcome: format!(
-                "sensor gain ruled out (rigid ball: g {:.4} +- {:.4}); {}",
-                gain.g,
-                gain.g_sd,
-                outcome_of(d)
-            ),
+            outcome: format!("{ruled_out}; {}", outcome_of(d)),
         });
     }
+    let chi2: Vec<(String, f64)> = chi2.into_iter().map(|(e, c)| (e.join(" + "), c)).collect();
     let c = correct_for_gain(rec, &gain)?;
     let outcome = format!(
         "named {} (rigid ball: g {:.4} +- {:.4}): E1 {:.4} MPa [{:.4}, {:.4}], nu1 {:.4} [{:.4}, {:.4}]",

@@ -99,6 +99,39 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     Ok(d)
 }
 
+/// The diagnosis of `rec` once a measurement outside it (the closed loop's
+/// rigid ball, docs/experiments.md) has settled its ambiguity: `effects`,
+/// one of the explanations the sweeps could not rank, is refitted on the
+/// baseline and named with its parameters and intervals as if it alone had
+/// stood. Everything else (the comparison, the candidates' scores, what is
+/// degenerate, what is left over after it) is the diagnosis's own. A layered
+/// recording has no ambiguity to settle: its plain diagnosis.
+pub fn diagnose_settled(
+    rec: &Recording,
+    opts: &DiagnoseOptions,
+    effects: &[&'static str],
+) -> Result<Diagnosis, DiagnoseError> {
+    plausible::check(rec).map_err(FitError::from)?;
+    check_noise(opts)?;
+    if crate::fit::full::fe_layer(rec).is_some() {
+        return layered::diagnose_layered(rec, opts.noise_um);
+    }
+    let thinned = thin(rec, MAX_DIAGNOSE_SAMPLES);
+    let rec = thinned.as_ref().map_or(rec, |(t, _)| t);
+    let base = baseline::compare(rec, opts)?;
+    let mut search = search::explain(rec, &base, opts);
+    let mut fit = base.fit.clone();
+    for name in effects {
+        let c = model::Candidate::from_name(name)
+            .ok_or_else(|| DiagnoseError::Options(format!("`{name}` is not an effect of the library")))?;
+        fit = search::extend(&base.model, &fit, base.model.candidate(c)).ok_or(DiagnoseError::Model)?;
+    }
+    base.model.finish(&mut fit);
+    search.last = fit;
+    search.ambiguous.clear();
+    assemble::diagnosis(rec, base, search)
+}
+
 /// Every `k`-th sample (the smallest k that leaves at most `max`), or `None` when
 /// the recording is within `max` already.
 pub fn thin(rec: &Recording, max: usize) -> Option<(Recording, usize)> {

@@ -170,6 +170,24 @@ impl Decided {
         d.corrected().then(|| Self { by, decision: RunDiagnosis { summary, ..d.clone() }, standard: None })
     }
 
+    /// After a rigid ball that ruled the gain out and named another of the
+    /// standing explanations: `settled`, the run recording's diagnosis with
+    /// that explanation named; `None` if it names nothing after all.
+    pub fn by_ball_ranking(settled: RunDiagnosis, standard: Option<RunDiagnosis>) -> Option<Self> {
+        use std::fmt::Write;
+        if !settled.corrected() {
+            return None;
+        }
+        let mut summary = format!("{CLOSED_LOOP}rigid_ball: {}", settled.summary);
+        if let Some(first) = standard.as_ref().and_then(|s| s.summary.lines().next()) {
+            if !summary.ends_with('\n') {
+                summary.push('\n');
+            }
+            let _ = writeln!(summary, "  the run's recording alone: {first}");
+        }
+        Some(Self { by: "rigid_ball", decision: RunDiagnosis { summary, ..settled }, standard })
+    }
+
     /// After a rigid ball that named the sensor gain: the run's recording
     /// corrected for the measured gain (`c`), with `standard` the run
     /// recording's own diagnosis (absent with `--no-diagnose`).

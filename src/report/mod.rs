@@ -14,7 +14,7 @@ use sim::recording::{Recording, RecordingError};
 
 use crate::fit::{Calibration, FitError};
 
-pub use diagnosis::{Decided, EffectFound, RunDiagnosis, VerdictClass, diagnose_run};
+pub use diagnosis::{CLOSED_LOOP, Decided, EffectFound, RunDiagnosis, VerdictClass, diagnose_run};
 pub use json::{CalibrationOutput, RunTimings, Truth, calibration_output};
 pub use markdown::render_markdown;
 pub use plot::{NORMAL_TEXT, PlotText, SweepPlot, TORSION_TEXT, normal_plot, render_svg, torsion_plot};

@@ -100,7 +100,7 @@ pub fn fit_and_report(
         Err(kept) => (rec, cal, Err(kept)),
     };
     let diagnosis = diagnose.then(|| diagnose_run(&rec, &cal, &DiagnoseOptions::default()));
-    let decided = loop_decision(&rec, &timings.experiments, diagnosis.as_ref());
+    let decided = loop_decision(&rec, &cal, &timings.experiments, diagnosis.as_ref());
     let extras = RunExtras { timings: Some(timings), diagnosis: diagnosis.clone() };
     let files =
         write_report_decided(out_dir, &rec, Some(recording), &cal, truth, extras, decided.clone().ok().flatten())
@@ -116,10 +116,15 @@ pub fn fit_and_report(
 ///   gain's own uncertainty ([`crate::plan::correct_for_gain`]);
 /// - after rig-only steps (their samples are in `rec`): the recording's
 ///   diagnosis when it names effects;
-/// - else (no step, a ball that ruled the gain out, a second indenter left to
+/// - after a rigid ball that ruled the gain out and whose readings only one
+///   of the other explanations predicts ([`crate::plan::decide_with_ball`]):
+///   `rec`'s diagnosis with that explanation named
+///   ([`crate::diagnosis::diagnose_settled`]);
+/// - else (no step, a ball that decided nothing, a second indenter left to
 ///   `easycalib diagnose`, nothing named): no decision.
 fn loop_decision(
     rec: &sim::recording::Recording,
+    cal: &Calibration,
     steps: &[crate::run::AdaptiveStep],
     diagnosis: Option<&RunDiagnosis>,
 ) -> Result<Option<Decided>, String> {
@@ -134,6 +139,13 @@ fn loop_decision(
             let c = crate::plan::correct_for_gain(rec, &gain)
                 .map_err(|e| format!("cannot correct the recording for the gain {:.5}: {e}", gain.g))?;
             Ok(Some(Decided::by_ball(&c, &gain, diagnosis.cloned(), start.elapsed().as_secs_f64())))
+        }
+        ("rigid_ball", Some(_)) if !last.effects.is_empty() => {
+            let start = std::time::Instant::now();
+            let d = crate::diagnosis::diagnose_settled(rec, &DiagnoseOptions::default(), &last.effects)
+                .map_err(|e| format!("cannot diagnose the recording with {}: {e}", last.effects.join(" + ")))?;
+            let settled = RunDiagnosis::from_diagnosis(&d, cal, start.elapsed().as_secs_f64());
+            Ok(Decided::by_ball_ranking(settled, diagnosis.cloned()))
         }
         (_, Some(_)) => Ok(None),
         (by, None) => Ok(diagnosis.and_then(|d| Decided::by_recording(by, d))),
@@ -358,6 +370,56 @@ mod tests {
         // The report is the fit of the file as written.
         let again = calibrate(&sim::recording::Recording::read_path(&path).unwrap(), &FitOptions::default()).unwrap();
         assert_eq!((again.full.e1_mpa, again.full.nu1), (r.calibration.full.e1_mpa, r.calibration.full.nu1));
+    }
+
+    /// A rigid ball that ruled the gain out and named a compliant frame
+    /// (`plan::decide_with_ball`) makes the report's headline the run
+    /// recording's diagnosis with the frame named: the generator's frame of
+    /// 3 um/N, which the sweeps alone leave ambiguous; E1 within 1 % and nu1
+    /// within 2 % of its truth, the recording's own diagnosis under `standard`.
+    #[test]
+    fn a_ball_that_names_the_frame_makes_it_the_headline() {
+        use sim::effects::{SimProfile, frame_compliance};
+        let dir = tempfile::tempdir().unwrap();
+        let profile = SimProfile {
+            frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }),
+            ..SimProfile::default()
+        };
+        let cfg = sim::generator::GeneratorConfig { seed: 2, profile, ..Default::default() };
+        let rec = sim::generator::generate(&cfg).unwrap();
+        let path = dir.path().join(RECORDING_FILE);
+        rec.write_path(&path).unwrap();
+        let spec = sim::experiment::ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 2.5, steps: 20 };
+        let ball = sim::generator::operator_recording(&cfg, &spec, rec.samples.last().unwrap().t_s + 1.0).unwrap();
+        let ball_path = dir.path().join("rigid_ball.csv");
+        ball.write_path(&ball_path).unwrap();
+        let step = crate::run::AdaptiveStep {
+            name: "rigid_ball",
+            spec,
+            why: "separates frame_compliance from sensor_gain".into(),
+            rig_time_s: 27.0,
+            outcome: "sensor gain ruled out; the ball names frame_compliance".into(),
+            e1_mpa: f64::NAN,
+            nu1: f64::NAN,
+            recording: Some(ball_path),
+            effects: vec!["frame_compliance"],
+        };
+        let timings = RunTimings { experiments: vec![step], ..timings() };
+        let r = fit_and_report(&path, dir.path(), None, timings, true).unwrap();
+        let d = r.decided.unwrap().expect("a decision");
+        assert_eq!(d.by, "rigid_ball");
+        let names: Vec<&str> = d.decision.effects.iter().map(|e| e.name).collect();
+        assert_eq!(names, ["frame_compliance"], "{}", d.decision.summary);
+        assert!(d.decision.summary.starts_with(crate::report::CLOSED_LOOP), "{}", d.decision.summary);
+        let truth = cfg.pair.elastomer;
+        let (e1, nu1) = (d.decision.e1_mpa / truth.e_mpa - 1.0, d.decision.nu1 / truth.nu - 1.0);
+        assert!(e1.abs() < 0.01 && nu1.abs() < 0.02, "E1 {e1:+.4}, nu1 {nu1:+.4}");
+        let [lo, hi] = d.decision.ci95.nu1;
+        assert!(lo <= truth.nu && truth.nu <= hi, "nu1 {:?} misses {}", d.decision.ci95.nu1, truth.nu);
+        assert!(d.standard.is_some_and(|s| s.verdict == crate::report::VerdictClass::Ambiguous));
+        let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&r.files.json).unwrap()).unwrap();
+        assert_eq!(j["effects"], serde_json::json!(["frame_compliance"]), "{j:#}");
+        assert_eq!(j["decided_by"], "rigid_ball");
     }
 
     #[test]
