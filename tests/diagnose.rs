@@ -211,6 +211,28 @@ fn sensor_gain_is_degenerate_not_named() {
     assert!((d.baseline.nu1 / NU1 - 1.0).abs() > 0.03, "{}", d.baseline.nu1);
 }
 
+/// A recording the emulated rig made through its sensing chain (sensor gain
+/// 0.99, seed 102, the standard sweeps and one `torsion_at_depth` the closed
+/// loop ran; tests/data/rig/sensor_gain_after_torsion.csv): a layer fits it
+/// 8 chi² units better than the true gain, beyond the BIC margin of two
+/// effects with signatures (6) and within the significance guard (10.8).
+/// A gain that no sweep of the run's own indenter can rule out stays
+/// standing beside the layer (docs/diagnosis.md, "3. Explain"), so the
+/// closed loop goes on to the rigid ball; it once named the layer here, with
+/// nu1 7 % off.
+#[test]
+fn a_layer_does_not_rule_out_a_gain_on_a_margin_the_gain_can_hide_in() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rig/sensor_gain_after_torsion.csv");
+    let rec = Recording::read_path(&path).unwrap();
+    let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+    println!("{}", d.verdict);
+    assert!(d.effects.is_empty(), "named {:?}: {}", d.effects, d.verdict);
+    let standing: Vec<&str> = d.ambiguous.iter().flat_map(|a| a.effects.iter().copied()).collect();
+    assert!(standing.contains(&"sensor_gain") && standing.contains(&"finite_thickness"), "{standing:?}");
+    let gain = d.ambiguous.iter().find(|a| a.effects == ["sensor_gain"]).unwrap();
+    assert!(gain.delta_bic > 6.0, "the case this guards: the gain {:.1} behind", gain.delta_bic);
+}
+
 #[test]
 fn profile_out_reproduces_the_recording() {
     let p = SimProfile {

@@ -102,8 +102,16 @@ fn ambiguity(
         let s = score(model, &g, baseline);
         singles.push((g, s.delta_bic));
     }
+    // A depth-scale error has no signature of its own, only what it can
+    // mimic, and a real sensor's depth calibration is never exact: ruling it
+    // out in favour of an effect it mimics takes the evidence that naming an
+    // effect takes (the significance guard), not only the BIC margin between
+    // two effects that each have a signature.
+    let margin = |f: &Fitted| {
+        if f.cands == [Candidate::SensorGain] { AMBIGUOUS_BIC.max(chi2_crit(1)) } else { AMBIGUOUS_BIC }
+    };
     let close: Vec<&(Fitted, f64)> =
-        singles.iter().filter(|(f, b)| f.cands != bf.cands && *b - *bb < AMBIGUOUS_BIC).collect();
+        singles.iter().filter(|(f, b)| f.cands != bf.cands && *b - *bb < margin(f)).collect();
     if !close.is_empty() {
         let alt = |f: &Fitted, d: f64| Alternative {
             effects: f.cands.iter().map(|c| c.name()).collect(),
