@@ -13,6 +13,7 @@ use sim::recording::{Phase, Recording, Sample};
 use crate::diagnosis::model::{Base, Candidate, Fitted, Model};
 use crate::diagnosis::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose};
 use crate::fit::Ci95;
+use crate::run::events::{LoopChoice, LoopHypothesis, LoopView};
 
 /// A separation (sum of squared predicted differences over the noise) at or
 /// above which an experiment decides: the realised chi² gain then falls below
@@ -181,6 +182,37 @@ impl Plan {
     /// separates most per second of rig time.
     pub fn choice(&self) -> Option<&Scored> {
         self.experiments.first().filter(|s| s.separation > 0.0)
+    }
+
+    /// The closed loop's view of this plan (`RunEvent::ClosedLoop`): the
+    /// standing hypotheses with their odds, after `steps_run` experiments,
+    /// with the experiment chosen (or none) and a note.
+    pub fn view(&self, steps_run: usize, chosen: Option<LoopChoice>, note: String) -> LoopView {
+        let hypotheses = self
+            .hypotheses
+            .iter()
+            .zip(self.odds())
+            .map(|(h, odds)| LoopHypothesis { effects: h.effects.join(" + "), odds, e1_mpa: h.e1_mpa, nu1: h.nu1 })
+            .collect();
+        LoopView { steps_run, hypotheses, chosen, note }
+    }
+
+    /// Each standing hypothesis's odds, in `hypotheses`' order: its share of
+    /// the evidence among them, exp(-BIC/2) normalised (chi² of its refit plus
+    /// k ln n; equal prior odds). Shown while the loop runs, not used to decide.
+    pub fn odds(&self) -> Vec<f64> {
+        let bic: Vec<f64> = self
+            .hypotheses
+            .iter()
+            .map(|h| {
+                let k = h.fitted.n_params();
+                h.chi2 + k as f64 * ((h.fitted.dof + k).max(1) as f64).ln()
+            })
+            .collect();
+        let best = bic.iter().copied().fold(f64::INFINITY, f64::min);
+        let w: Vec<f64> = bic.iter().map(|b| (-(b - best) / 2.0).exp()).collect();
+        let total: f64 = w.iter().sum();
+        w.iter().map(|v| v / total).collect()
     }
 }
 

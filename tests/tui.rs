@@ -236,6 +236,44 @@ fn finished_screen_shows_the_diagnosis_verdict_and_corrected_values() {
     assert!(!s.contains("corrected E1"), "{s}");
 }
 
+/// The closed loop in the TUI (issue 14): the panel shows the experiment the
+/// loop chose and why, and each explanation still standing with its odds, from
+/// the plan of a recording whose sweeps cannot tell a compliant frame from a
+/// layer or a gain (the generator's frame of 3 um/N); the plain printer says the same.
+#[test]
+fn the_closed_loop_panel_shows_what_stands_with_its_odds_and_the_chosen_experiment() {
+    use easycalib::plan::{PlanOptions, plan};
+    use easycalib::run::events::LoopChoice;
+    use sim::effects::frame_compliance;
+    let profile =
+        SimProfile { frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }), ..SimProfile::default() };
+    let rec = generate(&GeneratorConfig { profile, seed: 1, ..GeneratorConfig::default() }).unwrap();
+    let p = plan(&rec, PlanOptions::default()).unwrap();
+    let c = p.choice().expect("an experiment");
+    let odds = p.odds();
+    assert!(odds.len() >= 2 && (odds.iter().sum::<f64>() - 1.0).abs() < 1e-9, "{odds:?}");
+    assert!(odds.windows(2).all(|w| w[0] >= w[1]), "best first: {odds:?}");
+    let why = format!("separates {} from {}", p.hypotheses[0].effects.join(" + "), p.hypotheses[1].effects.join(" + "));
+    let chosen =
+        LoopChoice { name: c.name.to_string(), why: why.clone(), rig_time_s: c.rig_time_s, operator: c.operator };
+    let view = p.view(0, Some(chosen), format!("running {}", c.name));
+    let (mut st, _, _) = mid_normal();
+    assert!(!render(&st).contains("closed loop"));
+    st.apply(&RunEvent::ClosedLoop(Box::new(view.clone())));
+    assert_eq!(st.closed_loop(), Some(&view));
+    let s = render(&st);
+    assert!(s.contains("closed loop"), "{s}");
+    assert!(s.contains(&format!("step 1: {} ({:.0} s)", c.name, c.rig_time_s)), "{s}");
+    for (h, o) in p.hypotheses.iter().zip(&odds) {
+        let row = format!("{:>3.0} % {}", 100.0 * o, h.effects.join(" + "));
+        assert!(s.contains(&row), "{row}\n{s}");
+    }
+    // The plain printer: one line with the same.
+    let line = view.line();
+    assert!(line.contains(&format!("runs {}", c.name)) && line.contains(&why), "{line}");
+    assert!(line.contains(&format!("{} {:.0} %", p.hypotheses[0].effects.join(" + "), 100.0 * odds[0])), "{line}");
+}
+
 #[test]
 fn help_overlay_opens_with_question_mark_and_any_key_closes_it() {
     let (mut st, _, _) = mid_normal();

@@ -172,6 +172,68 @@ impl LogLevel {
     }
 }
 
+/// The closed loop at one of its decision points (docs/experiments.md,
+/// "Watching the loop"): what still stands, what it runs next and why.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LoopView {
+    /// Experiments run so far.
+    pub steps_run: usize,
+    /// The explanations still standing, best first, with their odds.
+    pub hypotheses: Vec<LoopHypothesis>,
+    /// The experiment chosen to separate them; `None` when the loop stops (`note` says why).
+    pub chosen: Option<LoopChoice>,
+    /// What the loop concluded or why it stops, in one line.
+    pub note: String,
+}
+
+/// One standing explanation ([`LoopView`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LoopHypothesis {
+    /// Its effects, joined by ` + `.
+    pub effects: String,
+    /// Its share of the evidence among those standing, 0..1 (BIC weights
+    /// under equal prior odds, `plan::Plan::odds`).
+    pub odds: f64,
+    #[serde(rename = "E1_MPa")]
+    pub e1_mpa: f64,
+    pub nu1: f64,
+}
+
+/// The experiment the loop runs next ([`LoopView`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LoopChoice {
+    pub name: String,
+    /// Which explanations it separates, and by how much.
+    pub why: String,
+    /// Its predicted rig time, s.
+    pub rig_time_s: f64,
+    /// It needs an operator to swap the indenter.
+    pub operator: bool,
+}
+
+impl LoopView {
+    /// The view as one line (the plain event printer, the log).
+    pub fn line(&self) -> String {
+        let standing: Vec<String> =
+            self.hypotheses.iter().map(|h| format!("{} {:.0} %", h.effects, 100.0 * h.odds)).collect();
+        let next = match &self.chosen {
+            Some(c) => format!(
+                "runs {} ({:.0} s{}): {}",
+                c.name,
+                c.rig_time_s,
+                if c.operator { ", operator" } else { "" },
+                c.why
+            ),
+            None => self.note.clone(),
+        };
+        if standing.is_empty() {
+            format!("closed loop after {} step(s): {next}", self.steps_run)
+        } else {
+            format!("closed loop after {} step(s): standing {}; {next}", self.steps_run, standing.join(", "))
+        }
+    }
+}
+
 /// What a finished run reports. Fit values are absent when the fit failed.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct RunSummary {
@@ -236,6 +298,9 @@ pub enum RunEvent {
     Aborted {
         reason: String,
     },
+    /// The closed loop (`--adaptive`) at a decision point: what stands, what
+    /// it runs next and why, or why it stops.
+    ClosedLoop(Box<LoopView>),
     /// After a completed run's fit, before `Finished`: the diagnosis of the
     /// recording (docs/run.md), or why it could not be made.
     Diagnosis(Box<crate::report::RunDiagnosis>),
@@ -366,6 +431,7 @@ impl ProgressLine {
                 Some(format!("{} {step}: indenter mounted, running", self.prefix()))
             }
             RunEvent::Aborted { reason } => Some(format!("{} ABORTED: {}", self.prefix(), reason)),
+            RunEvent::ClosedLoop(v) => Some(format!("{} {}", self.prefix(), v.line())),
             RunEvent::Diagnosis(d) => Some(diagnosis_line(d)),
             RunEvent::Finished { summary } => Some(summary_line(summary)),
             RunEvent::History { lines } => Some(lines.join("\n")),

@@ -10,7 +10,7 @@ use ratatui::widgets::{Axis, Block, Chart, Clear, Dataset, Gauge, GraphType, Leg
 
 use super::state::{RunStatus, State};
 use crate::report::{RunDiagnosis, VerdictClass};
-use crate::run::events::{FitUpdate, LogLevel, RunControl, RunSummary, format_duration};
+use crate::run::events::{FitUpdate, LogLevel, LoopView, RunControl, RunSummary, format_duration};
 use devices::motion::AxisStatus;
 
 /// Points on the drawn running-fit curve.
@@ -37,9 +37,17 @@ pub fn draw(state: &State, frame: &mut Frame) {
     let [normal, torsion] = Layout::horizontal([Constraint::Ratio(1, 2), Constraint::Ratio(1, 2)]).areas(charts);
     draw_normal_chart(state, frame, normal);
     draw_torsion_chart(state, frame, torsion);
-    let [devices, fit] = Layout::vertical([Constraint::Length(11), Constraint::Min(3)]).areas(side);
+    let [devices, rest] = Layout::vertical([Constraint::Length(11), Constraint::Min(3)]).areas(side);
     draw_devices(state, frame, devices);
-    draw_fit(state, frame, fit);
+    match state.closed_loop() {
+        Some(v) => {
+            let [fit, lp] = Layout::vertical([Constraint::Length(6), Constraint::Min(3)]).areas(rest);
+            draw_fit(state, frame, fit);
+            let block = Block::bordered().title(" closed loop ");
+            frame.render_widget(Paragraph::new(loop_lines(v)).wrap(Wrap { trim: false }).block(block), lp);
+        }
+        None => draw_fit(state, frame, rest),
+    }
     draw_log(state, frame, log);
     draw_footer(state, frame, footer);
 
@@ -288,6 +296,24 @@ fn fit_lines(f: Option<&FitUpdate>) -> Vec<Line<'static>> {
         Line::from(vec!["E1  ".bold(), format!("{} MPa", fmt_opt(f.e1_mpa, 4)).into()]),
         Line::from(vec!["nu1 ".bold(), fmt_opt(f.nu1, 3).into()]),
     ]
+}
+
+/// The closed loop's panel: the experiment it runs and why (or why it
+/// stopped), then each standing explanation with its odds, best first.
+fn loop_lines(v: &LoopView) -> Vec<Line<'static>> {
+    let mut l = Vec::new();
+    match &v.chosen {
+        Some(c) => {
+            let who = if c.operator { ", operator" } else { "" };
+            l.push(Line::from(format!("step {}: {} ({:.0} s{who})", v.steps_run + 1, c.name, c.rig_time_s).bold()));
+            l.push(Line::from(c.why.clone()));
+        }
+        None => l.push(Line::from(v.note.clone())),
+    }
+    for h in &v.hypotheses {
+        l.push(Line::from(format!("{:>3.0} % {}", 100.0 * h.odds, h.effects)));
+    }
+    l
 }
 
 fn draw_fit(state: &State, frame: &mut Frame, area: Rect) {

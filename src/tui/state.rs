@@ -7,7 +7,9 @@ use std::collections::VecDeque;
 use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use sim::recording::Phase;
 
-use crate::run::events::{DeviceStatus, FitUpdate, LogLevel, Progress, RunControl, RunEvent, RunPhase, RunSummary};
+use crate::run::events::{
+    DeviceStatus, FitUpdate, LogLevel, LoopView, Progress, RunControl, RunEvent, RunPhase, RunSummary,
+};
 
 /// Log lines kept for the log pane; older ones are dropped.
 pub const LOG_CAPACITY: usize = 200;
@@ -84,6 +86,8 @@ pub struct State {
     diagnosis: Option<crate::report::RunDiagnosis>,
     /// An operator step waiting for the operator's confirmation.
     prompt: Option<OperatorPrompt>,
+    /// The closed loop's latest decision point (`--adaptive`).
+    closed_loop: Option<LoopView>,
 }
 
 /// What an operator step asks for ([`RunEvent::OperatorPrompt`]), shown in a
@@ -108,6 +112,7 @@ impl State {
             history: Vec::new(),
             diagnosis: None,
             prompt: None,
+            closed_loop: None,
             step: None,
             progress: None,
             devices: None,
@@ -179,6 +184,10 @@ impl State {
                 self.push_log(LogLevel::Error, format!("aborted: {reason}"));
             }
             RunEvent::History { lines } => self.history = lines.clone(),
+            RunEvent::ClosedLoop(v) => {
+                self.push_log(LogLevel::Info, v.line());
+                self.closed_loop = Some((**v).clone());
+            }
             RunEvent::Diagnosis(d) => self.diagnosis = Some((**d).clone()),
             RunEvent::Finished { summary } => {
                 self.status = RunStatus::Finished(summary.clone());
@@ -294,6 +303,10 @@ impl State {
     }
     pub fn log(&self) -> impl DoubleEndedIterator<Item = &LogEntry> + ExactSizeIterator {
         self.log.iter()
+    }
+    /// The closed loop's latest decision point, once it has planned.
+    pub fn closed_loop(&self) -> Option<&LoopView> {
+        self.closed_loop.as_ref()
     }
     /// The operator step waiting for confirmation, if any.
     pub fn prompt(&self) -> Option<&OperatorPrompt> {

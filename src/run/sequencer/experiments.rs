@@ -7,6 +7,8 @@ use super::*;
 use sim::experiment::{dwell_count, reload_path, repeat_path, reversal_angles, sweep_angles};
 use sim::recording::Recording;
 
+use crate::run::events::{LoopChoice, LoopView};
+
 /// Where an operator step's recording goes: beside the run's, the step's
 /// name before the extension (`recording.csv` -> `recording.rigid_ball.csv`).
 pub(super) fn operator_recording_path(recording: &Path, step: &str) -> PathBuf {
@@ -192,7 +194,11 @@ where
                 last.outcome = p.verdict.clone();
                 (last.e1_mpa, last.nu1) = (p.e1_mpa, p.nu1);
             }
+            let steps_run = self.adaptive.len();
+            let stop = |note: String| p.view(steps_run, None, note);
             if self.adaptive.len() as u32 >= a.max_steps {
+                let note = format!("{} experiments run, the most allowed; {}", a.max_steps, p.verdict);
+                self.emit(RunEvent::ClosedLoop(Box::new(stop(note))));
                 self.log(LogLevel::Info, format!("adaptive: {} experiments run, the most allowed", a.max_steps));
                 return Ok(());
             }
@@ -201,23 +207,32 @@ where
             let room = 0.8 * self.script.limits.max_gamma1_mm;
             let Some(c) = p.experiments.iter().find(|c| c.separates > 0 && c.peak_gamma1_mm <= room).cloned() else {
                 let why = p.nothing_because.clone().unwrap_or_else(|| "no experiment decides".into());
+                self.emit(RunEvent::ClosedLoop(Box::new(stop(format!("no experiment run: {why}; {}", p.verdict)))));
                 self.log(LogLevel::Info, format!("adaptive: no experiment run: {why}"));
                 return Ok(());
             };
             if spent + c.rig_time_s > a.budget_s {
-                self.log(
-                    LogLevel::Info,
-                    format!(
-                        "adaptive: {} ({:.0} s) would exceed the budget ({:.0} s left)",
-                        c.name,
-                        c.rig_time_s,
-                        a.budget_s - spent
-                    ),
+                let note = format!(
+                    "{} ({:.0} s) would exceed the budget ({:.0} s left); {}",
+                    c.name,
+                    c.rig_time_s,
+                    a.budget_s - spent,
+                    p.verdict
                 );
+                self.emit(RunEvent::ClosedLoop(Box::new(stop(note.clone()))));
+                self.log(LogLevel::Info, format!("adaptive: {note}"));
                 return Ok(());
             }
             let names: Vec<String> = p.hypotheses.iter().take(2).map(|h| h.effects.join(" + ")).collect();
             let why = format!("separates {} (separation {:.0})", names.join(" from "), c.separation);
+            let chosen = LoopChoice {
+                name: c.name.to_string(),
+                why: why.clone(),
+                rig_time_s: c.rig_time_s,
+                operator: c.operator,
+            };
+            self.emit(RunEvent::ClosedLoop(Box::new(p.view(steps_run, Some(chosen), format!("running {}", c.name)))));
+            let standing = p.view(steps_run + 1, None, String::new());
             let phase = if c.spec.phase().kind() == Phase::Torsion { RunPhase::Torsion } else { RunPhase::Normal };
             self.step(self.track.step_index, format!("adaptive: {}", c.name), phase);
             self.log(LogLevel::Info, format!("adaptive: running {} ({:.0} s): {why}", c.name, c.rig_time_s));
@@ -257,6 +272,8 @@ where
                     );
                 }
                 self.log(LogLevel::Info, format!("adaptive: {}: {}", c.name, step.outcome));
+                let note = format!("{}: {}", c.name, step.outcome);
+                self.emit(RunEvent::ClosedLoop(Box::new(LoopView { note, ..standing })));
                 self.adaptive.push(step);
                 return Ok(());
             }
