@@ -155,12 +155,13 @@ fn stop_means(rec: &Recording, pred: &[Reading], seg: &Segment, rs: &[f64]) -> V
 }
 
 /// Per-sample residuals (observed - model) in reading units: gamma1 mm, theta1 deg.
-/// `None` where there is nothing to compare (dead band on both sides; theta1 in the normal phase).
+/// `None` where there is nothing to compare (dead band on both sides, or a
+/// zero that is "no contact seen", [`super::model::zeros_unseen`]; theta1 in the normal phase).
 pub fn residual(rec: &Recording, pred: &[Reading], i: usize, q: Quantity) -> Option<f64> {
     let (s, p) = (&rec.samples[i], &pred[i]);
     match q {
         Quantity::Gamma1 => {
-            if s.gamma1_mm == 0.0 && p.gamma1_mm == 0.0 {
+            if s.gamma1_mm == 0.0 && (p.gamma1_mm == 0.0 || super::model::zeros_unseen(rec)) {
                 None
             } else {
                 Some(s.gamma1_mm - p.gamma1_mm)

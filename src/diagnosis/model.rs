@@ -327,6 +327,17 @@ impl TimedHistory {
     }
 }
 
+/// Whether `rec`'s readings of exactly zero are "no contact seen" rather
+/// than measured depths: a recording that carries standard errors comes
+/// from a sensor that estimates each reading (`easycalib run`), and such a
+/// sensor reads a contact it cannot resolve as none. Those zeros weigh
+/// nothing in the diagnosis, as in the full-model fit. (A generator's zeros
+/// are the model's own dead band, exact, and pin z0.) The first live sample
+/// decides, so this is cheap.
+pub fn zeros_unseen(rec: &Recording) -> bool {
+    rec.samples.iter().any(|s| s.gamma1_sd_mm.is_some())
+}
+
 /// Base parameters in physical units.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Base {
@@ -409,6 +420,11 @@ pub struct Model<'a> {
     pub max_iterations: usize,
     /// LM stops when a step lowers chi² by less than this fraction.
     pub cost_tolerance: f64,
+    /// The recording carries standard errors (a sensor that estimates its
+    /// readings, `easycalib run`): its readings of exactly zero are "no
+    /// contact seen", not measured depths, and weigh nothing (as in the
+    /// full-model fit, docs/diagnosis.md "1. Compare").
+    zeros_unseen: bool,
 }
 
 impl<'a> Model<'a> {
@@ -434,6 +450,7 @@ impl<'a> Model<'a> {
             sd_t: ones,
             max_iterations: 40,
             cost_tolerance: 1e-5,
+            zeros_unseen: zeros_unseen(rec),
         }
     }
 
@@ -537,7 +554,8 @@ impl<'a> Model<'a> {
     pub fn weighted(&self, pred: &[Reading], out: &mut Vec<f64>) {
         out.clear();
         for ((s, p), sd) in self.rec.samples.iter().zip(pred).zip(&self.sd_g) {
-            out.push((s.gamma1_mm - p.gamma1_mm) / (self.sigma_g * sd));
+            let unseen = self.zeros_unseen && s.gamma1_mm == 0.0;
+            out.push(if unseen { 0.0 } else { (s.gamma1_mm - p.gamma1_mm) / (self.sigma_g * sd) });
         }
         for ((s, p), sd) in self.rec.samples.iter().zip(pred).zip(&self.sd_t) {
             if s.phase == Phase::Torsion {
