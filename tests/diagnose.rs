@@ -233,6 +233,25 @@ fn a_layer_does_not_rule_out_a_gain_on_a_margin_the_gain_can_hide_in() {
     assert!(gain.delta_bic > 6.0, "the case this guards: the gain {:.1} behind", gain.delta_bic);
 }
 
+/// The emulated rig's sensor read a 4.7 um contact as none (sensor gain 0.99,
+/// seed 123, the standard sweeps; tests/data/rig/sensor_gain_unseen_contact.csv).
+/// A zero in a recording with standard errors is "no contact seen" and weighs
+/// nothing (docs/diagnosis.md, "1. Compare"): weighed as a measured depth it
+/// held 157 of the truth's chi² and a layer was named with nu1 4 % off; now
+/// the explanations the sweeps cannot rank, the gain among them, stand together.
+#[test]
+fn a_contact_the_sensor_did_not_see_is_not_read_as_a_depth() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rig/sensor_gain_unseen_contact.csv");
+    let rec = Recording::read_path(&path).unwrap();
+    let unseen = rec.samples.iter().filter(|s| s.gamma1_mm == 0.0 && s.stage_mm > 0.005).count();
+    assert!(unseen >= 1, "the fixture holds a contact read as none");
+    let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+    assert!(d.effects.is_empty(), "named {:?}: {}", d.effects, d.verdict);
+    assert!(!d.unexplained, "{}", d.verdict);
+    let standing: Vec<&str> = d.ambiguous.iter().flat_map(|a| a.effects.iter().copied()).collect();
+    assert!(standing.contains(&"sensor_gain"), "{standing:?}");
+}
+
 #[test]
 fn profile_out_reproduces_the_recording() {
     let p = SimProfile {
