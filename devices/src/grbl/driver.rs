@@ -652,6 +652,23 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Axis for GrblStage<T> {
         let p = self.machine_position(&s)?;
         Ok(self.status_of(&s, p))
     }
+
+    /// GRBL takes a move's speed with the move (`G1 ... F<mm/min>`), so this
+    /// only changes the feed the next moves are sent with; nothing goes on
+    /// the line. GRBL itself caps a feed at the axis's `$11x` max rate. A
+    /// speed that is not a positive number is refused, the feed unchanged.
+    async fn set_max_speed(&mut self, speed_mm_s: f64) -> Result<Option<f64>, GrblError> {
+        let what = "stage top speed (mm/s)";
+        if !speed_mm_s.is_finite() {
+            return Err(EncodeError::NotFinite { what, value: speed_mm_s }.into());
+        }
+        if speed_mm_s <= 0.0 {
+            return Err(EncodeError::NotPositive { what, value: speed_mm_s }.into());
+        }
+        let old = self.cfg.feed_mm_per_min / 60.0;
+        self.cfg.feed_mm_per_min = speed_mm_s * 60.0;
+        Ok(Some(old))
+    }
 }
 
 #[async_trait]

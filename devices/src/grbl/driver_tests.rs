@@ -54,6 +54,28 @@ async fn rejected_line_is_device_reported_with_meaning() {
     assert_eq!(stage.unacknowledged_bytes(), 0);
 }
 
+/// The top speed goes out with the next move's feed (`F`, mm/min): 0.1 mm/s
+/// is `F6`; setting it sends nothing, returns the speed it replaces, and a
+/// speed that is not a positive number is refused with the feed unchanged.
+#[tokio::test]
+async fn a_top_speed_is_the_next_moves_feed() {
+    let (mut stage, mut dev) = connected().await;
+    assert_eq!(stage.set_max_speed(0.1).await.unwrap(), Some(1.0));
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let e = stage.set_max_speed(bad).await.unwrap_err();
+        assert_eq!(e.kind(), FaultKind::Protocol, "{bad}: {e}");
+        assert!(e.to_string().contains("stage top speed"), "{e}");
+    }
+    let script = async move {
+        expect(&mut dev, b"G90 G1 Z2.0000 F6.0000\n").await;
+        dev.write_all(b"ok\r\n").await.unwrap();
+        dev
+    };
+    let (r, _dev) = tokio::join!(stage.start_move_to(Mm(2.0)), script);
+    r.unwrap();
+    assert_eq!(stage.set_max_speed(1.0).await.unwrap(), Some(0.1));
+}
+
 #[tokio::test]
 async fn out_of_travel_sends_nothing() {
     let (mut stage, mut dev) = connected().await;
