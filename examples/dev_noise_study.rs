@@ -22,13 +22,15 @@
 //!
 //! `cargo run --release --example dev_noise_study -- [--seeds N] [--first-seed S]
 //! [--scales 0.5,1,2] [--only NAME_PART] [--fixed-sigma] [--antithetic]
-//! [--shared-draws] [--original-draws] [--verbose]` (about a second per fit on the
+//! [--shared-draws] [--original-draws] [--verbose] [--linear-only]` (about a second per fit on the
 //! loaded 2-core machine). `--fixed-sigma` weighs the fit by the noise the
 //! draws were made with instead of the noise floor the fit estimates from its
 //! residuals (and `--scales 0` with it fits the noiseless recordings: what the
-//! fit's own iterations leave).
+//! fit's own iterations leave). `--linear-only` fits the linear layer model
+//! alone (one start near the truth) instead of choosing between the strain
+//! models as `easycalib fit` does.
 
-use easycalib::fit::{FitOptions, calibrate};
+use easycalib::fit::{FitOptions, ModelParams, calibrate, fit_full};
 use fem::forward::Forward;
 use sim::recording::{Phase, Recording};
 
@@ -114,6 +116,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let shared = args.iter().any(|a| a == "--shared-draws");
     let original_draws = args.iter().any(|a| a == "--original-draws");
     let verbose = args.iter().any(|a| a == "--verbose");
+    let linear_only = args.iter().any(|a| a == "--linear-only");
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear");
     let truth = std::fs::read_to_string(dir.join("truth.csv"))?;
     println!(
@@ -201,7 +204,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                         opts.full.gamma1_sigma_mm = Some(w * GAMMA1_NOISE_MM);
                         opts.full.theta1_sigma_deg = Some(w * THETA1_NOISE_DEG);
                     }
-                    let full = calibrate(&own, &opts)?.full;
+                    let full = if linear_only {
+                        // The linear layer model alone, from 5 % and 0.03 off the truth.
+                        let start = ModelParams {
+                            e1_mpa: 1.05 * e1,
+                            nu1: nu1 - 0.03,
+                            contact_offset_mm: 0.0,
+                            contact_friction: None,
+                            large_strain: false,
+                        };
+                        fit_full(&own, &opts.full, start)?
+                    } else {
+                        calibrate(&own, &opts)?.full
+                    };
                     if verbose {
                         let c = full.curvature_bias;
                         println!(

@@ -583,12 +583,13 @@ fn covariance(
     Ok(Covariance { matrix: cov, jac, dof, corr_e1_nu1: corr, chi2_dof, correction })
 }
 
+/// The weighted residuals' Jacobian at the optimum, the residuals there, and
+/// the friction correction they were taken with.
+type AtOptimum = (DMatrix<f64>, Vec<f64>, Option<Correction>);
+
 /// The weighted residuals at the optimum and their central-difference
 /// Jacobian in the physical parameters (E1, nu1, z0[, friction]).
-fn physical_jacobian(
-    rec: &Recording,
-    passes: &Passes,
-) -> Result<(DMatrix<f64>, Vec<f64>, Option<Correction>), FitError> {
+fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<AtOptimum, FitError> {
     let (params, sig) = (&passes.params, &passes.sigma);
     let mut phys = vec![params.e1_mpa, params.nu1, params.contact_offset_mm];
     phys.extend(params.contact_friction);
@@ -658,7 +659,7 @@ fn curvature_bias(
             _ => se[j],
         })
         .collect();
-    if steps.iter().any(|h| !(*h > 0.0)) {
+    if steps.iter().any(|h| h.is_nan() || *h <= 0.0) {
         return None;
     }
     let eval = |x: &[f64]| {
