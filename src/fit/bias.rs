@@ -15,53 +15,49 @@ use nalgebra::{DMatrix, DVector};
 
 /// The second-order bias of the least-squares optimum `theta` of the weighted
 /// residuals `eval` (unit-variance noise), with `jac` their Jacobian there.
-/// The Hessians are central second differences with `steps` (one per
-/// parameter); `eval` returns `None` where the model cannot be evaluated, and
-/// then so does this. Steps of about one standard error take the curvature as
-/// the noise meets it, over the spread of the estimate, rather than at a point
-/// (a numerical model may have kinks finer than that).
+///
+/// tr(C H_i) is summed over C's principal axes, C = sum_m u_m u_m' with u_m
+/// one standard deviation along axis m, so that tr(C H_i) = sum_m u_m' H_i u_m:
+/// one central second difference per axis (2 model evaluations per parameter,
+/// where the Hessian's entries would take 2 n²). Steps of one standard
+/// deviation take the curvature as the noise meets it, over the spread of the
+/// estimate, rather than at a point (a numerical model may have kinks finer
+/// than that). Where the model cannot be evaluated at a step (`eval` returns
+/// `None`: a parameter's range), the step is halved, up to three times;
+/// `None` if that does not help.
 pub(super) fn box_bias(
     mut eval: impl FnMut(&[f64]) -> Option<Vec<f64>>,
     theta: &[f64],
-    steps: &[f64],
     jac: &DMatrix<f64>,
 ) -> Option<Vec<f64>> {
     let np = theta.len();
     let m = jac.nrows();
-    if jac.ncols() != np || steps.len() != np {
+    if jac.ncols() != np {
         return None;
     }
     let cov = (jac.transpose() * jac).try_inverse()?;
-    let r0 = eval(theta)?;
-    if r0.len() != m {
-        return None;
-    }
-    let mut at = |shift: &[(usize, f64)]| -> Option<Vec<f64>> {
-        let mut x = theta.to_vec();
-        for &(j, s) in shift {
-            x[j] += s;
-        }
-        eval(&x).filter(|r| r.len() == m)
-    };
-    // d_i = sum_jk C_jk H_i,jk, accumulated pair by pair.
+    let r0 = eval(theta).filter(|r| r.len() == m)?;
+    let eigen = nalgebra::SymmetricEigen::new(cov.clone());
     let mut d = DVector::<f64>::zeros(m);
-    for j in 0..np {
-        let hj = steps[j];
-        let up = at(&[(j, hj)])?;
-        let down = at(&[(j, -hj)])?;
-        for i in 0..m {
-            d[i] += cov[(j, j)] * (up[i] - 2.0 * r0[i] + down[i]) / (hj * hj);
+    for (k, &lambda) in eigen.eigenvalues.iter().enumerate() {
+        if !(lambda.is_finite() && lambda >= 0.0) {
+            return None;
         }
-        for k in 0..j {
-            let hk = steps[k];
-            let pp = at(&[(j, hj), (k, hk)])?;
-            let pm = at(&[(j, hj), (k, -hk)])?;
-            let mp = at(&[(j, -hj), (k, hk)])?;
-            let mm = at(&[(j, -hj), (k, -hk)])?;
-            for i in 0..m {
-                let h = (pp[i] - pm[i] - mp[i] + mm[i]) / (4.0 * hj * hk);
-                d[i] += 2.0 * cov[(j, k)] * h;
+        let axis = eigen.eigenvectors.column(k) * lambda.sqrt();
+        let mut scale = 1.0;
+        let (up, down) = loop {
+            let at = |sign: f64, eval: &mut dyn FnMut(&[f64]) -> Option<Vec<f64>>| {
+                let x: Vec<f64> = theta.iter().zip(axis.iter()).map(|(t, a)| t + sign * scale * a).collect();
+                eval(&x).filter(|r| r.len() == m)
+            };
+            match (at(1.0, &mut eval), at(-1.0, &mut eval)) {
+                (Some(u), Some(v)) => break (u, v),
+                _ if scale > 0.2 => scale *= 0.5,
+                _ => return None,
             }
+        };
+        for i in 0..m {
+            d[i] += (up[i] - 2.0 * r0[i] + down[i]) / (scale * scale);
         }
     }
     let b = -0.5 * &cov * (jac.transpose() * d);
@@ -82,7 +78,7 @@ mod tests {
         let sxx: f64 = xs.iter().map(|x| x * x).sum();
         let residuals = |t: &[f64]| Some(xs.iter().map(|x| -(t[0] * t[0] * x) / sigma).collect::<Vec<_>>());
         let jac = DMatrix::from_iterator(xs.len(), 1, xs.iter().map(|x| -2.0 * theta * x / sigma));
-        let b = box_bias(residuals, &[theta], &[0.01], &jac).unwrap();
+        let b = box_bias(residuals, &[theta], &jac).unwrap();
         let expected = -sigma * sigma / (8.0 * theta.powi(3) * sxx);
         assert!((b[0] / expected - 1.0).abs() < 1e-6, "{} vs {expected}", b[0]);
     }
@@ -126,7 +122,7 @@ mod tests {
                     let e = (-t[1] * xs[i]).exp();
                     if j == 0 { -e / sigma } else { t[0] * xs[i] * e / sigma }
                 });
-                let b = box_bias(eval, &t, &[1e-3, 1e-3], &jac).unwrap();
+                let b = box_bias(eval, &t, &jac).unwrap();
                 pair_raw += t[1] / 2.0;
                 pair_corrected += (t[1] - b[1]) / 2.0;
                 predicted.push(b[1]);

@@ -629,9 +629,10 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<AtOptimum, FitE
 /// it is not small against the estimate's spread. The noise is the fit's
 /// weights (the recording's standard errors or the noise floors its residuals
 /// show), not the residuals' spread: a misfit of the model is not noise and
-/// has no curvature bias. The Hessians are taken on the model the fit iterated
+/// has no curvature bias. The curvature is taken on the model the fit iterated
 /// on (the frictionless press plus the friction correction, linear in the
-/// parameters), in steps of one standard error. `None` for the half-space fit,
+/// parameters), one standard deviation along each principal axis of the
+/// covariance. `None` for the half-space fit,
 /// at an end of nu1's range (the expansion cannot see the bound) and where the
 /// model cannot be evaluated a standard error away.
 fn curvature_bias(
@@ -651,17 +652,6 @@ fn curvature_bias(
     theta.truncate(np);
     let unit = (cov.jac.transpose() * &cov.jac).try_inverse()?;
     let se: Vec<f64> = (0..np).map(|j| unit[(j, j)].sqrt()).collect();
-    // A step of one standard error, kept inside the range of nu1 and of the friction.
-    let steps: Vec<f64> = (0..np)
-        .map(|j| match j {
-            1 => se[1].min(0.45 * theta[1]).min(0.45 * (0.5 - theta[1])),
-            3 => se[3].min(0.45 * theta[3]),
-            _ => se[j],
-        })
-        .collect();
-    if steps.iter().any(|h| h.is_nan() || *h <= 0.0) {
-        return None;
-    }
     let eval = |x: &[f64]| {
         let mut phys = x.to_vec();
         if let (3, Some(mu)) = (np, params.contact_friction) {
@@ -671,7 +661,7 @@ fn curvature_bias(
         weighted_residuals(rec, &from_physical(&phys, params), cov.correction.as_ref(), &passes.sigma, &mut r)
             .then_some(r)
     };
-    let b = super::bias::box_bias(eval, &theta, &steps, &cov.jac)?;
+    let b = super::bias::box_bias(eval, &theta, &cov.jac)?;
     let ratio = |j: usize| b[j].abs() / se[j];
     if ratio(0) > BIAS_WARN_SE || ratio(1) > BIAS_WARN_SE {
         warnings.push(Warning::new(
