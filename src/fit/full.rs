@@ -667,10 +667,10 @@ fn curvature_bias(
         warnings.push(Warning::new(
             "curvature_bias",
             format!(
-                "the least-squares estimate's own second-order bias is {:+.2} % in E1 ({:.2} standard errors) and \
-                 {:+.2} % in nu1 ({:.2}): at this noise the model bends over the estimate's spread, so the estimate \
-                 leans and its interval is not symmetric about the truth; more samples or less noise remove it \
-                 (it is not subtracted)",
+                "the least-squares estimate's own second-order bias is {:+.2} % in E1 ({:.2} of its standard error \
+                 from the noise) and {:+.2} % in nu1 ({:.2}): at this noise the model bends over the estimate's \
+                 spread, so the estimate leans and its interval covers the truth less often than it says; more \
+                 samples or less noise remove it (it is not subtracted: full.curvature_bias)",
                 b[0] / params.e1_mpa * 100.0,
                 ratio(0),
                 b[1] / params.nu1 * 100.0,
