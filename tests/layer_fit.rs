@@ -80,7 +80,8 @@ fn the_dev_sets_linear_recordings_are_recovered() {
     // Measured: nu1 within 1.2 % everywhere (the 2 %), E1 within 0.82 %
     // on seven of the eight and -2.06 % on tableI_3 (E2 = 3 MPa, whose contact
     // reaches 4.2 mm on the 5 mm sphere). The dev set's noise alone scatters an
-    // exact model's E1 by 0.3-1 % (sd; examples/dev_noise_study.rs).
+    // exact model's E1 by 0.5-1.3 % (sd) without biasing it
+    // (examples/dev_noise_study.rs; the last two tests below).
     assert!(worst_e < 2.5 && worst_nu < 2.0, "E1 {worst_e} %, nu1 {worst_nu} %");
     assert!(within_bars >= 7, "{within_bars} of 8 within E1 1 %, nu1 2 %");
 }
@@ -169,4 +170,97 @@ fn a_bound_does_not_hand_the_choice_to_a_model_that_misfits() {
     assert_eq!(f.model, "layer-fe-large-strain");
     assert_covers(f, 1.0, 0.48, "own large-strain recording");
     assert!(f.rms.normal_um < 2.5, "rms {}", f.rms.normal_um);
+}
+
+/// The layer fit reports its own second-order bias (Box's, `curvature_bias`):
+/// at the dev set's noise it is a few hundredths of a percent, far below the
+/// estimate's spread (measured: E1 -0.035 to +0.030 %, nu1 within 0.016 %).
+#[test]
+fn the_layer_fits_own_bias_is_reported_and_small() {
+    for Recovered { f, cal, .. } in recovered("linear") {
+        let full = &cal.full;
+        let b = full.curvature_bias.unwrap_or_else(|| panic!("{}: no curvature bias reported", f[0]));
+        let (be, bn) = (b.e1_mpa / full.e1_mpa * 100.0, b.nu1 / full.nu1 * 100.0);
+        println!("{:32} Box's bias E1 {be:+.4} %, nu1 {bn:+.4} %, z0 {:+.2e} mm", f[0], b.contact_offset_mm);
+        assert!(be.abs() < 0.1 && bn.abs() < 0.1, "{}: E1 {be} %, nu1 {bn} %", f[0]);
+        assert!(!cal.warnings.iter().any(|w| w.code == "curvature_bias"), "{}", f[0]);
+    }
+}
+
+/// Recordings of our own layer model (friction 0.4, a dev recording's truth and
+/// schedule) with the dev set's noise, each noise draw z fitted as z and -z: the
+/// pair's mean cancels the noise's odd orders, so its mean over pairs is the
+/// estimator's bias. A first version of the noise study put 0.3-1.0 % of E1 on
+/// that bias; it had used the same ten draws for every recording (their
+/// schedules are the same), and mirrored, those very draws average to -0.04 %
+/// (examples/dev_noise_study.rs). Measured here: E1 -0.02 ± 0.03 %, nu1
+/// -0.00 ± 0.02 %, against one fit's E1 spread of 1.0 %.
+#[test]
+#[ignore = "a noise study: about 40 layer fits (a minute in release)"]
+fn the_layer_fit_is_unbiased_at_the_dev_sets_noise() {
+    use fem::forward::Forward;
+    use sim::recording::Phase;
+    const FRICTION: f64 = 0.4;
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear");
+    // splitmix64 + Box–Muller, fixed seed per recording.
+    let gauss = |state: &mut u64| {
+        let mut u = || {
+            *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = *state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^= z >> 31;
+            ((z >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let (a, b) = (u(), u());
+        (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+    };
+    let (mut pair_e, mut pair_n, mut plain_e) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, (file, e1, nu1)) in
+        [("tableI_3_E2-3.0_nu2-0.40.csv", 1.0, 0.48), ("tac3d_like_1.csv", 0.33, 0.39)].into_iter().enumerate()
+    {
+        let rec = Recording::read_path(&dir.join(file)).unwrap();
+        let ind = rec.meta.indenter;
+        let model =
+            Forward::cached(rec.meta.layer.unwrap().thickness_mm, ind.e_mpa, ind.nu, ind.r_mm).unwrap().model(e1, nu1);
+        let stages: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm).collect();
+        let states = model.normal_path(&stages, FRICTION, stages.iter().copied().fold(0.0, f64::max) / 60.0).unwrap();
+        let mut state = 7_000 + k as u64;
+        for _ in 0..10 {
+            let draws: Vec<(f64, f64)> = rec.samples.iter().map(|_| (gauss(&mut state), gauss(&mut state))).collect();
+            let fit = |sign: f64| {
+                let mut own = rec.clone();
+                for ((s, st), (zg, zt)) in own.samples.iter_mut().zip(&states).zip(&draws) {
+                    s.gamma1_mm = if st.gamma1_mm > 0.0 { st.gamma1_mm + sign * 0.002 * zg } else { 0.0 };
+                    s.theta1_deg = match s.phase {
+                        Phase::Torsion => {
+                            let twist = s.rot_deg.to_radians();
+                            let t = model.theta1_rad(st, twist.abs(), FRICTION).map_or(0.0, f64::to_degrees);
+                            t * twist.signum() + sign * 0.02 * zt
+                        }
+                        Phase::Normal => 0.0,
+                    };
+                }
+                let full = calibrate(&own, &FitOptions::default()).unwrap().full;
+                ((full.e1_mpa / e1 - 1.0) * 100.0, (full.nu1 / nu1 - 1.0) * 100.0)
+            };
+            let ((ep, np), (em, nm)) = (fit(1.0), fit(-1.0));
+            pair_e.push((ep + em) / 2.0);
+            pair_n.push((np + nm) / 2.0);
+            plain_e.push(ep);
+        }
+    }
+    let mean_se = |v: &[f64]| {
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        let sd = (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt();
+        (m, sd / (v.len() as f64).sqrt(), sd)
+    };
+    let ((me, se_e, _), (mn, se_n, _), (_, _, sd_plain)) = (mean_se(&pair_e), mean_se(&pair_n), mean_se(&plain_e));
+    println!(
+        "20 antithetic pairs: E1 bias {me:+.3} ± {se_e:.3} %, nu1 {mn:+.3} ± {se_n:.3} % (one fit's E1 sd {sd_plain:.2} %)"
+    );
+    // The spread is what the noise allows; the bias is a small part of it.
+    assert!(sd_plain > 0.3, "the draws did not scatter the fits: sd {sd_plain} %");
+    assert!(me.abs() < 0.15 && mn.abs() < 0.15, "E1 bias {me} %, nu1 bias {mn} %");
+    assert!(me.abs() < 0.2 * sd_plain, "E1 bias {me} % against a spread of {sd_plain} %");
 }

@@ -1,5 +1,6 @@
 //! Fitting E1 and nu1 from a recording: the paper's method and the full-model fit.
 
+mod bias;
 pub mod full;
 mod large_strain;
 mod layer_model;
@@ -13,7 +14,7 @@ pub mod zero;
 use serde::Serialize;
 use sim::recording::Recording;
 
-pub use full::{FullFit, FullOptions, ModelParams, fit_full, predict};
+pub use full::{CurvatureBias, FullFit, FullOptions, ModelParams, fit_full, predict};
 pub use paper::{PaperFit, PaperOptions, fit_paper};
 pub use plausible::Implausible;
 
