@@ -734,6 +734,14 @@ pub fn correct_for_gain(rec: &Recording, gain: &GainMeasure) -> Result<GainCorre
     Ok(GainCorrected { effects, e1_mpa, nu1, ci95, gain_share, diagnosis: d2 })
 }
 
+/// `E1 0.3300 MPa [0.3290, 0.3310], nu1 0.3900 [0.3850, 0.3950]`.
+fn with_intervals(e1_mpa: f64, nu1: f64, ci: &Ci95) -> String {
+    format!(
+        "E1 {e1_mpa:.4} MPa [{:.4}, {:.4}], nu1 {nu1:.4} [{:.4}, {:.4}]",
+        ci.e1_mpa[0], ci.e1_mpa[1], ci.nu1[0], ci.nu1[1]
+    )
+}
+
 /// chi² of the rigid ball's resolved readings against their prediction
 /// under `profile` (its material and effects, the ball mounted).
 fn ball_chi2(
@@ -824,14 +832,9 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
                 nu1: alt.nu1,
                 ci95: alt.ci95,
                 outcome: format!(
-                    "{ruled_out}; the ball names {}: E1 {:.4} MPa [{:.4}, {:.4}], nu1 {:.4} [{:.4}, {:.4}]",
+                    "{ruled_out}; the ball names {}: {}",
                     effects.join(" + "),
-                    alt.e1_mpa,
-                    alt.ci95.e1_mpa[0],
-                    alt.ci95.e1_mpa[1],
-                    alt.nu1,
-                    alt.ci95.nu1[0],
-                    alt.ci95.nu1[1]
+                    with_intervals(alt.e1_mpa, alt.nu1, &alt.ci95)
                 ),
             });
         }
@@ -851,16 +854,11 @@ pub fn decide_with_ball(rec: &Recording, d: &Diagnosis, p: &Plan, ball: &Recordi
     let chi2: Vec<(String, f64)> = chi2.into_iter().map(|(e, c)| (e.join(" + "), c)).collect();
     let c = correct_for_gain(rec, &gain)?;
     let outcome = format!(
-        "named {} (rigid ball: g {:.4} +- {:.4}): E1 {:.4} MPa [{:.4}, {:.4}], nu1 {:.4} [{:.4}, {:.4}]",
+        "named {} (rigid ball: g {:.4} +- {:.4}): {}",
         c.effects.join(" + "),
         gain.g,
         gain.g_sd,
-        c.e1_mpa,
-        c.ci95.e1_mpa[0],
-        c.ci95.e1_mpa[1],
-        c.nu1,
-        c.ci95.nu1[0],
-        c.ci95.nu1[1]
+        with_intervals(c.e1_mpa, c.nu1, &c.ci95)
     );
     Ok(GainDecision {
         gain,
