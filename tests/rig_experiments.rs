@@ -113,6 +113,10 @@ fn the_closed_loop_runs_a_deciding_experiment_only_when_something_is_left_to_dec
     let last = &chain[out.adaptive.len() - 1];
     let (e1, nu1) = (last["E1_MPa"].as_f64().expect("E1_MPa"), last["nu1"].as_f64().expect("nu1"));
     assert!((e1 - out.adaptive[out.adaptive.len() - 1].e1_mpa).abs() < 1e-12 && nu1 > 0.0 && nu1 < 0.5, "{chain:#}");
+    // ... with their 95 % intervals, which hold them.
+    let ci = |k: &str| last["ci95"][k].as_array().map(|v| v.iter().filter_map(|x| x.as_f64()).collect::<Vec<f64>>());
+    let (ce, cn) = (ci("E1_MPa").expect("ci95.E1_MPa"), ci("nu1").expect("ci95.nu1"));
+    assert!(ce[0] < e1 && e1 < ce[1] && cn[0] < nu1 && nu1 < cn[1], "{chain:#}");
     assert_eq!(out.report_chain.1.len(), out.adaptive.len(), "{:?}", out.report_chain.1);
     assert!(out.report_chain.1[0].starts_with("| experiment 1 | torsion_at_depth"), "{:?}", out.report_chain.1);
     assert_eq!(out.named, ["frame_compliance"], "{out:?}");

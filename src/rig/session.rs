@@ -401,6 +401,7 @@ mod tests {
             outcome: "sensor gain ruled out; the ball names frame_compliance".into(),
             e1_mpa: f64::NAN,
             nu1: f64::NAN,
+            ci95: None,
             recording: Some(ball_path),
             effects: vec!["frame_compliance"],
         };

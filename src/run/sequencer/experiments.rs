@@ -193,6 +193,7 @@ where
             if let Some(last) = self.adaptive.last_mut() {
                 last.outcome = p.verdict.clone();
                 (last.e1_mpa, last.nu1) = (p.e1_mpa, p.nu1);
+                last.ci95 = Some(if d.effects.is_empty() { d.baseline.ci95 } else { d.corrected.ci95 });
             }
             let steps_run = self.adaptive.len();
             let stop = |note: String| p.view(steps_run, None, note);
@@ -250,6 +251,7 @@ where
                     outcome: String::new(),
                     e1_mpa: d.e1_mpa,
                     nu1: d.nu1,
+                    ci95: None,
                     recording: Some(path.clone()),
                     effects: Vec::new(),
                 };
@@ -259,7 +261,7 @@ where
                     match decided {
                         Ok(Ok(g)) => {
                             step.outcome = g.outcome.clone();
-                            (step.e1_mpa, step.nu1) = (g.e1_mpa, g.nu1);
+                            (step.e1_mpa, step.nu1, step.ci95) = (g.e1_mpa, g.nu1, Some(g.ci95));
                             step.effects = g.effects.clone();
                         }
                         Ok(Err(e)) => step.outcome = format!("rigid ball: not decided: {e}"),
@@ -288,6 +290,7 @@ where
                 outcome: String::new(),
                 e1_mpa: f64::NAN,
                 nu1: f64::NAN,
+                ci95: None,
                 recording: None,
                 effects: Vec::new(),
             });

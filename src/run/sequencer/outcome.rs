@@ -90,6 +90,9 @@ pub struct AdaptiveStep {
     #[serde(rename = "E1_MPa")]
     pub e1_mpa: f64,
     pub nu1: f64,
+    /// 95 % intervals of `E1_MPa` and `nu1` (absent until the diagnosis after the step is made).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ci95: Option<crate::fit::Ci95>,
     /// An operator step's samples: their recording of its own (another
     /// indenter in its header, `operator_step` among its keys).
     #[serde(skip_serializing_if = "Option::is_none")]
