@@ -75,10 +75,13 @@ struct Noise {
     theta1_deg: ChannelNoise,
 }
 
+/// Residuals, each with the index of its sample.
+type Indexed = Vec<(usize, f64)>;
+
 /// One fit's residuals per channel, each with its sample's index: gamma1 of
 /// every sample off the dead band (a reading of exactly zero is "no contact
 /// seen", not a depth), theta1 of every torsion sample.
-fn residuals(rec: &Recording, f: &FullFit) -> (Vec<(usize, f64)>, Vec<(usize, f64)>) {
+fn residuals(rec: &Recording, f: &FullFit) -> (Indexed, Indexed) {
     let (mut g, mut t) = (Vec::new(), Vec::new());
     for (i, (s, p)) in rec.samples.iter().zip(&f.predictions).enumerate() {
         if s.gamma1_mm != 0.0 {
@@ -261,7 +264,7 @@ mod tests {
     #[test]
     fn an_estimated_floor_is_bounded_below_by_the_resolution_and_the_worse_misfit() {
         // Noiseless: both floors are numerical dust; the resolution decides.
-        let (n, _) = channel(None, None, [Some(1e-12), Some(3e-9)], Some(1e-5), 1e-3);
+        let (n, _) = channel(None, None, [Some(1e-12), Some(3e-9)], Some(1e-5), 1e-4);
         assert_eq!(n.source, NoiseSource::Resolution);
         assert!((n.sigma - 1e-5 / 12f64.sqrt()).abs() < 1e-18);
         // Without a resolution, a hundredth of the worse fit's misfit.
