@@ -66,6 +66,8 @@ fn the_dev_sets_linear_recordings_are_recovered() {
             (cal.paper.e1_mpa / e1 - 1.0) * 100.0,
             (cal.paper.nu1 / nu1 - 1.0) * 100.0,
         );
+        let j = cal.model_choice.as_ref().unwrap();
+        println!("    chi² linear {:.1}, large strain {:.1} (dof {}), by {}", j.chi2[0], j.chi2[1], j.dof, j.rule);
         assert_eq!(full.model, "layer-fe");
         assert_covers(full, e1, nu1, &f[0]);
         // The dev model's interface has Coulomb friction 0.4 (its README): the
@@ -110,6 +112,8 @@ fn the_dev_sets_nonlinear_recordings_are_recovered_at_large_strain() {
             full.rms.torsion_deg,
             cal.warnings.iter().map(|w| w.code).collect::<Vec<_>>()
         );
+        let j = cal.model_choice.as_ref().unwrap();
+        println!("    chi² linear {:.1}, large strain {:.1} (dof {}), by {}", j.chi2[0], j.chi2[1], j.dof, j.rule);
         assert_eq!(full.model, "layer-fe-large-strain", "{}", f[0]);
         assert_covers(full, e1, nu1, &f[0]);
         assert!(!cal.warnings.iter().any(|w| w.code == "systematic_residuals"), "{}", f[0]);
@@ -151,11 +155,12 @@ fn diagnose_starts_from_the_layer_model_and_agrees_with_fit() {
 /// table's grid (E2/E1 1, nu1 0.48, nu2 0.4; `easycalib simulate --fidelity fe
 /// --thickness-mm 5 --r1-mm inf --e1-mpa 1 --nu1 0.48 --indenter-e-mpa 1
 /// --indenter-nu 0.4 --seed 4`). Not an independent check: it guards the choice
-/// between the two strain models. The large-strain fit ends at nu1 = 0.5 here
-/// (its twist keeps the linear model's slip, which the neo-Hookean contact
-/// undercuts by about 2 % at 10 degrees: E1 about -2.7 %, docs/physics.md,
-/// "Large strain"), while the linear fit leaves residuals three times its noise
-/// and an nu1 interval that misses the truth. The misfit decides, not the bound.
+/// between the two strain models. The large-strain fit ends near nu1 = 0.5
+/// here (measured 0.494, E1 -2.9 %: its twist keeps the linear model's slip,
+/// which the neo-Hookean contact undercuts by about 2 % at 10 degrees;
+/// docs/physics.md, "Large strain"), while the linear fit leaves chi² 361
+/// against its 46 at their common noise (1.81 µm; 48 degrees of freedom).
+/// The misfit decides, not the bound.
 #[test]
 fn a_bound_does_not_hand_the_choice_to_a_model_that_misfits() {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -167,7 +172,20 @@ fn a_bound_does_not_hand_the_choice_to_a_model_that_misfits() {
         "{} E1 {:.4} {:?} nu1 {:.4} {:?} rms {:.2} µm",
         f.model, f.e1_mpa, f.ci95.e1_mpa, f.nu1, f.ci95.nu1, f.rms.normal_um
     );
+    let j = cal.model_choice.as_ref().unwrap();
+    println!(
+        "chi² linear {:.1}, large strain {:.1} (dof {}, noise {:.2} µm {:?}, {:.4}° {:?}), by {}",
+        j.chi2[0],
+        j.chi2[1],
+        j.dof,
+        j.gamma1_mm.sigma * 1e3,
+        j.gamma1_mm.source,
+        j.theta1_deg.sigma,
+        j.theta1_deg.source,
+        j.rule
+    );
     assert_eq!(f.model, "layer-fe-large-strain");
+    assert_eq!(j.rule, "misfit");
     assert_covers(f, 1.0, 0.48, "own large-strain recording");
     assert!(f.rms.normal_um < 2.5, "rms {}", f.rms.normal_um);
 }
@@ -263,4 +281,128 @@ fn the_layer_fit_is_unbiased_at_the_dev_sets_noise() {
     assert!(sd_plain > 0.3, "the draws did not scatter the fits: sd {sd_plain} %");
     assert!(me.abs() < 0.15 && mn.abs() < 0.15, "E1 bias {me} %, nu1 bias {mn} %");
     assert!(me.abs() < 0.2 * sd_plain, "E1 bias {me} % against a spread of {sd_plain} %");
+}
+
+/// A noiseless recording of one of our own layer models on a dev recording's
+/// stage and twist schedule, at that recording's truth (friction 0.4 as in
+/// the dev set): the linear layer model (its frictional press and twist) or
+/// the large-strain one (the linear model times the neo-Hookean reference's
+/// tabulated ratios, as the fit takes it). `written`: passed through the
+/// recording writer and read back, so its readings carry the writer's
+/// resolution (10 nm, 1e-5°) as a real file does; otherwise full precision.
+fn own_noiseless(set: &str, file: &str, e1: f64, nu1: f64, large_strain: bool, written: bool) -> Recording {
+    use easycalib::fit::{ModelParams, predict};
+    use sim::recording::Phase;
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev").join(set);
+    let mut rec = Recording::read_path(&dir.join(file)).unwrap();
+    let truth = ModelParams { e1_mpa: e1, nu1, contact_offset_mm: 0.0, contact_friction: Some(0.4), large_strain };
+    let pred = predict(&rec, &truth).unwrap();
+    for (s, p) in rec.samples.iter_mut().zip(&pred) {
+        // The sensor's dead band: no contact seen reads exactly zero.
+        s.gamma1_mm = if p.gamma1_mm > 0.0 { p.gamma1_mm } else { 0.0 };
+        s.theta1_deg = if s.phase == Phase::Torsion { p.theta1_deg } else { 0.0 };
+    }
+    if written { Recording::parse(&rec.to_csv_string()).unwrap() } else { rec }
+}
+
+fn truths(set: &str) -> Vec<(String, f64, f64)> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev").join(set);
+    std::fs::read_to_string(dir.join("truth.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[0].to_string(), f[1].parse().unwrap(), f[2].parse().unwrap())
+        })
+        .collect()
+}
+
+/// Fit a noiseless recording and print how the two models were judged.
+fn fit_noiseless(rec: &Recording, opts: &FitOptions, what: &str, e1: f64, nu1: f64) -> (String, f64, f64) {
+    let cal = calibrate(rec, opts).unwrap();
+    let (f, j) = (&cal.full, cal.model_choice.as_ref().expect("a declared layer judges both models"));
+    let (de, dn) = ((f.e1_mpa / e1 - 1.0) * 100.0, (f.nu1 / nu1 - 1.0) * 100.0);
+    println!(
+        "{what:44} {:22} E1 {de:+.4} %  nu1 {dn:+.4} %  chi² linear {:.3e} large {:.3e} (dof {}, noise {:.2e} mm {:?}, \
+         {:.2e}° {:?}, by {})",
+        f.model,
+        j.chi2[0],
+        j.chi2[1],
+        j.dof,
+        j.gamma1_mm.sigma,
+        j.gamma1_mm.source,
+        j.theta1_deg.sigma,
+        j.theta1_deg.source,
+        j.rule
+    );
+    (f.model.to_string(), de, dn)
+}
+
+/// Noiseless recordings of our own linear layer model on all eight dev
+/// schedules, at full double precision: the fit keeps the linear model, with
+/// the noise estimated from the residuals (`easycalib fit`; the truth within
+/// 0.05 %) and with the dev set's noise given (`--noise-um 2` and 0.02°; within
+/// 0.1 %, see below). Before the two models were judged at a common noise the
+/// large-strain model won on four of these eight with the noise estimated and
+/// on five with it given (E1 +6 to +44 %, nu1 on its bound): each model's
+/// residuals were measured against their own second-difference floor, which is
+/// numerical dust for the model that made the recording.
+#[test]
+fn noiseless_recordings_of_the_linear_model_pick_it_and_return_the_truth() {
+    let given = FitOptions {
+        full: easycalib::fit::FullOptions { gamma1_sigma_mm: Some(0.002), theta1_sigma_deg: Some(0.02) },
+        ..Default::default()
+    };
+    let mut worst = [0.0f64; 2];
+    let mut missed = Vec::new();
+    for (file, e1, nu1) in truths("linear") {
+        let rec = own_noiseless("linear", &file, e1, nu1, false, false);
+        for (k, (opts, how)) in [(FitOptions::default(), "estimated"), (given, "given")].into_iter().enumerate() {
+            let (model, de, dn) = fit_noiseless(&rec, &opts, &format!("{file} ({how} noise)"), e1, nu1);
+            // The deferred friction correction's derivatives are finite
+            // differences over 0.1 % of E1 (docs/physics.md, "In the fit"): with
+            // the dev set's noise given as the weights, one schedule ends
+            // 0.06 % off, within that step (tableI_2: its residuals are 0.10 µm
+            // where the truth's are 0.016 µm; the choice is not involved).
+            let bar = [0.05, 0.1][k];
+            if model != "layer-fe" || de.abs() >= bar || dn.abs() >= bar {
+                missed.push(format!("{file}, {how} noise: {model}, E1 {de:+.4} %, nu1 {dn:+.4} %"));
+            }
+            worst[k] = worst[k].max(de.abs()).max(dn.abs());
+        }
+    }
+    println!("worst: {:.4} % (estimated noise), {:.4} % (given)", worst[0], worst[1]);
+    assert!(missed.is_empty(), "{missed:#?}");
+}
+
+/// The same as written files (their readings rounded to the writer's 10 nm
+/// and 1e-5°: the noise is then bounded below by that resolution or by a
+/// hundredth of the large-strain fit's misfit) on two schedules, and
+/// noiseless recordings of our own large-strain model (the table-scaled
+/// linear model the fit uses) on the dev set's neo-Hookean schedules and two
+/// linear ones: each picks the model that made it.
+#[test]
+fn noiseless_recordings_pick_the_model_that_made_them() {
+    let some = |f: &String| f.starts_with("tableI_3") || f.starts_with("tac3d_like_1");
+    for (file, e1, nu1) in truths("linear").into_iter().filter(|(f, ..)| some(f)) {
+        let rec = own_noiseless("linear", &file, e1, nu1, false, true);
+        let (model, de, dn) =
+            fit_noiseless(&rec, &FitOptions::default(), &format!("{file} (linear, written)"), e1, nu1);
+        assert_eq!(model, "layer-fe", "{file}");
+        assert!(de.abs() < 0.05 && dn.abs() < 0.05, "{file}: E1 {de} %, nu1 {dn} %");
+    }
+    let others = |f: &String| f.starts_with("tableI_4") || f.starts_with("tac3d_like_2");
+    let cases: Vec<(&str, (String, f64, f64))> = truths("nonlinear")
+        .into_iter()
+        .map(|t| ("nonlinear", t))
+        .chain(truths("linear").into_iter().filter(|(f, ..)| others(f)).map(|t| ("linear", t)))
+        .collect();
+    for (set, (file, e1, nu1)) in cases {
+        let rec = own_noiseless(set, &file, e1, nu1, true, true);
+        let (model, de, dn) =
+            fit_noiseless(&rec, &FitOptions::default(), &format!("{set}/{file} (large strain)"), e1, nu1);
+        assert_eq!(model, "layer-fe-large-strain", "{set}/{file}");
+        assert!(de.abs() < 0.5 && dn.abs() < 0.5, "{set}/{file}: E1 {de} %, nu1 {dn} %");
+    }
 }

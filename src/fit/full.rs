@@ -197,6 +197,10 @@ pub struct FullFit {
     pub curvature_bias: Option<CurvatureBias>,
     /// What the reader of this estimate should know (a bound reached, no convergence).
     pub warnings: Vec<Warning>,
+    /// The fitted model's reading of every sample (recording order): what the
+    /// choice between strain models judges the fits by (`super::choice`).
+    #[serde(skip)]
+    pub predictions: Vec<Prediction>,
 }
 
 /// The layer fit's second-order bias (Box's), in the fitted parameters: the
@@ -393,6 +397,7 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
         large_strain: params.large_strain,
         curvature_bias,
         warnings,
+        predictions: pred,
     })
 }
 

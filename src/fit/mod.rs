@@ -1,6 +1,7 @@
 //! Fitting E1 and nu1 from a recording: the paper's method and the full-model fit.
 
 mod bias;
+pub mod choice;
 pub mod full;
 mod large_strain;
 mod layer_model;
@@ -77,12 +78,16 @@ pub struct Calibration {
     pub full: FullFit,
     /// Every warning of both fits, the full fit's first.
     pub warnings: Vec<Warning>,
+    /// With a declared layer, how the full fit chose between the linear
+    /// (first) and the large-strain (second) model.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model_choice: Option<choice::Judgement>,
 }
 
 pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitError> {
     plausible::check(rec)?;
     let paper = fit_paper(rec, &opts.paper)?;
-    let full = best_full_fit(rec, opts, &paper)?;
+    let (full, model_choice) = best_full_fit(rec, opts, &paper)?;
     let mut warnings = full.warnings.clone();
     if let Some(l) = rec.meta.layer.filter(|_| full::fe_layer(rec).is_none()) {
         warnings.push(Warning::new(
@@ -98,39 +103,51 @@ pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitE
         ));
     }
     warnings.extend(paper_warnings(&paper));
-    Ok(Calibration { paper, full, warnings })
+    Ok(Calibration { paper, full, warnings, model_choice })
 }
 
 /// The full fit from the paper's answer where that is plausible; the paper's
 /// method is fragile (a few micrometres of contact error move its nu1 a lot), so
 /// otherwise, or if that fit fails or ends on a bound, from typical elastomers
 /// too, keeping the fit with the smallest residuals (an interior one if any).
-fn best_full_fit(rec: &Recording, opts: &FitOptions, paper: &PaperFit) -> Result<FullFit, FitError> {
+/// With a declared layer, both strain models, and how one was chosen.
+fn best_full_fit(
+    rec: &Recording,
+    opts: &FitOptions,
+    paper: &PaperFit,
+) -> Result<(FullFit, Option<choice::Judgement>), FitError> {
     let linear = best_fit_over_starts(rec, opts, paper, false, None)?;
     if full::fe_layer(rec).is_none() {
-        return Ok(linear);
+        return Ok((linear, None));
     }
     // A declared layer: the large-strain model too (what a real gel does at
     // these depths), from the linear answer and the usual starts; the better
-    // fit of the two models is kept.
+    // fit of the two models is kept (docs/physics.md, "Which of the two fits
+    // is better").
     let Ok(large) = best_fit_over_starts(rec, opts, paper, true, Some(linear.params())) else {
-        return Ok(linear);
+        return Ok((linear, None));
     };
-    if !better_model(&linear, &large) {
-        return Ok(large);
+    let j = choice::judge(rec, &opts.full, &linear, &large);
+    if !j.first_kept {
+        return Ok((large, Some(j)));
     }
     let mut linear = linear;
     linear.warnings.push(Warning::new(
         "small_strain_fits_better",
         format!(
-            "the linear-elastic layer model fits this recording better than the large-strain one (residual cost \
-             {:.3} against {:.3}): the recording behaves as small strain, which a real gel pressed to beta = 0.2 \
-             does not; E1 and nu1 are the linear model's",
-            fit_cost(&linear),
-            fit_cost(&large)
+            "the linear-elastic layer model fits this recording better than the large-strain one (chi² {:.4} \
+             against {:.4} for {} degrees of freedom at a common noise of {:.3} µm and {:.5}°, decided by {}): \
+             the recording behaves as small strain, which a real gel pressed to beta = 0.2 does not; E1 and nu1 \
+             are the linear model's",
+            j.chi2[0],
+            j.chi2[1],
+            j.dof,
+            j.gamma1_mm.sigma * 1e3,
+            j.theta1_deg.sigma,
+            j.rule
         ),
     ));
-    Ok(linear)
+    Ok((linear, Some(j)))
 }
 
 /// The best full fit of one strain model over start points: `first` (if any),
@@ -155,7 +172,7 @@ fn best_fit_over_starts(
     let mut last_err = None;
     let mut consider = |r: Result<FullFit, FitError>, best: &mut Option<FullFit>| match r {
         Ok(f) => {
-            if best.as_ref().is_none_or(|b| better(&f, b)) {
+            if best.as_ref().is_none_or(|b| better(rec, &opts.full, &f, b)) {
                 *best = Some(f);
             }
         }
@@ -179,31 +196,18 @@ fn pinned(f: &FullFit) -> bool {
     f.warnings.iter().any(|w| w.code == "nu1_at_bound")
 }
 
-/// An interior optimum beats one on a bound; otherwise the smaller residuals win.
-fn better(a: &FullFit, b: &FullFit) -> bool {
+/// Between starts of one model: an interior optimum beats one on a bound;
+/// otherwise the smaller chi² at the two fits' common noise wins.
+fn better(rec: &Recording, opts: &full::FullOptions, a: &FullFit, b: &FullFit) -> bool {
     match (pinned(a), pinned(b)) {
         (false, true) => true,
         (true, false) => false,
-        _ => fit_cost(a) < fit_cost(b),
+        _ => {
+            let j = choice::judge(rec, opts, a, b);
+            j.chi2[0] < j.chi2[1]
+        }
     }
 }
-
-/// Between the two strain models: as [`better`], except that a model whose
-/// residual variance is more than twice the other's loses even when the other
-/// ends on a bound of nu1 (0.5 is a real gel's value; a misfit that size is not
-/// noise, F-test at about 1 % for the 30-40 samples of a sweep).
-fn better_model(a: &FullFit, b: &FullFit) -> bool {
-    let (ca, cb) = (fit_cost(a), fit_cost(b));
-    if ca > MODEL_COST_RATIO * cb {
-        return false;
-    }
-    if cb > MODEL_COST_RATIO * ca {
-        return true;
-    }
-    better(a, b)
-}
-
-const MODEL_COST_RATIO: f64 = 2.0;
 
 /// The paper's closed form can land outside the physical range on data its
 /// reduced relations do not describe; its numbers are kept, flagged.
@@ -220,15 +224,4 @@ fn paper_warnings(p: &PaperFit) -> Vec<Warning> {
         ));
     }
     w
-}
-
-/// Residual size of a full fit against its own noise floors (smaller is
-/// better): chi²/dof when the recording's standard errors weighted it.
-fn fit_cost(f: &FullFit) -> f64 {
-    if let Some(c) = f.chi2_dof {
-        return c;
-    }
-    let n = f.rms.normal_um / f.noise_floor.normal_um.max(1e-9);
-    let t = f.rms.torsion_deg / f.noise_floor.torsion_deg.max(1e-12);
-    n * n + t * t
 }
