@@ -13,6 +13,17 @@ use sim::effects::{SimProfile, frame_compliance};
 use sim::experiment::{Experiment, ExperimentSpec};
 use sim::recording::{Direction, Phase, Recording};
 
+/// How far the run moved the recording's stage zero after streaming it
+/// (docs/run.md, "Stage zero"; 0 when it did not): add it to a recorded
+/// stage to get the streamed stage coordinate.
+fn stage_zero_moved_mm(rec: &Recording) -> f64 {
+    rec.meta
+        .extra
+        .iter()
+        .find(|(k, _)| k == easycalib::fit::zero::ZERO_MOVED_KEY)
+        .map_or(0.0, |(_, v)| v.parse().expect("the recording's stage_zero_moved_mm is a number"))
+}
+
 #[test]
 fn every_experiment_runs_through_the_real_drivers_and_records_its_phase() {
     let script = Script {
@@ -55,12 +66,7 @@ fn every_experiment_runs_through_the_real_drivers_and_records_its_phase() {
     let reload = of(Experiment::Reload);
     assert_eq!(reload.len(), 6);
     // (In the streamed stage coordinates: the run then moved the stage zero.)
-    let moved: f64 = rec
-        .meta
-        .extra
-        .iter()
-        .find(|(k, _)| k == "stage_zero_moved_mm")
-        .map_or(0.0, |(_, v)| v.parse().expect("a number"));
+    let moved = stage_zero_moved_mm(&rec);
     let lowest = reload.iter().map(|s| s.stage_mm).fold(f64::INFINITY, f64::min) + moved;
     let top = torsion_stage + moved;
     assert!((lowest - 0.5 * top).abs() < 0.002, "lowest {lowest} of {top}");
@@ -572,12 +578,7 @@ fn slow_and_speed_run(truth: &str, profile: SimProfile) {
     assert_eq!(order, [Experiment::SlowRepeat, Experiment::ApproachSpeed, Experiment::Reload]);
     let of = |e: Experiment| rec.samples.iter().filter(move |s| s.experiment == Some(e)).collect::<Vec<_>>();
     let torsion_stage = rec.sweep(Phase::Torsion).last().expect("torsion sweep").stage_mm;
-    let moved: f64 = rec
-        .meta
-        .extra
-        .iter()
-        .find(|(k, _)| k == "stage_zero_moved_mm")
-        .map_or(0.0, |(_, v)| v.parse().expect("a number"));
+    let moved = stage_zero_moved_mm(&rec);
 
     // Slow repeat: out to half the travel, back in three steps, each sample
     // at least the dwell after its move ended.
