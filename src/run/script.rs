@@ -43,10 +43,7 @@ elastomer_r_mm = 33.0
 # readings below refine_from_gamma1_mm (where gamma1 bends least) gives the
 # contact point, and its uncertainty to the recording (every gamma2 of the
 # paper's method hangs on it). The normal sweep starts pre_contact_mm before
-# the contact. At the first pass's deepest point the sensing reads learn_frames
-# more frames before the stage steps back (nothing is recorded): it has learnt
-# the contact's curvature by then, and these frames tell it whether the gel is
-# tacky before the first recorded sample (0: none).
+# the contact.
 [approach]
 start_mm = 10.0
 search_step_mm = 0.5
@@ -59,7 +56,6 @@ refine_steps = 20
 refine_from_gamma1_mm = 0.25
 refine_to_gamma1_mm = 0.5
 pre_contact_mm = 0.15
-learn_frames = 40
 
 # Normal sweep: step in by step_mm until the live depth
 # beta = gamma2 / R2 = (approach - gamma1) / R2 reaches target_beta (the last
@@ -271,9 +267,6 @@ pub struct ApproachSection {
     pub refine_from_gamma1_mm: f64,
     pub refine_to_gamma1_mm: f64,
     pub pre_contact_mm: f64,
-    /// Frames read at the first pass's deepest point before the sweep, for
-    /// the sensing to learn the contact (its curvature, whether the gel is tacky).
-    pub learn_frames: usize,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -386,7 +379,6 @@ impl Default for ApproachSection {
             refine_from_gamma1_mm: 0.25,
             refine_to_gamma1_mm: 0.5,
             pre_contact_mm: 0.15,
-            learn_frames: 40,
         }
     }
 }
@@ -581,9 +573,6 @@ impl Script {
         }
         if !(a.pre_contact_mm.is_finite() && a.pre_contact_mm >= 0.0) {
             return Err(invalid("approach.pre_contact_mm", format!("must be >= 0, got {}", a.pre_contact_mm)));
-        }
-        if a.learn_frames > MAX_READINGS {
-            return Err(invalid("approach.learn_frames", format!("must be <= {MAX_READINGS}, got {}", a.learn_frames)));
         }
         Ok(())
     }

@@ -146,14 +146,6 @@ where
             pos = next;
             pts.push((pos, self.settle().await?.gamma1_mm));
         }
-        // Let the sensing learn the contact where it resolves it best, before
-        // anything is recorded: by now it knows the contact's curvature, and
-        // these frames let it tell a tacky gel from a clean one (docs/sensing.md,
-        // "Adhesive contacts"), which it otherwise decides a few seconds into the sweep.
-        for _ in 0..a.learn_frames {
-            self.checkpoint().await?;
-            self.read().await?;
-        }
         let window: Vec<(f64, f64)> =
             pts.iter().copied().filter(|p| (a.refine_from_gamma1_mm..=a.refine_to_gamma1_mm).contains(&p.1)).collect();
         let line = if window.len() >= 2 { contact_from_line(&window, threshold) } else { None };
