@@ -145,9 +145,10 @@ fn diagnose_starts_from_the_layer_model_and_agrees_with_fit() {
         let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
         println!("{file}: {}", d.verdict);
         assert_eq!((d.e1_mpa, d.nu1), (cal.full.e1_mpa, cal.full.nu1));
+        assert_eq!(d.corrected.ci95.e1_mpa, cal.full.ci95.e1_mpa);
         assert!(d.effects.is_empty());
         assert_eq!(d.unexplained, !explained, "{file}");
-        assert!(d.warnings.iter().any(|w| w.code == "layer_effects_not_searched"));
+        assert!(d.warnings.iter().any(|w| w.code == "contact_effects_not_searched"));
     }
 }
 

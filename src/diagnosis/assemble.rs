@@ -70,8 +70,38 @@ pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Resu
         residuals,
         profile,
     };
+    if let Some(layer) = model.layer() {
+        layered_estimates(&mut d, layer, final_fit.cands.is_empty());
+    }
     d.verdict = prose::verdict(&d, &last.cands);
     Ok(d)
+}
+
+/// On a declared layer (docs/diagnosis.md, "On a declared layer"): with no
+/// effect the estimate is the full fit's, so `diagnose` and `fit` agree (the
+/// refits here hold the fit's friction; the fit itself also fits it); with
+/// one, the refit's intervals carry the layer model's own error in
+/// quadrature, as the fit's do, and are never narrower than the fit's.
+fn layered_estimates(d: &mut Diagnosis, layer: &crate::fit::fe_law::LayeredBase, nothing_named: bool) {
+    let [(e1, e1_ci), (nu1, nu1_ci)] = layer.fitted();
+    if nothing_named {
+        (d.e1_mpa, d.nu1) = (e1, nu1);
+        for s in [&mut d.baseline, &mut d.corrected] {
+            (s.e1_mpa, s.nu1, s.ci95) = (e1, nu1, Ci95 { e1_mpa: e1_ci, nu1: nu1_ci });
+        }
+        return;
+    }
+    // A parameter added to a fit can only widen its intervals; the refits
+    // here hold the friction the fit also fitted, so the corrected interval is
+    // never narrower than the fit's own.
+    let [sd_e1, sd_nu1] = layer.relative_model_sd();
+    let c = &mut d.corrected;
+    let widen = |ci: [f64; 2], v: f64, sd: f64, fit: [f64; 2]| {
+        let half = (0.5 * (ci[1] - ci[0])).hypot(1.96 * sd * v).max(0.5 * (fit[1] - fit[0]));
+        [v - half, v + half]
+    };
+    let nu1 = widen(c.ci95.nu1, c.nu1, sd_nu1, nu1_ci).map(|v| v.clamp(0.0, 0.5));
+    c.ci95 = Ci95 { e1_mpa: widen(c.ci95.e1_mpa, c.e1_mpa, sd_e1, e1_ci), nu1 };
 }
 
 /// Where the baseline's residuals are systematic. A concealed effect can stay

@@ -8,6 +8,8 @@ use sim::recording::{Phase, Recording};
 use super::locate::{self, Floor, Quantity, Segment, SegmentReport};
 use super::model::{Base, Fitted, Model};
 use super::{DiagnoseError, DiagnoseOptions, StandardErrors};
+use crate::fit::fe_law::LayeredBase;
+use crate::fit::full::fe_layer;
 use crate::fit::weights::SampleSd;
 use crate::fit::{FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper};
 
@@ -33,6 +35,8 @@ struct Starts {
     sigma_g_mm: f64,
     sigma_t_deg: f64,
     warnings: Vec<Warning>,
+    /// The declared layer's model the full fit ended on.
+    layer: Option<LayeredBase>,
 }
 
 /// Compare and locate: the baseline fit, the noise floors, the branch tests.
@@ -48,6 +52,18 @@ pub(super) fn compare<'a>(rec: &'a Recording, opts: &DiagnoseOptions) -> Result<
     let sg0 = if sd.gamma1_mm.is_some() { 1.0 } else { starts.sigma_g_mm };
     let st0 = if sd.theta1_deg.is_some() { 1.0 } else { starts.sigma_t_deg };
     let mut model = Model::new(rec, sg0, st0).with_standard_errors(&sd);
+    let mut warnings = starts.warnings;
+    if let Some(layer) = starts.layer {
+        model = model.on_layer(layer);
+        warnings.push(Warning::new(
+            "contact_effects_not_searched",
+            "the declared layer is modelled with the FE layer model; only the effects that act outside the \
+             contact (stage and mount play, frame compliance, thermal drift, the sensor's gain) are searched on \
+             it: adhesion and creep are written on the half-space and are not",
+        ));
+    } else if fe_layer(rec).is_some() {
+        return Err(DiagnoseError::Model);
+    }
     model.max_iterations = opts.max_iterations.max(1);
     let base0 = starts.bases.iter().find_map(|b| model.fit(&[], &b.internal())).ok_or(DiagnoseError::Model)?;
 
@@ -78,7 +94,7 @@ pub(super) fn compare<'a>(rec: &'a Recording, opts: &DiagnoseOptions) -> Result<
         gamma1_factor: sd.gamma1_mm.as_ref().map(|_| floor_g.sigma),
         theta1_factor: sd.theta1_deg.as_ref().map(|_| floor_t.sigma),
     });
-    Ok(Baseline { model, fit, segs, floor_g, floor_t, before, warnings: starts.warnings, standard_errors })
+    Ok(Baseline { model, fit, segs, floor_g, floor_t, before, warnings, standard_errors })
 }
 
 /// Whether the recording has the samples a full-model fit needs at all.
@@ -98,8 +114,11 @@ fn start_points(rec: &Recording, sg_given: Option<f64>) -> Result<Starts, Diagno
     let mut warnings = Vec::new();
     let mut fallback = true;
     let mut pinned_start: Option<Base> = None;
+    let mut layer = None;
     match calibrate(rec, &fit_opts) {
         Ok(c) => {
+            // A declared layer: the contact is the layer model the fit ended on.
+            layer = LayeredBase::of(rec, &c.full)?;
             warnings = c.warnings.clone();
             sg0 = sg_given.unwrap_or(pos(c.full.noise_floor.normal_um * 1e-3, sg0));
             st0 = pos(c.full.noise_floor.torsion_deg, st0);
@@ -135,5 +154,5 @@ fn start_points(rec: &Recording, sg_given: Option<f64>) -> Result<Starts, Diagno
         }
         starts.extend(pinned_start);
     }
-    Ok(Starts { bases: starts, sigma_g_mm: sg0, sigma_t_deg: st0, warnings })
+    Ok(Starts { bases: starts, sigma_g_mm: sg0, sigma_t_deg: st0, warnings, layer })
 }

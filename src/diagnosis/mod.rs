@@ -13,7 +13,6 @@
 
 mod assemble;
 mod baseline;
-mod layered;
 pub mod locate;
 pub mod model;
 pub mod plot;
@@ -77,9 +76,6 @@ pub enum DiagnoseError {
 pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     plausible::check(rec).map_err(FitError::from)?;
     check_noise(opts)?;
-    if crate::fit::full::fe_layer(rec).is_some() {
-        return layered::diagnose_layered(rec, opts.noise_um);
-    }
     let Some((thinned, every)) = thin(rec, MAX_DIAGNOSE_SAMPLES) else {
         return diagnose_all(rec, opts);
     };
@@ -113,9 +109,6 @@ pub fn diagnose_settled(
 ) -> Result<Diagnosis, DiagnoseError> {
     plausible::check(rec).map_err(FitError::from)?;
     check_noise(opts)?;
-    if crate::fit::full::fe_layer(rec).is_some() {
-        return layered::diagnose_layered(rec, opts.noise_um);
-    }
     let thinned = thin(rec, MAX_DIAGNOSE_SAMPLES);
     let rec = thinned.as_ref().map_or(rec, |(t, _)| t);
     let base = baseline::compare(rec, opts)?;

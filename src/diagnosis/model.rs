@@ -3,6 +3,8 @@
 //! uses), with E1, nu1, the stage zero z0 and the parameters of zero or more
 //! candidate effects, fitted by the project's Levenberg–Marquardt.
 
+use std::sync::Arc;
+
 use nalgebra::DMatrix;
 use sim::effects::{
     self, CommandedPose, EffectInfo, Material, Reading, SimProfile, adhesion, contact_offset, finite_thickness,
@@ -11,6 +13,7 @@ use sim::effects::{
 use sim::physics::{Body, ContactPair};
 use sim::recording::{Phase, Recording};
 
+use crate::fit::fe_law::LayeredBase;
 use crate::fit::weights::SampleSd;
 use crate::numerics::lm::{self, LmOptions};
 use crate::numerics::stats::median;
@@ -50,6 +53,15 @@ impl Candidate {
         Candidate::RotationBacklash,
         Candidate::ThermalDrift,
     ];
+
+    /// Whether the effect acts outside the contact (the rig's motion, frame
+    /// or sensor), so that it wraps any contact model, a declared layer's too.
+    pub fn acts_outside_the_contact(self) -> bool {
+        !matches!(
+            self,
+            Candidate::FiniteThickness | Candidate::Adhesion | Candidate::Viscoelastic { .. } | Candidate::PartialSlip
+        )
+    }
 
     pub fn info(self) -> &'static EffectInfo {
         match self {
@@ -425,6 +437,9 @@ pub struct Model<'a> {
     /// contact seen", not measured depths, and weigh nothing (as in the
     /// full-model fit, docs/diagnosis.md "1. Compare").
     zeros_unseen: bool,
+    /// The declared layer's FE model the recording's fit ended on, which then
+    /// replaces the paper's contact (docs/diagnosis.md, "On a declared layer").
+    layer: Option<Arc<LayeredBase>>,
 }
 
 impl<'a> Model<'a> {
@@ -451,7 +466,21 @@ impl<'a> Model<'a> {
             max_iterations: 40,
             cost_tolerance: 1e-5,
             zeros_unseen: zeros_unseen(rec),
+            layer: None,
         }
+    }
+
+    /// Model the contact with the declared layer's FE model `base` instead of
+    /// the paper's; only the effects that act outside the contact are then
+    /// candidates ([`Model::fitted_candidates`]).
+    pub fn on_layer(mut self, base: LayeredBase) -> Self {
+        self.layer = Some(Arc::new(base));
+        self
+    }
+
+    /// The declared layer's model, when the contact is modelled with it.
+    pub fn layer(&self) -> Option<&LayeredBase> {
+        self.layer.as_deref()
     }
 
     /// Weigh each reading by its recorded standard error (the channels `sd`
@@ -505,8 +534,14 @@ impl<'a> Model<'a> {
     }
 
     /// The candidates a diagnosis refits, as this recording fits them.
-    pub fn fitted_candidates(&self) -> [Candidate; 8] {
-        Candidate::FITTED.map(|c| self.candidate(c))
+    /// On a declared layer, only those that act outside the contact (the
+    /// layer is modelled, and the contact effects are written on the half-space).
+    pub fn fitted_candidates(&self) -> Vec<Candidate> {
+        Candidate::FITTED
+            .into_iter()
+            .filter(|&c| self.layer.is_none() || c.acts_outside_the_contact())
+            .map(|c| self.candidate(c))
+            .collect()
     }
 
     /// The sim profile of a parameter vector (None outside the bounds).
@@ -543,10 +578,21 @@ impl<'a> Model<'a> {
             indenter: self.rec.meta.indenter,
         };
         let timed = self.timed.as_ref().filter(|_| profile.viscoelastic.is_some() || profile.thermal_drift.is_some());
-        match timed {
-            Some(h) => h.reduce(&effects::simulate(pair, profile, &h.cmds).ok()?),
-            None => effects::simulate(pair, profile, &self.cmds).ok(),
+        let cmds = timed.map_or(&self.cmds, |h| &h.cmds);
+        let dense = match &self.layer {
+            None => effects::simulate(pair, profile, cmds).ok()?,
+            Some(l) => effects::simulate_on(pair, profile, l.law(m.e1_mpa, m.nu1).ok()?, cmds).ok()?,
+        };
+        let mut out = match timed {
+            Some(h) => h.reduce(&dense)?,
+            None => dense,
+        };
+        if let Some(l) = &self.layer {
+            let z0 = profile.contact_offset.map_or(0.0, |c| c.contact_offset_mm);
+            let gain = profile.sensor_gain.map_or(1.0, |g| g.g);
+            l.correct(&mut out, m.e1_mpa, m.nu1, z0, gain);
         }
+        Some(out)
     }
 
     /// Weighted residuals: gamma1 of every sample (the dead band pins z0), then

@@ -144,33 +144,6 @@ fn named_verdict(d: &Diagnosis) -> String {
     s
 }
 
-/// The verdict on a recording fitted with the FE layer model, on which no
-/// effect is searched: `fit` its fit, `noise` the floor, `friction` the
-/// torsion's contact friction when determined.
-pub(super) fn layered_verdict(
-    unexplained: bool,
-    fit: &FitSummary,
-    noise: &Rms,
-    chi2_per_dof: f64,
-    friction: Option<f64>,
-) -> String {
-    if unexplained {
-        format!(
-            "UNEXPLAINED: the layer model leaves systematic residuals (normal {:.1} µm RMS against a noise floor of \
-             {:.1} µm); no effect is searched on layered recordings yet. E1 {:.4} MPa, nu1 {:.4} are the layer \
-             model's, with intervals scaled by the residuals.",
-            fit.rms.normal_um, noise.normal_um, fit.e1_mpa, fit.nu1
-        )
-    } else {
-        format!(
-            "The layer model explains the recording to its noise (chi²/dof {chi2_per_dof:.2}): {}, friction in \
-             torsion {}.",
-            estimate(fit),
-            friction.map_or("not determined".to_string(), |m| format!("{m:.2}"))
-        )
-    }
-}
-
 /// How the recorded standard errors entered the noise line.
 fn standard_errors_note(e: &StandardErrors) -> String {
     let factor = |name: &str, k: Option<f64>| match k {

@@ -236,8 +236,8 @@ pub struct R2 {
 /// the intervals: the RMS error of its recoveries over the eight small-strain
 /// recordings of the independent finite-element dev set (1.1 % in E1, 1.4 % in
 /// nu1, noise included; docs/physics.md, "Finite-element reference").
-const LAYER_MODEL_SD_E1: f64 = 0.011;
-const LAYER_MODEL_SD_NU1: f64 = 0.014;
+pub(super) const LAYER_MODEL_SD_E1: f64 = 0.011;
+pub(super) const LAYER_MODEL_SD_NU1: f64 = 0.014;
 
 /// Distance from either end of nu1's range (0, 0.5) at which the fit counts as pinned.
 const NU1_EDGE: f64 = 0.005;

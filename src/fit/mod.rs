@@ -2,6 +2,7 @@
 
 mod bias;
 pub mod choice;
+pub mod fe_law;
 pub mod full;
 mod large_strain;
 mod layer_model;

@@ -29,6 +29,9 @@
 //!   order (stage backlash, adhesion, creep and slip keep history);
 //!   `Clone` it to probe without disturbing the history. [`simulate`]`(pair,
 //!   &profile, &[CommandedPose])` runs a whole history on a fresh rig.
+//!   [`TrueRig::on_law`]`(pair, &profile, law)` and [`simulate_on`] wrap a
+//!   contact solved elsewhere ([`ContactLaw`], the declared layer) in the
+//!   rig-level effects.
 //!   [`CommandedPose`] `{ t_s, stage_mm, rot_deg }` (commanded values; `rot_deg` is the
 //!   mount angle since the twist began), [`Reading`] `{ gamma1_mm, theta1_deg }`
 //!   as the sensor reports them (noise-free; 0 without contact) plus the true
@@ -43,6 +46,7 @@ pub mod adhesion;
 pub mod contact_offset;
 pub mod finite_thickness;
 pub mod frame_compliance;
+pub mod law;
 pub mod partial_slip;
 pub mod rig;
 pub mod rotation_backlash;
@@ -62,7 +66,8 @@ use serde::{Deserialize, Serialize};
 pub use crate::physics::Material;
 use crate::physics::{Body, ContactPair};
 
-pub use rig::{CommandedPose, Reading, TrueRig, simulate};
+pub use law::{ContactLaw, LawState};
+pub use rig::{CommandedPose, Reading, TrueRig, simulate, simulate_on};
 
 /// One parameter of an effect, with the range the model accepts.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -130,6 +135,8 @@ pub enum EffectError {
     OutOfBounds { effect: &'static str, param: &'static str, value: f64, min: f64, max: f64 },
     #[error("{0} cannot be combined with viscoelastic in this model")]
     Unsupported(&'static str),
+    #[error("{0} changes the contact itself and is modelled on the half-space only, not on a declared gel layer")]
+    NotOnLayer(&'static str),
     #[error("the contact model has no solution at stage {stage_mm:.4} mm: {why}")]
     NoSolution { stage_mm: f64, why: String },
     #[error("gross slip: the torque asked of the contact exceeds mu F a (twist {rot_deg:.3} deg)")]

@@ -11,10 +11,12 @@
 //! radius, partial slip).
 
 use std::f64::consts::PI;
+use std::sync::Arc;
 
 use crate::physics::torsion::eq35_contact_radius_mm;
 use crate::physics::{ContactPair, NormalModel, YOFFE};
 
+use super::law::{self, ContactLaw, LawState};
 use super::partial_slip::SlipState;
 use super::stage_backlash::Play;
 use super::{EffectError, SimProfile, bracketed_root, finite_thickness};
@@ -109,6 +111,10 @@ pub struct TrueRig {
     m_prev: f64,
     tors_t: Option<f64>,
     torsion_cache: Option<(f64, f64, f64, f64, f64)>,
+    /// A contact solved elsewhere (the declared layer), which then replaces
+    /// the paper's contact; with the platform approach of its last state.
+    law: Option<Arc<dyn ContactLaw>>,
+    law_delta: f64,
 }
 
 impl TrueRig {
@@ -141,7 +147,19 @@ impl TrueRig {
             m_prev: 0.0,
             tors_t: None,
             torsion_cache: None,
+            law: None,
+            law_delta: 0.0,
         })
+    }
+
+    /// A rig whose clean contact is `law` (docs/physics.md, "Rig effects on a
+    /// declared layer"): the profile's rig-level effects wrap it; an effect
+    /// that changes the contact itself is refused (`EffectError::NotOnLayer`).
+    pub fn on_law(pair: ContactPair, profile: &SimProfile, law: Arc<dyn ContactLaw>) -> Result<Self, EffectError> {
+        law::check(profile)?;
+        let mut rig = Self::new(pair, profile)?;
+        rig.law = Some(law);
+        Ok(rig)
     }
 
     /// The contact pair the rig uses (the profile's `material` applied).
@@ -432,6 +450,9 @@ impl TrueRig {
         // (docs/physics.md 2.9): the approach itself drifts, and the contact
         // with it, so the sensor sees a real contact of that approach.
         let s = stage + self.profile.thermal_drift.map_or(0.0, |p| p.offset_mm(cmd.t_s));
+        if let Some(law) = self.law.clone() {
+            return self.read_on_law(law.as_ref(), s, cmd);
+        }
         let history = self.profile.adhesion.is_some() || self.profile.viscoelastic.is_some();
         let approach_changed = self.last_s != Some(s);
         let stage_changed = self.last_stage != Some(stage);
@@ -493,9 +514,91 @@ impl TrueRig {
     }
 }
 
+impl TrueRig {
+    /// [`TrueRig::read`] on a contact law, from the approach `s` (the stage
+    /// after its play, zero and drift): the frame gives by its compliance times
+    /// the force, so the platform's approach d solves d + c F(d) = s; the mount's
+    /// play, then the law's twist; the sensor's gain on gamma1.
+    fn read_on_law(&mut self, law: &dyn ContactLaw, s: f64, cmd: CommandedPose) -> Result<Reading, EffectError> {
+        let fail = |why: String| EffectError::NoSolution { stage_mm: s, why };
+        if self.last_s != Some(s) {
+            let c = self.frame_c();
+            let at = |d: f64| law.normal(d).map_err(fail);
+            let (d, st) = if s <= 0.0 {
+                (s, LawState::default())
+            } else if c == 0.0 {
+                (s, at(s)?)
+            } else {
+                // d + c F(d) rises from -s at d = 0 to c F(s) >= 0 at d = s.
+                let top = at(s)?;
+                let mut err = None;
+                let f = |d: f64| match law.normal(d) {
+                    Ok(st) => d + c * st.force_n - s,
+                    Err(e) => {
+                        err = Some(e);
+                        f64::NAN
+                    }
+                };
+                let d = if top.force_n <= 0.0 {
+                    s
+                } else {
+                    bracketed_root(f, 0.0, s, -s, c * top.force_n, 1e-12 * s.max(1e-3))
+                };
+                if let Some(e) = err {
+                    return Err(fail(e));
+                }
+                (d, at(d)?)
+            };
+            self.last_s = Some(s);
+            self.law_delta = d;
+            self.last = Contact {
+                gamma1: st.gamma1_mm,
+                gamma2: st.gamma2_mm,
+                force: st.force_n,
+                a: st.contact_radius_mm,
+                delta: s,
+                punch1: 0.0,
+            };
+        }
+        let contact = self.last;
+        let in_contact = contact.a > 0.0 && self.law_delta > 0.0;
+        let gain = self.profile.sensor_gain.map_or(1.0, |p| p.g);
+        let rot = match self.rot_play.as_mut() {
+            Some(p) => p.step(cmd.rot_deg),
+            None => cmd.rot_deg,
+        };
+        let theta1_deg = if in_contact && rot != 0.0 {
+            law.theta1_deg(self.law_delta, rot).map_err(|why| EffectError::NoSolution { stage_mm: s, why })?
+        } else {
+            0.0
+        };
+        Ok(Reading {
+            gamma1_mm: if in_contact { gain * contact.gamma1 } else { 0.0 },
+            theta1_deg,
+            gamma1_true_mm: contact.gamma1,
+            gamma2_mm: contact.gamma2,
+            force_n: contact.force,
+            contact_radius_mm: contact.a,
+            in_contact,
+            gamma1_punch_mm: 0.0,
+        })
+    }
+}
+
 /// Readings for a whole commanded history (time order), from a fresh rig.
 pub fn simulate(pair: ContactPair, profile: &SimProfile, cmds: &[CommandedPose]) -> Result<Vec<Reading>, EffectError> {
     let mut rig = TrueRig::new(pair, profile)?;
+    cmds.iter().map(|&c| rig.read(c)).collect()
+}
+
+/// [`simulate`] on a contact law (the declared layer): [`TrueRig::on_law`].
+pub fn simulate_on(
+    pair: ContactPair,
+    profile: &SimProfile,
+    law: Arc<dyn ContactLaw>,
+    cmds: &[CommandedPose],
+) -> Result<Vec<Reading>, EffectError> {
+    let mut rig = TrueRig::on_law(pair, profile, law)?;
     cmds.iter().map(|&c| rig.read(c)).collect()
 }
 

@@ -1,0 +1,141 @@
+//! The diagnosis on a declared layer: the effects that act outside the
+//! contact (the rig's motion, frame and sensor) are refitted on the FE layer
+//! model the fit ends on (docs/diagnosis.md, "On a declared layer"). Checked
+//! on the dev set's independent finite-element recordings, which none of our
+//! physics made, with a rig effect laid on them afterwards by its definition
+//! alone: a frame drifting at v moves the true approach away from the
+//! commanded stage by v t, so the stage a rig records is the recording's
+//! less v t.
+
+use std::path::PathBuf;
+
+use easycalib::diagnosis::{DiagnoseOptions, Diagnosis, diagnose};
+use easycalib::fit::{FitOptions, calibrate};
+use sim::recording::Recording;
+
+struct Dev {
+    name: String,
+    rec: Recording,
+    e1: f64,
+    nu1: f64,
+}
+
+fn dev(set: &str) -> Vec<Dev> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev").join(set);
+    let truth = std::fs::read_to_string(dir.join("truth.csv")).unwrap();
+    truth
+        .lines()
+        .skip(1)
+        .map(|line| {
+            let f: Vec<&str> = line.split(',').collect();
+            let rec = Recording::read_path(&dir.join(f[0])).unwrap();
+            Dev { name: format!("{set}/{}", f[0]), rec, e1: f[1].parse().unwrap(), nu1: f[2].parse().unwrap() }
+        })
+        .collect()
+}
+
+/// `rec` as a rig whose frame drifts toward the gel at v mm/s records it: the commanded stage
+/// is the true approach less the drift.
+fn with_drift(d: &Dev, v_mm_per_s: f64) -> Recording {
+    let mut rec = d.rec.clone();
+    for s in &mut rec.samples {
+        s.stage_mm -= v_mm_per_s * s.t_s;
+    }
+    rec
+}
+
+fn pct(v: f64, truth: f64) -> f64 {
+    (v / truth - 1.0) * 100.0
+}
+
+fn report(what: &str, d: &Dev, dg: &Diagnosis, fit_e1: f64, fit_nu1: f64) {
+    println!(
+        "{what:<16} {:<44} fit E1 {:+6.2} % nu1 {:+6.2} % | diagnose {:?} E1 {:+6.2} % nu1 {:+6.2} % ambiguous {}",
+        d.name,
+        pct(fit_e1, d.e1),
+        pct(fit_nu1, d.nu1),
+        dg.effects,
+        pct(dg.e1_mpa, d.e1),
+        pct(dg.nu1, d.nu1),
+        dg.ambiguous.len()
+    );
+}
+
+/// A recording the layer model explains is left alone: nothing named, and
+/// the estimate is the fit's own (the same numbers and intervals).
+#[test]
+fn the_dev_sets_recordings_name_nothing_and_agree_with_fit() {
+    for d in dev("linear").iter().chain(&dev("nonlinear")) {
+        let cal = calibrate(&d.rec, &FitOptions::default()).unwrap();
+        let dg = diagnose(&d.rec, &DiagnoseOptions::default()).unwrap();
+        report("clean", d, &dg, cal.full.e1_mpa, cal.full.nu1);
+        assert!(dg.effects.is_empty(), "{}: {:?}", d.name, dg.effects);
+        assert!(!dg.unexplained, "{}: {}", d.name, dg.verdict);
+        assert!(dg.warnings.iter().any(|w| w.code == "contact_effects_not_searched"), "{}", d.name);
+        if dg.ambiguous.is_empty() {
+            assert_eq!((dg.e1_mpa, dg.nu1), (cal.full.e1_mpa, cal.full.nu1), "{}", d.name);
+        }
+    }
+}
+
+/// A frame drifting toward the gel at 2 µm/s (a third of the library's
+/// typical range) over the 33 s of a dev recording: the fit alone is biased
+/// (printed: E1 -1.2 to -6.5 %, nu1 -1.4 to -5.3 %). The diagnosis names the
+/// drift where the sweeps rank it, names nothing else, and its correction
+/// takes the estimate back to where the same recording without the drift
+/// is fitted: within 1 % in E1 and 2 % in nu1 of the truth, beyond what the
+/// layer model misses on that recording without the drift (tableI_3's -2 %,
+/// the neo-Hookean -1.4 and -1.7 %; docs/physics.md section 3), which no
+/// diagnosis of the rig can remove.
+#[test]
+fn a_drifting_frame_on_a_layer_is_named_and_corrected() {
+    drift_is_named_and_corrected(0.002, &["linear", "nonlinear"], 7);
+}
+
+/// Drifting away from the gel: the sweeps rank it on every linear recording.
+/// (On the two neo-Hookean ones the drift is named too, but the fit it
+/// starts from takes the shortened sweep for the linear model, so the
+/// correction is 5-6 % off: docs/diagnosis.md, "On a declared layer".)
+#[test]
+fn a_frame_drifting_away_from_a_layer_is_named_and_corrected() {
+    drift_is_named_and_corrected(-0.002, &["linear"], 8);
+}
+
+fn drift_is_named_and_corrected(v_mm_per_s: f64, sets: &[&str], at_least: usize) {
+    let mut named = 0;
+    let mut total = 0;
+    for d in sets.iter().flat_map(|s| dev(s)) {
+        total += 1;
+        let clean = calibrate(&d.rec, &FitOptions::default()).unwrap();
+        let rec = with_drift(&d, v_mm_per_s);
+        let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+        let dg = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        report(&format!("drift {:+} um/s", v_mm_per_s * 1e3), &d, &dg, cal.full.e1_mpa, cal.full.nu1);
+        assert!(
+            dg.effects.iter().all(|&e| e == "thermal_drift" || e == "contact_offset"),
+            "{}: {:?}",
+            d.name,
+            dg.effects
+        );
+        if !dg.effects.contains(&"thermal_drift") {
+            continue;
+        }
+        named += 1;
+        let found = &dg.explanation.iter().find(|e| e.effect == "thermal_drift").unwrap().params[0];
+        // The bars (1 % in E1, 2 % in nu1) on top of what the layer
+        // model misses on this recording without any drift.
+        let (de, dn) = (pct(dg.e1_mpa, d.e1), pct(dg.nu1, d.nu1));
+        let (me, mn) = (pct(clean.full.e1_mpa, d.e1).abs(), pct(clean.full.nu1, d.nu1).abs());
+        println!(
+            "    drift {:+.2} um/s found; E1 {de:+.2} % (allowed {:.2}), nu1 {dn:+.2} % (allowed {:.2})",
+            found.value * 1e3,
+            1.0 + me,
+            2.0 + mn
+        );
+        assert!(de.abs() <= 1.0 + me && dn.abs() <= 2.0 + mn, "{}: E1 {de:+.2} %, nu1 {dn:+.2} %", d.name);
+        let (ce, cn) = (dg.corrected.ci95.e1_mpa, dg.corrected.ci95.nu1);
+        assert!(ce[0] <= d.e1 && d.e1 <= ce[1] && cn[0] <= d.nu1 && d.nu1 <= cn[1], "{}: {ce:?} {cn:?}", d.name);
+    }
+    println!("thermal_drift {v_mm_per_s} mm/s named in {named} of {total}");
+    assert!(named >= at_least, "named in {named} of {total}");
+}
