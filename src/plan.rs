@@ -245,6 +245,11 @@ pub fn plan_for(rec: &Recording, d: &Diagnosis, opts: PlanOptions) -> Result<Pla
         operator_steps: operator_steps.clone(),
         skipped: Vec::new(),
     };
+    if crate::fit::full::fe_layer(rec).is_some() {
+        return Ok(empty(
+            "experiments are planned on the half-space model; on a declared layer the loop does not plan yet",
+        ));
+    }
     if d.ambiguous.len() < 2 {
         return Ok(empty("the diagnosis leaves no two explanations standing: nothing to separate"));
     }

@@ -207,7 +207,9 @@ fn layer_flags_are_checked_and_name_what_is_wrong() {
         (vec!["fit", rec.to_str().unwrap(), "--thickness-mm=-2"], "--thickness-mm"),
         (vec!["fit", rec.to_str().unwrap(), "--thickness-mm", "5", "--base", "glued"], "--base glued"),
         (vec!["diagnose", rec.to_str().unwrap(), "--thickness-mm", "0"], "--thickness-mm"),
-        (vec!["simulate", "-o", out_file, "--thickness-mm", "5"], "--fidelity fe"),
+        (vec!["simulate", "-o", out_file, "--thickness-mm", "5"], "--r1-mm inf"),
+        (vec!["simulate", "-o", out_file, "--thickness-mm", "5", "--r1-mm", "inf", "--base", "sliding"], "bonded"),
+        (vec!["simulate", "-o", out_file, "--fidelity", "fe", "--profile", "p.toml"], "--profile"),
         (vec!["simulate", "-o", out_file, "--fidelity", "fe"], "--thickness-mm"),
         (vec!["simulate", "-o", out_file, "--fidelity", "fe", "--thickness-mm", "5", "--r1-mm", "30"], "flat gel"),
     ] {
@@ -217,6 +219,35 @@ fn layer_flags_are_checked_and_name_what_is_wrong() {
         assert!(err.contains(needle), "{args:?}: {err}");
     }
     assert!(!out_path.exists(), "nothing is written for a refused simulation");
+}
+
+/// `simulate --thickness-mm` (analytic fidelity): the generator's sweeps on a
+/// 5 mm gel bonded to its window, from the linear FE layer model pressed and
+/// twisted with friction, the layer declared in the recording; `fit` picks the
+/// linear layer model and recovers the truth (the fit's own model family: this
+/// checks the generator's wiring and the truth it writes, not the physics;
+/// tests/layer_fit.rs does that on independent finite-element recordings).
+#[test]
+fn a_layered_recording_is_simulated_and_fitted_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = simulate(dir.path(), &["--thickness-mm", "5", "--r1-mm", "inf", "--seed", "2"]);
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.contains("# elastomer_thickness_mm: 5") && text.contains("# elastomer_base: bonded"), "{text:.400}");
+    let v = fit_json(&path);
+    let (e1, nu1) = (v["E1_MPa"].as_f64().unwrap(), v["nu1"].as_f64().unwrap());
+    let (te, tn) = (sim::defaults::ELASTOMER_E_MPA, sim::defaults::ELASTOMER_NU);
+    println!(
+        "E1 {:+.2} %, nu1 {:+.2} %, model {}",
+        (e1 / te - 1.0) * 100.0,
+        (nu1 / tn - 1.0) * 100.0,
+        v["full"]["model"]
+    );
+    assert_eq!(v["full"]["model"], "layer-fe");
+    assert!((e1 / te - 1.0).abs() < 0.01 && (nu1 / tn - 1.0).abs() < 0.02, "E1 {e1}, nu1 {nu1}");
+    for (name, truth) in [("E1_MPa", te), ("nu1", tn)] {
+        let ci = &v["ci95"][name];
+        assert!(ci[0].as_f64().unwrap() <= truth && truth <= ci[1].as_f64().unwrap(), "{name} interval {ci}");
+    }
 }
 
 /// `simulate --fidelity fe` writes what the large-strain reference predicts for

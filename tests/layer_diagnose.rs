@@ -72,9 +72,7 @@ fn the_dev_sets_recordings_name_nothing_and_agree_with_fit() {
         assert!(dg.effects.is_empty(), "{}: {:?}", d.name, dg.effects);
         assert!(!dg.unexplained, "{}: {}", d.name, dg.verdict);
         assert!(dg.warnings.iter().any(|w| w.code == "contact_effects_not_searched"), "{}", d.name);
-        if dg.ambiguous.is_empty() {
-            assert_eq!((dg.e1_mpa, dg.nu1), (cal.full.e1_mpa, cal.full.nu1), "{}", d.name);
-        }
+        assert_eq!((dg.e1_mpa, dg.nu1), (cal.full.e1_mpa, cal.full.nu1), "{}", d.name);
     }
 }
 
@@ -89,16 +87,15 @@ fn the_dev_sets_recordings_name_nothing_and_agree_with_fit() {
 /// diagnosis of the rig can remove.
 #[test]
 fn a_drifting_frame_on_a_layer_is_named_and_corrected() {
-    drift_is_named_and_corrected(0.002, &["linear", "nonlinear"], 7);
+    drift_is_named_and_corrected(0.002, &["linear", "nonlinear"], 6);
 }
 
-/// Drifting away from the gel: the sweeps rank it on every linear recording.
-/// (On the two neo-Hookean ones the drift is named too, but the fit it
-/// starts from takes the shortened sweep for the linear model, so the
-/// correction is 5-6 % off: docs/diagnosis.md, "On a declared layer".)
+/// Drifting away from the gel. The fit alone takes the neo-Hookean
+/// recordings' shortened sweeps for the linear model; the diagnosis tries
+/// the other strain model once it has found the drift.
 #[test]
 fn a_frame_drifting_away_from_a_layer_is_named_and_corrected() {
-    drift_is_named_and_corrected(-0.002, &["linear"], 8);
+    drift_is_named_and_corrected(-0.002, &["linear", "nonlinear"], 9);
 }
 
 fn drift_is_named_and_corrected(v_mm_per_s: f64, sets: &[&str], at_least: usize) {
@@ -138,4 +135,43 @@ fn drift_is_named_and_corrected(v_mm_per_s: f64, sets: &[&str], at_least: usize)
     }
     println!("thermal_drift {v_mm_per_s} mm/s named in {named} of {total}");
     assert!(named >= at_least, "named in {named} of {total}");
+}
+
+/// A recording of our own layered rig (the linear FE layer model with
+/// friction, `easycalib simulate --thickness-mm`) whose frame drifts toward
+/// the gel at 0.5 µm/s over its 100 s: the fit alone is biased; the
+/// diagnosis, which refits the friction and takes the friction correction
+/// again where its explanation ends, names the drift and recovers the truth
+/// within 1 % and 2 %. (The same model family as the diagnosis's: this
+/// checks the passes and the wiring; the dev-set tests above check the
+/// physics.)
+#[test]
+fn our_own_layered_rig_with_a_drifting_frame_is_diagnosed() {
+    use sim::effects::thermal_drift;
+    use sim::generator::{GeneratorConfig, LayeredTruth, generate_on};
+    let mut cfg = GeneratorConfig::default();
+    cfg.pair.elastomer.r_mm = f64::INFINITY;
+    cfg.plan.normal_step_mm = 0.1;
+    cfg.profile.thermal_drift = Some(thermal_drift::Params { v_mm_per_s: 5e-4, vdot_mm_per_s2: 0.0 });
+    let layer = sim::physics::Layer::bonded(5.0);
+    let (e1, nu1) = (cfg.pair.elastomer.e_mpa, cfg.pair.elastomer.nu);
+    let law = easycalib::fit::fe_law::frictional_truth(layer, cfg.pair.indenter, e1, nu1, 0.4).unwrap();
+    let rec = generate_on(&cfg, Some(&LayeredTruth { law, layer })).unwrap();
+    let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+    let dg = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+    let (de, dn) = (pct(dg.e1_mpa, e1), pct(dg.nu1, nu1));
+    println!(
+        "{} samples over {:.0} s; fit E1 {:+.2} % nu1 {:+.2} %; diagnosis {:?} E1 {de:+.2} % nu1 {dn:+.2} %\n{}",
+        rec.samples.len(),
+        rec.samples.last().unwrap().t_s,
+        pct(cal.full.e1_mpa, e1),
+        pct(cal.full.nu1, nu1),
+        dg.effects,
+        dg.verdict
+    );
+    assert!(pct(cal.full.e1_mpa, e1).abs() > 2.0, "the drift biases the fit alone");
+    assert!(dg.effects.contains(&"thermal_drift"), "{}", dg.verdict);
+    assert!(de.abs() < 1.0 && dn.abs() < 2.0, "E1 {de:+.2} %, nu1 {dn:+.2} %");
+    let found = dg.explanation.iter().find(|e| e.effect == "thermal_drift").unwrap().params[0].value;
+    assert!((found / 5e-4 - 1.0).abs() < 0.2, "drift {found} mm/s");
 }

@@ -26,6 +26,9 @@ pub const THETA1_SIGMA_DEG: f64 = 0.02;
 /// Resolution of the micrometer stage, mm, and of the rotation mount, degrees.
 pub const STAGE_RESOLUTION_MM: f64 = 0.001;
 pub const ROTATION_RESOLUTION_DEG: f64 = 0.01;
+/// Coulomb friction between the indenter and a simulated gel layer (pressing
+/// and twisting), as in the finite-element recordings of the project's test data.
+pub const GEL_FRICTION: f64 = 0.4;
 /// Seed of the simulated noise.
 pub const SEED: u64 = 1;
 /// Time acceleration of the emulated rig for a calibration run: rig time runs

@@ -16,9 +16,11 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::effects::{CommandedPose, EffectError, SimProfile, TrueRig};
+use std::sync::Arc;
+
+use crate::effects::{CommandedPose, ContactLaw, EffectError, SimProfile, TrueRig};
 use crate::experiment::{ExperimentSpec, reload_path, repeat_path, reversal_angles, sweep_angles};
-use crate::physics::{ContactPair, NormalError, NormalModel, ParamError, torsion_at};
+use crate::physics::{ContactPair, Layer, NormalError, NormalModel, ParamError, torsion_at};
 use crate::recording::{Direction, Metadata, Phase, Recording, Sample};
 use crate::rng::Rng;
 
@@ -155,8 +157,26 @@ const MAX_TWIST_DEG: f64 = 45.0;
 /// Bisection bound on the torsion-depth search, mm of stage.
 const DEPTH_TOL_MM: f64 = 1e-10;
 
+/// A declared gel layer as the generator's contact: its exact contact, solved
+/// downstream of this crate (the FE layer model), and the layer the recording
+/// declares.
+#[derive(Debug, Clone)]
+pub struct LayeredTruth {
+    pub law: Arc<dyn ContactLaw>,
+    pub layer: Layer,
+}
+
 /// Generate a recording of `cfg.plan` on a rig with `cfg.profile`'s effects.
 pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
+    generate_on(cfg, None)
+}
+
+/// [`generate`] with the contact of a declared layer (`None`: the paper's
+/// half-space): the profile's rig-level effects wrap it (`TrueRig::on_law`;
+/// an effect inside the contact is refused), the recording declares the
+/// layer, and experiment steps are refused (an operator's indenter would
+/// need a law of its own).
+pub fn generate_on(cfg: &GeneratorConfig, layered: Option<&LayeredTruth>) -> Result<Recording, GenerateError> {
     let plan = cfg.plan;
     let noise = cfg.noise;
     if !(plan.normal_step_mm > 0.0 && plan.torsion_step_deg > 0.0 && plan.step_time_s > 0.0) {
@@ -169,7 +189,13 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     for (i, e) in cfg.experiments.iter().enumerate() {
         e.validate(i, MAX_TWIST_DEG).map_err(|e| GenerateError::Plan(e.to_string()))?;
     }
-    let mut rig = TrueRig::new(cfg.pair, &cfg.profile)?;
+    let mut rig = match layered {
+        None => TrueRig::new(cfg.pair, &cfg.profile)?,
+        Some(_) if !cfg.experiments.is_empty() => {
+            return Err(GenerateError::Plan("experiment steps are not simulated on a declared layer".into()));
+        }
+        Some(l) => TrueRig::on_law(cfg.pair, &cfg.profile, l.law.clone())?,
+    };
     let pair = *rig.pair();
     let r2 = pair.indenter.r_mm;
     let mut rng = Rng::seed_from(cfg.seed);
@@ -272,7 +298,9 @@ pub fn generate(cfg: &GeneratorConfig) -> Result<Recording, GenerateError> {
     }
     let samples = run.samples;
 
-    Ok(Recording { meta: sim_metadata(cfg, &pair), samples })
+    let mut meta = sim_metadata(cfg, &pair);
+    meta.layer = layered.map(|l| l.layer);
+    Ok(Recording { meta, samples })
 }
 
 /// A generated recording's metadata: the simulated truth and seed, and the effects on.

@@ -1,7 +1,10 @@
 //! `easycalib fit`, `easycalib simulate` and the simulated `easycalib run`.
 
+use std::path::Path;
+
 use history::Source;
 use sim::generator::{GeneratorConfig, generate};
+use sim::physics::{Layer, LayerBase};
 use sim::recording::Recording;
 
 use super::sim_setup::{SimSetupArgs, sim_setup};
@@ -168,21 +171,30 @@ fn print_output(out: &CalibrationOutput, rec: &Recording, json: bool) -> Result<
     Ok(())
 }
 
-/// The generator for the simulated elastomer and indenter of the flags.
-pub fn generator_config(a: &ElastomerArgs) -> Result<GeneratorConfig, CliError> {
-    let setup = sim_setup(SimSetupArgs { elastomer: a, script: None, profile: None, speedup: sim::defaults::SPEEDUP })?;
-    Ok(GeneratorConfig { pair: *setup.pair(), seed: setup.seed(), ..GeneratorConfig::default() })
+/// The generator for the simulated elastomer and indenter of the flags, with
+/// the effects of a sim profile (`--profile`; its material overrides the flags'
+/// elastomer, which may then not be given).
+pub fn generator_config(a: &ElastomerArgs, profile: Option<&Path>) -> Result<GeneratorConfig, CliError> {
+    let setup = sim_setup(SimSetupArgs { elastomer: a, script: None, profile, speedup: sim::defaults::SPEEDUP })?;
+    Ok(GeneratorConfig {
+        pair: *setup.pair(),
+        seed: setup.seed(),
+        profile: setup.effects().clone(),
+        ..GeneratorConfig::default()
+    })
 }
 
 pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {
-    let cfg = generator_config(&args.elastomer)?;
+    if args.fidelity == Fidelity::Fe && args.profile.is_some() {
+        return Err(CliError::bad_input(
+            "--profile is simulated by the analytic generator (and on a declared layer, by the linear FE layer \
+             model); --fidelity fe simulates the clean large-strain contact only",
+        ));
+    }
+    let cfg = generator_config(&args.elastomer, args.profile.as_deref())?;
     let rec = match args.fidelity {
         Fidelity::Fe => super::simulate_fe::fe_recording(args)?,
-        Fidelity::Analytic if args.layer.thickness_mm.is_some() => {
-            return Err(CliError::bad_input(
-                "the analytic generator models a half-space: a declared layer needs --fidelity fe",
-            ));
-        }
+        Fidelity::Analytic if args.layer.thickness_mm.is_some() => layered_recording(args, &cfg)?,
         Fidelity::Analytic => generate(&cfg).map_err(|e| CliError::bad_input(format!("cannot simulate: {e}")))?,
     };
     rec.write_path(&args.output)
@@ -196,4 +208,31 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {
         cfg.seed
     );
     Ok(())
+}
+
+/// `simulate --thickness-mm`: the generator's sweeps on a gel layer bonded to
+/// its window, the contact from the linear FE layer model pressed and twisted
+/// with Coulomb friction (`fit::fe_law::frictional_truth`), the profile's
+/// rig-level effects around it (docs/physics.md, "The layer in the generator").
+fn layered_recording(args: &SimulateArgs, cfg: &GeneratorConfig) -> Result<Recording, CliError> {
+    let Some(h) = args.layer.thickness_mm else {
+        return Err(CliError::bad_input("a layered recording needs --thickness-mm"));
+    };
+    if args.layer.base.as_deref().is_some_and(|b| LayerBase::parse(b) != Some(LayerBase::Bonded)) {
+        return Err(CliError::bad_input("the FE layer model simulates a gel bonded to its window (--base bonded)"));
+    }
+    if cfg.pair.elastomer.r_mm.is_finite() {
+        return Err(CliError::bad_input(format!(
+            "a declared layer is simulated flat: give --r1-mm inf (the elastomer's dome radius is {} mm)",
+            cfg.pair.elastomer.r_mm
+        )));
+    }
+    let layer = Layer::bonded(h);
+    layer.validate().map_err(|e| CliError::bad_input(format!("--thickness-mm {h}: {e}")))?;
+    let (gel, indenter) = (cfg.pair.elastomer, cfg.pair.indenter);
+    eprintln!("simulating on the linear finite-element layer model (a few seconds)...");
+    let law = crate::fit::fe_law::frictional_truth(layer, indenter, gel.e_mpa, gel.nu, sim::defaults::GEL_FRICTION)
+        .map_err(|e| CliError::bad_input(format!("cannot simulate the layer: {e}")))?;
+    let truth = sim::generator::LayeredTruth { law, layer };
+    sim::generator::generate_on(cfg, Some(&truth)).map_err(|e| CliError::bad_input(format!("cannot simulate: {e}")))
 }

@@ -180,12 +180,18 @@ pub struct SimulateArgs {
     #[arg(short = 'o', long = "output")]
     pub output: PathBuf,
     /// Which physics makes the recording: `analytic` (the paper's model, a
-    /// half-space) or `fe` (the project's large-strain finite-element
+    /// half-space; with --thickness-mm the linear FE layer model of a bonded
+    /// gel, with friction) or `fe` (the project's large-strain finite-element
     /// reference of a bonded gel layer: needs --thickness-mm; about a minute).
     #[arg(long, value_enum, default_value_t = Fidelity::Analytic)]
     pub fidelity: Fidelity,
     #[command(flatten)]
     pub layer: LayerArgs,
+    /// Sim profile (TOML) of left-out physics to simulate (e.g. from
+    /// `easycalib diagnose --profile-out`); on a declared layer only the
+    /// effects outside the contact (play, frame, drift, gain).
+    #[arg(long, value_name = "PROFILE_TOML")]
+    pub profile: Option<PathBuf>,
 }
 
 /// The physics `simulate` writes a recording from.

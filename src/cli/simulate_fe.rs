@@ -17,8 +17,6 @@ use super::calibrate::generator_config;
 /// project's test data: 30 stage steps to beta = 0.2, twists of 1° to 10°).
 const NORMAL_STEPS: usize = 30;
 const TWISTS_DEG: [f64; 11] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0];
-/// Coulomb friction between indenter and gel while twisting.
-const FRICTION: f64 = 0.4;
 /// Seconds between samples in the written recording.
 const SAMPLE_PERIOD_S: f64 = 0.8;
 
@@ -34,12 +32,17 @@ pub fn fe_recording(args: &SimulateArgs) -> Result<Recording, CliError> {
     if args.elastomer.elastomer_r_mm.is_some_and(f64::is_finite) {
         return Err(CliError::bad_input("--fidelity fe simulates a flat gel: leave out --r1-mm (or give inf)"));
     }
-    let cfg = generator_config(&args.elastomer)?;
+    let cfg = generator_config(&args.elastomer, None)?;
     let layer = Layer::bonded(h);
     layer.validate().map_err(|e| CliError::bad_input(format!("--thickness-mm {h}: {e}")))?;
     let (gel, ind) = (cfg.pair.elastomer, cfg.pair.indenter);
     let materials = (Material { e_mpa: gel.e_mpa, nu: gel.nu }, Material { e_mpa: ind.e_mpa, nu: ind.nu });
-    let plan = SweepPlan { beta: 0.2, normal_steps: NORMAL_STEPS, twists_deg: TWISTS_DEG.to_vec(), friction: FRICTION };
+    let plan = SweepPlan {
+        beta: 0.2,
+        normal_steps: NORMAL_STEPS,
+        twists_deg: TWISTS_DEG.to_vec(),
+        friction: sim::defaults::GEL_FRICTION,
+    };
     eprintln!("simulating on the large-strain finite-element reference (about a minute)...");
     let sweep =
         calibration_sweep(|| LargeStrainContact::for_layer(h, materials.0, materials.1, ind.r_mm), ind.r_mm, &plan)
@@ -80,9 +83,12 @@ pub fn fe_recording(args: &SimulateArgs) -> Result<Recording, CliError> {
         extra: vec![(
             "source".into(),
             format!(
-                "easycalib large-strain FE reference (neo-Hookean, frictionless pressing, twist with Coulomb mu {FRICTION}); \
+                "easycalib large-strain FE reference (neo-Hookean, frictionless pressing, twist with Coulomb mu {}); \
                  E1 {} MPa, nu1 {}, seed {}",
-                gel.e_mpa, gel.nu, cfg.seed
+                sim::defaults::GEL_FRICTION,
+                gel.e_mpa,
+                gel.nu,
+                cfg.seed
             ),
         )],
     };

@@ -18,7 +18,7 @@ use crate::numerics::stats::t_quantile_975;
 /// The diagnosis from the baseline and the search's outcome.
 pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Result<Diagnosis, DiagnoseError> {
     let Baseline { model, fit: baseline, segs, floor_g, floor_t, before, warnings, standard_errors } = base;
-    let Search { scores, ambiguous, degenerate, last } = search;
+    let Search { scores, ambiguous, degenerate, last, .. } = search;
     let after = locate::locate(rec, &last.readings, &segs, floor_g, floor_t);
     let mismatch = located_mismatch(rec, &baseline, &last, &segs, [floor_g, floor_t], &before, &after);
     let remaining = mismatches(&after);
@@ -71,14 +71,17 @@ pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Resu
         profile,
     };
     if let Some(layer) = model.layer() {
-        layered_estimates(&mut d, layer, final_fit.cands.is_empty());
+        // Nothing named: no effect, or explanations the sweeps cannot rank.
+        let nothing_named = final_fit.cands.is_empty() || !d.ambiguous.is_empty();
+        layered_estimates(&mut d, layer, nothing_named);
     }
     d.verdict = prose::verdict(&d, &last.cands);
     Ok(d)
 }
 
 /// On a declared layer (docs/diagnosis.md, "On a declared layer"): with no
-/// effect the estimate is the full fit's, so `diagnose` and `fit` agree (the
+/// effect named (none found, or several the sweeps cannot rank) the estimate
+/// is the full fit's, so `diagnose` and `fit` agree (the
 /// refits here hold the fit's friction; the fit itself also fits it); with
 /// one, the refit's intervals carry the layer model's own error in
 /// quadrature, as the fit's do, and are never narrower than the fit's.

@@ -8,6 +8,7 @@ use sim::recording::{Phase, Recording};
 use super::locate::{self, Floor, Quantity, Segment, SegmentReport};
 use super::model::{Base, Fitted, Model};
 use super::{DiagnoseError, DiagnoseOptions, StandardErrors};
+use crate::fit::ModelParams;
 use crate::fit::fe_law::LayeredBase;
 use crate::fit::full::fe_layer;
 use crate::fit::weights::SampleSd;
@@ -40,14 +41,20 @@ struct Starts {
 }
 
 /// Compare and locate: the baseline fit, the noise floors, the branch tests.
-pub(super) fn compare<'a>(rec: &'a Recording, opts: &DiagnoseOptions) -> Result<Baseline<'a>, DiagnoseError> {
+/// On a declared layer, `anchor` is where the layer model's friction
+/// correction is taken (the full fit's optimum when `None`).
+pub(super) fn compare<'a>(
+    rec: &'a Recording,
+    opts: &DiagnoseOptions,
+    anchor: Option<&ModelParams>,
+) -> Result<Baseline<'a>, DiagnoseError> {
     let sg_given = opts.noise_um.map(|u| u * 1e-3);
     // A given gamma1 noise replaces that channel's recorded standard errors.
     let mut sd = SampleSd::of(rec);
     if sg_given.is_some() {
         sd.gamma1_mm = None;
     }
-    let starts = start_points(rec, sg_given)?;
+    let starts = start_points(rec, sg_given, anchor)?;
     // With recorded errors, a channel's sigma is the factor on them: 1 to start.
     let sg0 = if sd.gamma1_mm.is_some() { 1.0 } else { starts.sigma_g_mm };
     let st0 = if sd.theta1_deg.is_some() { 1.0 } else { starts.sigma_t_deg };
@@ -65,7 +72,7 @@ pub(super) fn compare<'a>(rec: &'a Recording, opts: &DiagnoseOptions) -> Result<
         return Err(DiagnoseError::Model);
     }
     model.max_iterations = opts.max_iterations.max(1);
-    let base0 = starts.bases.iter().find_map(|b| model.fit(&[], &b.internal())).ok_or(DiagnoseError::Model)?;
+    let base0 = starts.bases.iter().find_map(|b| model.fit(&[], &model.start(b))).ok_or(DiagnoseError::Model)?;
 
     // locate: noise floor from the baseline residuals, then the per-branch tests.
     let mut segs: Vec<Segment> = locate::segments(rec);
@@ -104,7 +111,7 @@ fn full_fit_possible(rec: &Recording) -> bool {
 
 /// Starts: the full-model fit, else the paper's answer, else generic guesses
 /// (a recording far from the paper's physics can defeat both fits).
-fn start_points(rec: &Recording, sg_given: Option<f64>) -> Result<Starts, DiagnoseError> {
+fn start_points(rec: &Recording, sg_given: Option<f64>, anchor: Option<&ModelParams>) -> Result<Starts, DiagnoseError> {
     // compare: the full-model fit gives the start; refit on the true-rig model with our weights.
     let full_opts = FullOptions { gamma1_sigma_mm: sg_given, theta1_sigma_deg: None };
     let fit_opts = FitOptions { full: full_opts, ..Default::default() };
@@ -118,7 +125,7 @@ fn start_points(rec: &Recording, sg_given: Option<f64>) -> Result<Starts, Diagno
     match calibrate(rec, &fit_opts) {
         Ok(c) => {
             // A declared layer: the contact is the layer model the fit ended on.
-            layer = LayeredBase::of(rec, &c.full)?;
+            layer = LayeredBase::of(rec, &c.full, anchor)?;
             warnings = c.warnings.clone();
             sg0 = sg_given.unwrap_or(pos(c.full.noise_floor.normal_um * 1e-3, sg0));
             st0 = pos(c.full.noise_floor.torsion_deg, st0);

@@ -37,8 +37,14 @@ pub enum Candidate {
     SensorGain,
 }
 
-/// Number of base parameters (ln E1, logit nu1, z0) ahead of the effects' parameters.
+/// Number of base parameters (ln E1, logit nu1, z0) ahead of the effects'
+/// parameters on the half-space; on a declared layer whose fit found the
+/// friction between indenter and gel, ln(friction) is a fourth
+/// ([`Model::n_base`]).
 pub const BASE: usize = 3;
+
+/// Friction coefficients a layered refit may take (internal: its logarithm).
+const FRICTION_RANGE: [f64; 2] = [1e-3, 1e3];
 
 impl Candidate {
     /// The effects a diagnosis refits, in library order. `sensor_gain` is left
@@ -389,6 +395,8 @@ pub struct Fitted {
     pub iterations: usize,
     /// chi²/dof, the scale of `cov`.
     pub s2: f64,
+    /// How many of `x`'s leading coordinates are base parameters ([`Model::n_base`]).
+    pub n_base: usize,
 }
 
 impl Fitted {
@@ -409,7 +417,7 @@ impl Fitted {
     }
     /// Offset of candidate `k`'s first parameter in `x`.
     pub fn offset_of(&self, k: usize) -> usize {
-        BASE + self.cands[..k].iter().map(|c| c.n_params()).sum::<usize>()
+        self.n_base + self.cands[..k].iter().map(|c| c.n_params()).sum::<usize>()
     }
 }
 
@@ -481,6 +489,32 @@ impl<'a> Model<'a> {
     /// The declared layer's model, when the contact is modelled with it.
     pub fn layer(&self) -> Option<&LayeredBase> {
         self.layer.as_deref()
+    }
+
+    /// How many base parameters a fit has: E1, nu1 and z0, and on a declared
+    /// layer whose fit found a friction between indenter and gel, that
+    /// friction too (the twist depends on it, and an effect the fit did not
+    /// know about biases it: a drifting frame took it to 1.4 for a true 0.4).
+    pub fn n_base(&self) -> usize {
+        BASE + usize::from(self.layer.as_ref().is_some_and(|l| l.friction().is_some()))
+    }
+
+    /// The internal coordinates of base parameters `b` (with the layer fit's
+    /// friction where it is one of them).
+    pub fn start(&self, b: &Base) -> Vec<f64> {
+        let mut x = b.internal().to_vec();
+        // A fit that found the twist stuck ends at a friction of any size: the
+        // range's end sticks as well.
+        let friction = self.layer.as_ref().and_then(|l| l.friction()).filter(|_| self.n_base() > BASE);
+        x.extend(friction.map(|m| m.clamp(FRICTION_RANGE[0], FRICTION_RANGE[1]).ln()));
+        x
+    }
+
+    /// The friction of internal coordinates `x` on a declared layer (the layer
+    /// fit's when `x` has none), `None` when the twist sticks.
+    pub fn friction(&self, x: &[f64]) -> Option<f64> {
+        let fitted = self.layer.as_ref()?.friction()?;
+        Some(x.get(BASE).filter(|_| self.n_base() > BASE).map_or(fitted, |y| y.exp()))
     }
 
     /// Weigh each reading by its recorded standard error (the channels `sd`
@@ -555,7 +589,13 @@ impl<'a> Model<'a> {
             contact_offset: Some(contact_offset::Params { contact_offset_mm: b.contact_offset_mm }),
             ..Default::default()
         };
-        let mut off = BASE;
+        if !cands.is_empty() && x.len() < self.n_base() {
+            return None;
+        }
+        if self.n_base() > BASE && x.len() > BASE && !(FRICTION_RANGE[0]..=FRICTION_RANGE[1]).contains(&x[BASE].exp()) {
+            return None;
+        }
+        let mut off = self.n_base();
         for c in cands {
             let n = c.n_params();
             if !c.apply(&x[off..off + n], &mut p) {
@@ -572,6 +612,12 @@ impl<'a> Model<'a> {
     /// through the history as the rig lived it where the recording says
     /// when ([`TimedHistory`]); for the others that history reads the same.
     pub fn readings(&self, profile: &SimProfile) -> Option<Vec<Reading>> {
+        self.readings_with(profile, self.layer.as_ref().and_then(|l| l.friction()))
+    }
+
+    /// [`Model::readings`] with the friction between indenter and a declared
+    /// layer (unused on the half-space).
+    fn readings_with(&self, profile: &SimProfile, friction: Option<f64>) -> Option<Vec<Reading>> {
         let m = profile.material?;
         let pair = ContactPair {
             elastomer: Body::new(m.e1_mpa, m.nu1, self.rec.meta.elastomer_r_mm),
@@ -581,7 +627,7 @@ impl<'a> Model<'a> {
         let cmds = timed.map_or(&self.cmds, |h| &h.cmds);
         let dense = match &self.layer {
             None => effects::simulate(pair, profile, cmds).ok()?,
-            Some(l) => effects::simulate_on(pair, profile, l.law(m.e1_mpa, m.nu1).ok()?, cmds).ok()?,
+            Some(l) => effects::simulate_on(pair, profile, l.law(m.e1_mpa, m.nu1, friction).ok()?, cmds).ok()?,
         };
         let mut out = match timed {
             Some(h) => h.reduce(&dense)?,
@@ -590,7 +636,7 @@ impl<'a> Model<'a> {
         if let Some(l) = &self.layer {
             let z0 = profile.contact_offset.map_or(0.0, |c| c.contact_offset_mm);
             let gain = profile.sensor_gain.map_or(1.0, |g| g.g);
-            l.correct(&mut out, m.e1_mpa, m.nu1, z0, gain);
+            l.correct(&mut out, m.e1_mpa, m.nu1, z0, friction, gain);
         }
         Some(out)
     }
@@ -610,11 +656,22 @@ impl<'a> Model<'a> {
         }
     }
 
+    /// chi² of `pred` with the recording's standard errors (where it has
+    /// them) scaled by `sigma_g` and `sigma_t` instead of this model's factors:
+    /// two models compared at one noise.
+    pub fn chi2_at(&self, pred: &[Reading], sigma_g: f64, sigma_t: f64) -> f64 {
+        let mut r = Vec::new();
+        self.weighted(pred, &mut r);
+        let n_g = self.rec.samples.len();
+        let (kg, kt) = (self.sigma_g / sigma_g, self.sigma_t / sigma_t);
+        r.iter().enumerate().map(|(i, v)| (v * if i < n_g { kg } else { kt }).powi(2)).sum()
+    }
+
     fn eval(&self, cands: &[Candidate], x: &[f64], out: &mut Vec<f64>) -> bool {
         let Some(p) = self.profile(cands, x) else {
             return false;
         };
-        let Some(r) = self.readings(&p) else {
+        let Some(r) = self.readings_with(&p, self.friction(x)) else {
             return false;
         };
         self.weighted(&r, out);
@@ -643,7 +700,7 @@ impl<'a> Model<'a> {
         let opts = LmOptions { max_iterations, cost_tolerance, step_tolerance: 1e-6, fd_step: 1e-6 };
         let out = lm::minimize(|x, r| self.eval(cands, x, r), x0, opts).ok()?;
         let profile = self.profile(cands, &out.x)?;
-        let readings = self.readings(&profile)?;
+        let readings = self.readings_with(&profile, self.friction(&out.x))?;
         let n = out.x.len();
         let dof = self.n_obs().saturating_sub(n).max(1);
         let s2 = out.ssr / dof as f64;
@@ -658,6 +715,7 @@ impl<'a> Model<'a> {
             dof,
             iterations: out.iterations,
             s2,
+            n_base: self.n_base(),
         })
     }
 
@@ -687,14 +745,15 @@ impl<'a> Model<'a> {
         };
         // Each effect parameter against the base parameters alone (not against
         // the other parameters of its own effect).
+        let nb = self.n_base();
         let vif: Vec<f64> = (0..n)
             .map(|j| {
-                if j < BASE {
+                if j < nb {
                     return 1.0;
                 }
-                let idx = [0, 1, 2, j];
-                let sub = DMatrix::from_fn(4, 4, |a, b| norm[(idx[a], idx[b])]);
-                sub.try_inverse().map_or(f64::INFINITY, |m| m[(3, 3)])
+                let idx: Vec<usize> = (0..nb).chain([j]).collect();
+                let sub = DMatrix::from_fn(nb + 1, nb + 1, |a, b| norm[(idx[a], idx[b])]);
+                sub.try_inverse().map_or(f64::INFINITY, |m| m[(nb, nb)])
             })
             .collect();
         if (0..n).any(|j| !inv[(j, j)].is_finite() || inv[(j, j)] <= 0.0) {

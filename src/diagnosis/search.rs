@@ -26,6 +26,10 @@ pub(super) struct Search {
     pub degenerate: Vec<Degenerate>,
     /// The chosen model, polished; the baseline when none is chosen.
     pub last: Fitted,
+    /// The best model the search fitted, named or not (the chosen one before
+    /// the degeneracy check; the baseline when nothing was significant): where
+    /// a declared layer's correction is taken again for the next pass.
+    pub closest: Fitted,
 }
 
 /// chi² quantile at p = 0.999 for k degrees of freedom (the significance guard).
@@ -47,6 +51,7 @@ pub(super) fn explain(rec: &Recording, base: &Baseline, opts: &DiagnoseOptions) 
         chosen = Some(p);
     }
     polish(model, &mut chosen);
+    let closest = chosen.clone().unwrap_or_else(|| base.fit.clone());
     // Degeneracy: effects whose parameters E1/nu1/z0 can stand in for are not picked.
     let mut degenerate = chosen.as_ref().map(degenerate_effects).unwrap_or_default();
     if !degenerate.is_empty() {
@@ -54,7 +59,7 @@ pub(super) fn explain(rec: &Recording, base: &Baseline, opts: &DiagnoseOptions) 
     }
     let last = chosen.unwrap_or_else(|| base.fit.clone());
     degenerate.extend(sensor_gain_degeneracy(model, &last));
-    Search { scores, ambiguous, degenerate, last }
+    Search { scores, ambiguous, degenerate, last, closest }
 }
 
 /// Every candidate alone on top of the baseline.
