@@ -78,8 +78,12 @@ fn the_dev_sets_recordings_name_nothing_and_agree_with_fit() {
 
 /// A frame drifting toward the gel at 2 µm/s (a third of the library's
 /// typical range) over the 33 s of a dev recording: the fit alone is biased
-/// (printed: E1 -1.2 to -6.5 %, nu1 -1.4 to -5.3 %). The diagnosis names the
-/// drift where the sweeps rank it, names nothing else, and its correction
+/// (printed: E1 -1.2 to -6.5 %, nu1 -1.4 to -5.3 %). Laid on the recordings,
+/// this drift makes the recorded stage back off by 16 µm while the twist
+/// sweep holds the depth, and a stage's play explains such a reversal as
+/// well as the drift does; where the two rank within the ambiguity margin
+/// nothing is named (4 of 10), and the estimate is the fit's. Otherwise the
+/// diagnosis names the drift, names nothing else, and its correction
 /// takes the estimate back to where the same recording without the drift
 /// is fitted: within 1 % in E1 and 2 % in nu1 of the truth, beyond what the
 /// layer model misses on that recording without the drift (tableI_3's -2 %,
