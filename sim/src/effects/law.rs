@@ -21,6 +21,17 @@ pub struct LawState {
     pub contact_radius_mm: f64,
 }
 
+impl From<crate::physics::NormalState> for LawState {
+    fn from(s: crate::physics::NormalState) -> Self {
+        Self {
+            gamma1_mm: s.gamma1_mm,
+            gamma2_mm: s.gamma2_mm,
+            force_n: s.force_n,
+            contact_radius_mm: s.contact_radius_mm,
+        }
+    }
+}
+
 /// The clean contact between the indenter and the elastomer, given the
 /// approach of the indenter's platform past first touch (`delta_mm`, the
 /// stage after every rig-level effect). Implementations must be pure
@@ -69,13 +80,7 @@ mod tests {
 
     impl ContactLaw for Paper {
         fn normal(&self, delta_mm: f64) -> Result<LawState, String> {
-            let s = self.1.solve(delta_mm).map_err(|e| e.to_string())?;
-            Ok(LawState {
-                gamma1_mm: s.gamma1_mm,
-                gamma2_mm: s.gamma2_mm,
-                force_n: s.force_n,
-                contact_radius_mm: s.contact_radius_mm,
-            })
+            self.1.solve(delta_mm).map(LawState::from).map_err(|e| e.to_string())
         }
         fn theta1_deg(&self, delta_mm: f64, twist_deg: f64) -> Result<f64, String> {
             let beta = self.normal(delta_mm)?.gamma2_mm / self.0.indenter.r_mm;

@@ -64,6 +64,20 @@ struct Contact {
     punch1: f64,
 }
 
+impl Contact {
+    /// A contact without adhesion from its clean state, at approach `delta` (mm).
+    fn clean(st: LawState, delta: f64) -> Self {
+        Self {
+            gamma1: st.gamma1_mm,
+            gamma2: st.gamma2_mm,
+            force: st.force_n,
+            a: st.contact_radius_mm,
+            delta,
+            punch1: 0.0,
+        }
+    }
+}
+
 /// How the punch (adhesion) term is set at a given contact radius.
 #[derive(Clone, Copy)]
 enum Punch {
@@ -253,14 +267,7 @@ impl TrueRig {
                 // whose effects all act outside the contact reads the clean model exactly.
                 let st =
                     self.clean.solve(s).map_err(|e| EffectError::NoSolution { stage_mm: s, why: e.to_string() })?;
-                return Ok(Contact {
-                    gamma1: st.gamma1_mm,
-                    gamma2: st.gamma2_mm,
-                    force: st.force_n,
-                    a: st.contact_radius_mm,
-                    delta: s,
-                    punch1: 0.0,
-                });
+                return Ok(Contact::clean(st.into(), s));
             }
             return self.solve_rising(s, Punch::None, 0.0, guess);
         };
@@ -551,14 +558,7 @@ impl TrueRig {
             };
             self.last_s = Some(s);
             self.law_delta = d;
-            self.last = Contact {
-                gamma1: st.gamma1_mm,
-                gamma2: st.gamma2_mm,
-                force: st.force_n,
-                a: st.contact_radius_mm,
-                delta: s,
-                punch1: 0.0,
-            };
+            self.last = Contact::clean(st, s);
         }
         let contact = self.last;
         let in_contact = contact.a > 0.0 && self.law_delta > 0.0;
