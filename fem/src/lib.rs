@@ -35,4 +35,8 @@ pub enum FemError {
     NotPositiveDefinite(usize),
     #[error("the contact iteration did not settle in {0} passes")]
     ContactNotSettled(usize),
+    /// A large-strain element turned inside out (the deformation beyond what
+    /// its mesh can follow): the state before it is the deepest there is.
+    #[error("an element of the {0} MPa body inverted")]
+    Inverted(f64),
 }

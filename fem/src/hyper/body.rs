@@ -245,9 +245,7 @@ impl HyperBody {
         for q in &self.mesh.quads {
             let p = q.map(|n| self.mesh.xy[n]);
             let u = q.map(|n| self.u[n]);
-            let (fe, ke) = element(p, u, &self.material, safe).ok_or_else(|| {
-                FemError::Invalid(format!("an element of the {} MPa body inverted", self.material.e_mpa))
-            })?;
+            let (fe, ke) = element(p, u, &self.material, safe).ok_or(FemError::Inverted(self.material.e_mpa))?;
             for (x, &nx) in q.iter().enumerate() {
                 for cx in 0..2 {
                     let Some(dx) = self.dof[nx][cx] else { continue };

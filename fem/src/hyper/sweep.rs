@@ -67,15 +67,13 @@ pub fn calibration_sweep(
     let mut search = build()?;
     let mut last = search.step_to(0.0)?;
     let depth = loop {
-        // A step that does not settle (or whose tangent gives out) ends the
-        // search at the deepest state that did, once a quarter of the target
-        // was reached: the sweep then says how deep it got.
+        // A step that does not settle (or whose tangent gives out, or that
+        // turns an element inside out) ends the search at the deepest state
+        // that did, once a quarter of the target was reached: the sweep then
+        // says how deep it got.
         let next = match search.solve_path(&[last.delta_mm + SEARCH_STEP_MM], SEARCH_STEP_MM) {
             Ok(mut v) => v.pop().ok_or_else(|| FemError::Invalid("an empty load step".into()))?,
-            Err(e)
-                if matches!(e, FemError::ContactNotSettled(_) | FemError::NotPositiveDefinite(_))
-                    && last.gamma2_mm > 0.25 * target =>
-            {
+            Err(e) if ends_the_sweep(&e) && last.gamma2_mm > 0.25 * target => {
                 break last.delta_mm;
             }
             Err(e) => return Err(e),
@@ -91,11 +89,27 @@ pub fn calibration_sweep(
     };
     let mut sweep = build()?;
     let stages: Vec<f64> = (0..=plan.normal_steps).map(|k| depth * k as f64 / plan.normal_steps as f64).collect();
-    let normal = sweep.solve_path(&stages, SEARCH_STEP_MM)?;
+    // The same trouble can come back at a depth the search passed (the load
+    // steps fall elsewhere): the sweep then ends at its deepest solved stage.
+    let mut normal = Vec::with_capacity(stages.len());
+    for &stage in &stages {
+        match sweep.solve_path(&[stage], SEARCH_STEP_MM) {
+            Ok(v) => normal.extend(v),
+            Err(e) if ends_the_sweep(&e) && 4 * normal.len() > plan.normal_steps => break,
+            Err(e) => return Err(e),
+        }
+    }
     let deepest = normal.last().ok_or_else(|| FemError::Invalid("an empty sweep".into()))?;
     let twists: Vec<f64> = plan.twists_deg.iter().map(|d| d.to_radians()).collect();
     let theta = sweep.theta1_rad(deepest, &twists, plan.friction)?;
     let torsion_deg = plan.twists_deg.iter().zip(&theta).map(|(&d, t)| (d, t.to_degrees())).collect();
     let beta_reached = deepest.gamma2_mm / indenter_radius_mm;
     Ok(Sweep { normal, torsion_deg, beta_reached })
+}
+
+/// Whether `e` is where the reference stops following the contact (its
+/// iteration does not settle, its tangent gives out, or an element turns
+/// inside out), rather than a fault of the input.
+fn ends_the_sweep(e: &FemError) -> bool {
+    matches!(e, FemError::ContactNotSettled(_) | FemError::NotPositiveDefinite(_) | FemError::Inverted(_))
 }
