@@ -6,9 +6,11 @@
 //! and the effect model take, and what a run reports as the truth. Nothing
 //! below changes it or reads it back from a model.
 
+use std::sync::Arc;
+
 use crate::defaults;
-use crate::effects::{EffectError, Material, SimProfile};
-use crate::physics::{ContactPair, ParamError};
+use crate::effects::{ContactLaw, EffectError, Material, SimProfile};
+use crate::physics::{ContactPair, Layer, ParamError};
 use crate::sensor::field::NoiseConfig;
 
 /// What is asked of the simulated rig, before it is checked.
@@ -75,6 +77,23 @@ pub struct SimSetup {
     noise: NoiseConfig,
     seed: u64,
     speedup: f64,
+    /// A declared gel layer's contact, solved downstream of this crate (the
+    /// FE layer model), which then replaces the paper's contact.
+    layer: Option<LayeredContact>,
+}
+
+/// A declared gel layer and its contact law (docs/physics.md, "Rig effects
+/// on a declared layer"). Two are equal when they are the same law.
+#[derive(Debug, Clone)]
+pub struct LayeredContact {
+    pub layer: Layer,
+    pub law: Arc<dyn ContactLaw>,
+}
+
+impl PartialEq for LayeredContact {
+    fn eq(&self, other: &Self) -> bool {
+        self.layer == other.layer && Arc::ptr_eq(&self.law, &other.law)
+    }
 }
 
 impl Default for SimSetup {
@@ -89,7 +108,24 @@ impl SimSetup {
     fn from_checked(input: SimSetupInput) -> Self {
         let SimSetupInput { pair, mut profile, noise, seed, speedup } = input;
         profile.material = None;
-        Self { pair, effects: profile, noise, seed, speedup }
+        Self { pair, effects: profile, noise, seed, speedup, layer: None }
+    }
+
+    /// The same set-up on a declared gel layer whose contact is `law` (for
+    /// the set-up's elastomer and indenter). The profile's effects must act
+    /// outside the contact, and the gel must be flat.
+    pub fn on_layer(mut self, layer: Layer, law: Arc<dyn ContactLaw>) -> Result<Self, EffectError> {
+        crate::effects::law::contact_effect(&self.effects).map_or(Ok(()), |e| Err(EffectError::NotOnLayer(e)))?;
+        if self.pair.elastomer.r_mm.is_finite() {
+            return Err(EffectError::DomedLayer { r1_mm: self.pair.elastomer.r_mm });
+        }
+        self.layer = Some(LayeredContact { layer, law });
+        Ok(self)
+    }
+
+    /// The declared gel layer and its contact, when there is one.
+    pub fn layer(&self) -> Option<&LayeredContact> {
+        self.layer.as_ref()
     }
 
     /// The true elastomer and indenter (a profile's material applied).

@@ -213,7 +213,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {
 /// `simulate --thickness-mm`: the generator's sweeps on a gel layer bonded to
 /// its window, the contact from the linear FE layer model pressed and twisted
 /// with Coulomb friction (`fit::fe_law::frictional_truth`), the profile's
-/// rig-level effects around it (docs/physics.md, "The layer in the generator").
+/// rig-level effects around it (docs/physics.md, "The layer in the generator and the emulated rig").
 fn layered_recording(args: &SimulateArgs, cfg: &GeneratorConfig) -> Result<Recording, CliError> {
     let Some(h) = args.layer.thickness_mm else {
         return Err(CliError::bad_input("a layered recording needs --thickness-mm"));

@@ -96,20 +96,20 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
         let spec = cfg.to_spec().map_err(|e| CliError::bad_input(e.to_string()))?;
         return Ok(RigChoice { spec, truth: None, script: given_script.unwrap_or_default(), emulated: None });
     }
-    // The emulated rig's gel is a half-space (docs/physics.md): a declared
-    // layer would describe a gel it does not simulate, and the fit would model it.
-    if let Some(h) = given_script.as_ref().and_then(|s| s.sensor.elastomer_thickness_mm) {
-        return Err(CliError::bad_input(format!(
-            "the script declares a {h} mm gel layer ([sensor] elastomer_thickness_mm), but the emulated rig \
-             simulates a half-space gel: leave the layer out to run on it, or give a --rig file for a real rig"
-        )));
-    }
     let setup = sim_setup(SimSetupArgs {
         elastomer: &args.elastomer,
         script: script_path.as_deref().zip(given_script.as_ref()),
         profile: args.profile.as_deref(),
         speedup: if args.realtime { 1.0 } else { args.speedup.unwrap_or(sim::defaults::SPEEDUP) },
     })?;
+    // A script that declares the gel's layer: the emulated rig simulates that
+    // layer (docs/physics.md, "The layer in the generator and the emulated rig").
+    let layer =
+        given_script.as_ref().map(|s| s.sensor.layer()).transpose().map_err(|e| CliError::bad_input(e.to_string()))?;
+    let setup = match layer.flatten() {
+        None => setup,
+        Some(layer) => layered_setup(setup, layer)?,
+    };
     // Without a script, the built-in one on the simulated indenter and R1.
     let script = given_script.unwrap_or_else(|| {
         let mut s = Script { indenter: setup.pair().indenter, ..Script::default() };
@@ -120,6 +120,33 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
         .await
         .map_err(|e| CliError::other(format!("cannot start the emulated rig: {e}")))?;
     Ok(RigChoice { spec: rig.spec(), truth: Some(rig.truth()), script, emulated: Some(rig) })
+}
+
+/// The emulated rig on the script's declared gel layer: the linear FE layer
+/// model pressed and twisted with friction, as `simulate --thickness-mm`
+/// simulates it, wrapped by the set-up's rig-level effects.
+fn layered_setup(setup: sim::setup::SimSetup, layer: sim::physics::Layer) -> Result<sim::setup::SimSetup, CliError> {
+    let refuse = |why: String| {
+        CliError::bad_input(format!(
+            "the script declares a {} mm gel layer ([sensor] elastomer_thickness_mm): {why}",
+            layer.thickness_mm
+        ))
+    };
+    if layer.base != sim::physics::LayerBase::Bonded {
+        return Err(refuse(
+            "the emulated rig simulates a gel bonded to its window (elastomer_base = \"bonded\")".into(),
+        ));
+    }
+    let (gel, indenter) = (setup.pair().elastomer, setup.pair().indenter);
+    if gel.r_mm.is_finite() {
+        return Err(refuse(format!(
+            "a layer is simulated flat: set [sensor] elastomer_r_mm = \"inf\" (it is {} mm)",
+            gel.r_mm
+        )));
+    }
+    let law = crate::fit::fe_law::frictional_truth(layer, indenter, gel.e_mpa, gel.nu, sim::defaults::GEL_FRICTION)
+        .map_err(|e| refuse(format!("cannot simulate it: {e}")))?;
+    setup.on_layer(layer, law).map_err(|e| refuse(e.to_string()))
 }
 
 async fn run_async(args: &RunArgs) -> Result<(), CliError> {

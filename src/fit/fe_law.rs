@@ -237,7 +237,7 @@ impl ContactLaw for FeLaw {
 }
 
 /// Approach steps of a simulated truth's frictional path (docs/physics.md,
-/// "The layer in the generator"): its states are interpolated linearly
+/// "The layer in the generator and the emulated rig"): its states are interpolated linearly
 /// between them.
 const TRUTH_PATH_STEPS: usize = 400;
 

@@ -137,6 +137,8 @@ pub enum EffectError {
     Unsupported(&'static str),
     #[error("{0} changes the contact itself and is modelled on the half-space only, not on a declared gel layer")]
     NotOnLayer(&'static str),
+    #[error("a declared gel layer is simulated flat: the elastomer's dome radius R1 = {r1_mm} mm must be inf")]
+    DomedLayer { r1_mm: f64 },
     #[error("the contact model has no solution at stage {stage_mm:.4} mm: {why}")]
     NoSolution { stage_mm: f64, why: String },
     #[error("gross slip: the torque asked of the contact exceeds mu F a (twist {rot_deg:.3} deg)")]

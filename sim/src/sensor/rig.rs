@@ -119,9 +119,12 @@ impl RigSensor {
     pub fn new(rig: Rig, cfg: SensorSimConfig) -> Result<Self, EffectError> {
         let setup = &cfg.setup;
         let model = NormalModel::new(*setup.pair())?;
-        let effects = match setup.effects().is_clean() {
-            true => None,
-            false => Some(TrueRig::new(*setup.pair(), setup.effects())?),
+        let effects = match (setup.layer(), setup.effects().is_clean()) {
+            // On a declared layer the true rig carries the layer's contact law,
+            // so it answers every frame, clean or not.
+            (Some(l), _) => Some(TrueRig::on_law(*setup.pair(), setup.effects(), l.law.clone())?),
+            (None, true) => None,
+            (None, false) => Some(TrueRig::new(*setup.pair(), setup.effects())?),
         };
         let sensor = SimulatedSensor::new(cfg.grid.clone(), *setup.noise(), setup.seed(), Box::new(|_| None))
             .with_first_index(cfg.first_index);
@@ -160,6 +163,13 @@ impl RigSensor {
     fn follow_mount(&mut self) {
         let want = self.mount.mounted();
         if want == self.mounted {
+            return;
+        }
+        if self.cfg.setup.layer().is_some() {
+            // A layer's contact law is for the set-up's own indenter: another
+            // one cannot be mounted on it.
+            self.effect_failures += 1;
+            self.mounted = want;
             return;
         }
         let pair = ContactPair { indenter: want.unwrap_or(self.cfg.setup.pair().indenter), ..*self.cfg.setup.pair() };
@@ -239,6 +249,23 @@ impl RigSensor {
         let delta = pose.stage_mm - self.cfg.contact_stage_mm;
         if delta.is_nan() || delta <= 0.0 {
             return None;
+        }
+        if let Some(l) = self.cfg.setup.layer() {
+            let st = l.law.normal(delta).ok()?;
+            if !(st.gamma1_mm > 0.0 && st.contact_radius_mm > 0.0) {
+                return None;
+            }
+            let twist_deg = pose.rot_deg - twist_origin_deg.unwrap_or(pose.rot_deg);
+            let theta1_deg = if twist_deg == 0.0 { 0.0 } else { l.law.theta1_deg(delta, twist_deg).ok()? };
+            let normal = NormalState {
+                delta_mm: delta,
+                gamma1_mm: st.gamma1_mm,
+                gamma2_mm: st.gamma2_mm,
+                force_n: st.force_n,
+                contact_radius_mm: st.contact_radius_mm,
+            };
+            let beta = st.gamma2_mm / self.pair.indenter.r_mm;
+            return Some(ContactTruth { normal, beta, twist_deg, theta1_rad: theta1_deg.to_radians() });
         }
         // Past the model's limit the elastomer would be crushed; hold the
         // deepest state the model describes instead of failing the stream.
