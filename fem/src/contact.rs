@@ -254,6 +254,31 @@ impl TwoBodyContact {
     }
 }
 
+/// An unknown of the frictional contact: a node's normal force or its radial friction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Unknown {
+    P(usize),
+    Q(usize),
+}
+
+impl Unknown {
+    fn node(self) -> usize {
+        match self {
+            Unknown::P(i) | Unknown::Q(i) => i,
+        }
+    }
+}
+
+/// The k-th unknown in node order: p0, p1, q1, p2, q2, ... (the axis node
+/// carries no radial friction).
+fn interleaved(k: usize) -> Unknown {
+    match k {
+        0 => Unknown::P(0),
+        _ if k % 2 == 1 => Unknown::P(k.div_ceil(2)),
+        _ => Unknown::Q(k / 2),
+    }
+}
+
 /// A node's state in frictional contact.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Node {
@@ -327,6 +352,8 @@ impl FrictionalContact {
         let mut p = vec![0.0; n];
         let mut q = vec![0.0; n];
         let mut s_ref = vec![0.0; n];
+        // The stuck contact's factor, grown with the contact along the path.
+        let mut stuck = PrefixCholesky::empty();
         let mut at = 0.0f64;
         for &k in &order {
             let target = deltas_mm[k];
@@ -338,7 +365,7 @@ impl FrictionalContact {
                 let from = at;
                 for m in 1..=steps {
                     let delta = from + (target - from) * m as f64 / steps as f64;
-                    self.step(delta, mu, &mut status, &mut p, &mut q, &mut s_ref)?;
+                    self.step(delta, mu, &mut status, &mut p, &mut q, &mut s_ref, &mut stuck)?;
                 }
                 at = target;
             }
@@ -360,67 +387,148 @@ impl FrictionalContact {
         solved(delta_mm, gamma1, &self.r, last, p.to_vec(), q.to_vec())
     }
 
+    /// The coefficient of unknown `col` in the equation of unknown `row` when
+    /// the node of a friction unknown sticks: a normal force's row closes its
+    /// node's gap, a friction force's row holds its node's relative radial
+    /// displacement. In the interleaved order ([`interleaved`]) these are the
+    /// combined compliance of both bodies with the friction's sign turned, so
+    /// symmetric positive definite, and a stuck disc of nodes is its leading
+    /// block.
+    fn stick_coef(&self, row: Unknown, col: Unknown) -> f64 {
+        match (row, col) {
+            (Unknown::P(i), Unknown::P(j)) => self.sum.zz[j][i],
+            (Unknown::P(i), Unknown::Q(j)) => -self.sum.zr[j][i],
+            (Unknown::Q(i), Unknown::P(j)) => -self.sum.rz[j][i],
+            (Unknown::Q(i), Unknown::Q(j)) => self.sum.rr[j][i],
+        }
+    }
+
+    /// The coefficient of `col` in `row`'s equation under the nodes' `status`: a
+    /// slipping node's friction row is q + mu d p = 0 instead.
+    fn coef(&self, row: Unknown, col: Unknown, status: &[Node], mu: f64) -> f64 {
+        match (row, status[row.node()]) {
+            (Unknown::Q(i), Node::Slip(d)) => match col {
+                Unknown::Q(j) if j == i => 1.0,
+                Unknown::P(j) if j == i && d != 0.0 => mu * d,
+                _ => 0.0,
+            },
+            _ => self.stick_coef(row, col),
+        }
+    }
+
+    /// The right-hand side of `row`'s equation (see [`Self::coef`]).
+    fn rhs(row: Unknown, need: &[f64], status: &[Node], s_ref: &[f64]) -> f64 {
+        match (row, status[row.node()]) {
+            (Unknown::P(i), _) => need[i],
+            (Unknown::Q(_), Node::Slip(_)) => 0.0,
+            (Unknown::Q(i), _) => s_ref[i],
+        }
+    }
+
     /// The forces of the current active set: normal forces `p` on the nodes in
     /// contact (closing them by `need`), friction `q` on those off the axis
     /// (sticking ones keep their slip `s_ref`, slipping ones carry mu p).
     /// Returns the nodes in contact.
+    ///
+    /// A contact sticks over a core from the axis out, with at most a few
+    /// nodes outside it slipping or touching down: the core is a leading block
+    /// of `stuck` (the interleaved factor, grown as the contact grows and kept
+    /// along the path), and the rest is its Schur complement, a small dense
+    /// system. Anything else, or a factor that cannot reach the core, is
+    /// eliminated as a whole.
+    #[allow(clippy::too_many_arguments)]
     fn solve_active_set(
         &self,
         need: &[f64],
         mu: f64,
         status: &[Node],
         s_ref: &[f64],
+        stuck: &mut PrefixCholesky,
         p: &mut [f64],
         q: &mut [f64],
     ) -> Result<Vec<usize>, FemError> {
-        let n = self.r.len();
-        // Unknowns: p on the nodes in contact, then q on those off the axis.
-        let contact: Vec<usize> = (0..n).filter(|&i| status[i] != Node::Free).collect();
-        let shear: Vec<usize> = contact.iter().copied().filter(|&i| i > 0).collect();
-        let m = contact.len() + shear.len();
-        let mut a = vec![vec![0.0; m]; m];
-        let mut b = vec![0.0; m];
-        for (row, &i) in contact.iter().enumerate() {
-            for (c, &j) in contact.iter().enumerate() {
-                a[row][c] = self.sum.zz[j][i];
-            }
-            for (c, &j) in shear.iter().enumerate() {
-                a[row][contact.len() + c] = -self.sum.zr[j][i];
-            }
-            b[row] = need[i];
-        }
-        for (k, &i) in shear.iter().enumerate() {
-            let row = contact.len() + k;
-            match status[i] {
-                Node::Slip(d) => {
-                    a[row][contact.len() + k] = 1.0;
-                    let c = contact.iter().position(|&x| x == i).unwrap_or(0);
-                    a[row][c] = if d == 0.0 { 0.0 } else { mu * d };
-                }
-                _ => {
-                    for (c, &j) in contact.iter().enumerate() {
-                        a[row][c] = -self.sum.rz[j][i];
-                    }
-                    for (c, &j) in shear.iter().enumerate() {
-                        a[row][contact.len() + c] = self.sum.rr[j][i];
-                    }
-                    b[row] = s_ref[i];
-                }
-            }
-        }
-        let x = if m == 0 { Vec::new() } else { dense::solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
+        let (unknowns, x) = self.solve_system(need, mu, status, s_ref, Some(stuck))?;
         p.iter_mut().for_each(|v| *v = 0.0);
         q.iter_mut().for_each(|v| *v = 0.0);
-        for (c, &i) in contact.iter().enumerate() {
-            p[i] = x[c];
+        for (u, v) in unknowns.into_iter().zip(x) {
+            match u {
+                Unknown::P(i) => p[i] = v,
+                Unknown::Q(i) => q[i] = v,
+            }
         }
-        for (c, &i) in shear.iter().enumerate() {
-            q[i] = x[contact.len() + c];
+        Ok((0..self.r.len()).filter(|&i| status[i] != Node::Free).collect())
+    }
+
+    /// The active set's unknowns and their values: on the stuck core's factor
+    /// and the Schur complement of the rest when `stuck` is given (and reaches
+    /// the core), else by elimination of the whole system.
+    fn solve_system(
+        &self,
+        need: &[f64],
+        mu: f64,
+        status: &[Node],
+        s_ref: &[f64],
+        stuck: Option<&mut PrefixCholesky>,
+    ) -> Result<(Vec<Unknown>, Vec<f64>), FemError> {
+        let n = self.r.len();
+        // The stuck core: nodes 0..c all in contact, sticking off the axis.
+        let c = (0..n).take_while(|&i| status[i] != Node::Free && (i == 0 || status[i] == Node::Stick)).count();
+        let nc = (2 * c).saturating_sub(1);
+        let core: Vec<Unknown> = (0..nc).map(interleaved).collect();
+        let extra: Vec<Unknown> = (c..n)
+            .filter(|&i| status[i] != Node::Free)
+            .flat_map(|i| std::iter::once(Unknown::P(i)).chain((i > 0).then_some(Unknown::Q(i))))
+            .collect();
+        let rhs = |u: Unknown| Self::rhs(u, need, status, s_ref);
+        // The block form pays when the core is most of the system.
+        let blocks = nc > 0 && extra.len() <= nc;
+        let stuck = stuck
+            .filter(|_| blocks)
+            .and_then(|f| (f.extend_to(nc, |a, b| self.stick_coef(interleaved(a), interleaved(b))) >= nc).then_some(f));
+        let Some(stuck) = stuck else {
+            let unknowns: Vec<Unknown> = core.into_iter().chain(extra).collect();
+            let a: Vec<Vec<f64>> =
+                unknowns.iter().map(|&r| unknowns.iter().map(|&u| self.coef(r, u, status, mu)).collect()).collect();
+            let b: Vec<f64> = unknowns.iter().map(|&u| rhs(u)).collect();
+            let x = if unknowns.is_empty() {
+                Vec::new()
+            } else {
+                dense::solve(a, b).ok_or(FemError::NotPositiveDefinite(0))?
+            };
+            return Ok((unknowns, x));
+        };
+        let f: Vec<f64> = core.iter().map(|&u| rhs(u)).collect();
+        let z = stuck.solve_prefix(&f).ok_or(FemError::NotPositiveDefinite(0))?;
+        // The core's response to each unknown outside it.
+        let ys: Vec<Vec<f64>> = extra
+            .iter()
+            .map(|&e| {
+                let col: Vec<f64> = core.iter().map(|&r| self.stick_coef(r, e)).collect();
+                stuck.solve_prefix(&col).ok_or(FemError::NotPositiveDefinite(0))
+            })
+            .collect::<Result<_, _>>()?;
+        let ne = extra.len();
+        let mut schur = vec![vec![0.0; ne]; ne];
+        let mut g = vec![0.0; ne];
+        for (a, &ea) in extra.iter().enumerate() {
+            let row: Vec<f64> = core.iter().map(|&r| self.coef(ea, r, status, mu)).collect();
+            let dot = |v: &[f64]| row.iter().zip(v).map(|(u, w)| u * w).sum::<f64>();
+            g[a] = rhs(ea) - dot(&z);
+            for (b, &eb) in extra.iter().enumerate() {
+                schur[a][b] = self.coef(ea, eb, status, mu) - dot(&ys[b]);
+            }
         }
-        Ok(contact)
+        let xe = if ne == 0 { Vec::new() } else { dense::solve(schur, g).ok_or(FemError::NotPositiveDefinite(0))? };
+        let mut x = z;
+        for (y, &v) in ys.iter().zip(&xe) {
+            x.iter_mut().zip(y).for_each(|(xi, yi)| *xi -= yi * v);
+        }
+        x.extend(xe);
+        Ok((core.into_iter().chain(extra).collect(), x))
     }
 
     /// One load step to approach `delta`, from the converged state in the arguments.
+    #[allow(clippy::too_many_arguments)]
     fn step(
         &self,
         delta: f64,
@@ -429,6 +537,7 @@ impl FrictionalContact {
         p: &mut [f64],
         q: &mut [f64],
         s_ref: &mut [f64],
+        stuck: &mut PrefixCholesky,
     ) -> Result<(), FemError> {
         let n = self.r.len();
         let need = approach_needed(delta, self.radius_mm, &self.r);
@@ -442,7 +551,7 @@ impl FrictionalContact {
             status.iter_mut().filter(|st| **st == Node::Slip(0.0)).for_each(|st| *st = Node::Stick);
         }
         for _ in 0..limit {
-            let contact = self.solve_active_set(&need, mu, status, s_ref, p, q)?;
+            let contact = self.solve_active_set(&need, mu, status, s_ref, stuck, p, q)?;
             // Pulling nodes let go (all at once while that converges, then the worst).
             let pulling: Vec<usize> = contact.iter().copied().filter(|&i| p[i] < 0.0).collect();
             if !pulling.is_empty() {
@@ -514,6 +623,43 @@ mod tests {
     use super::*;
     use crate::elastic::Material;
     use crate::mesh::Mesh;
+
+    /// The frictional active set solved on the stuck core's factor and the
+    /// Schur complement of the rest is the elimination of the whole system,
+    /// for cores with slipping, stuck and missing nodes beyond them.
+    #[test]
+    fn the_stuck_core_and_its_complement_solve_as_elimination_does() {
+        let gel_mesh = Mesh::gel(12.0, 3.0, 0.15, 4.0, 1.0).unwrap();
+        let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * 3.0).collect();
+        let hemi = Mesh::hemisphere(3.0, &rs, 12).unwrap();
+        let gel = Body::new(gel_mesh, Material { e_mpa: 1.0, nu: 0.48 }).unwrap();
+        let ind = Body::new(hemi, Material { e_mpa: 3.0, nu: 0.4 }).unwrap();
+        let n = rs.len();
+        let c = FrictionalContact::new(rs, gel.surface_compliance_rz(n), &ind.surface_compliance_rz(usize::MAX), 3.0);
+        let need = approach_needed(0.8, 3.0, &c.r);
+        let s_ref: Vec<f64> = (0..n).map(|i| 1e-3 * (i as f64 * 0.37).sin()).collect();
+        let (st, sl, fr) = (Node::Stick, Node::Slip(1.0), Node::Free);
+        let patterns: Vec<Vec<Node>> = vec![
+            [vec![st; 12], vec![fr; n - 12]].concat(),
+            [vec![st; 9], vec![sl, Node::Slip(-1.0), st], vec![fr; n - 12]].concat(),
+            [vec![Node::Slip(0.0)], vec![st; 8], vec![fr, st, sl], vec![fr; n - 12]].concat(),
+            [vec![st; 3], vec![sl; 9], vec![fr; n - 12]].concat(),
+        ];
+        let mut stuck = PrefixCholesky::empty();
+        for (k, status) in patterns.iter().enumerate() {
+            for mu in [0.3, 1.0] {
+                let (u_block, x_block) = c.solve_system(&need, mu, status, &s_ref, Some(&mut stuck)).unwrap();
+                let (u_whole, x_whole) = c.solve_system(&need, mu, status, &s_ref, None).unwrap();
+                assert_eq!(u_block, u_whole, "pattern {k}");
+                let scale = x_whole.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                for (a, b) in x_block.iter().zip(&x_whole) {
+                    assert!((a - b).abs() < 1e-9 * scale, "pattern {k} mu {mu}: {a} vs {b}");
+                }
+            }
+        }
+        // The factor grew with the largest core and no further.
+        assert_eq!(stuck.len(), 2 * 12 - 1);
+    }
 
     /// The disc search on the factor answers as the general active set does, on
     /// an elastic hemisphere pressing a bonded gel from first touch to a contact

@@ -49,14 +49,28 @@ impl PrefixCholesky {
     /// read). Rows past the first non-positive pivot are left out: `len()` tells
     /// how many leading unknowns the factor can solve for.
     pub(crate) fn new(n: usize, at: impl Fn(usize, usize) -> f64) -> Self {
-        let mut l = Vec::with_capacity(n * (n + 1) / 2);
-        let mut done = 0;
-        for i in 0..n {
+        let mut f = Self::empty();
+        f.extend_to(n, at);
+        f
+    }
+
+    /// A factor of nothing yet, to be grown with [`Self::extend_to`].
+    pub(crate) fn empty() -> Self {
+        Self { n: 0, l: Vec::new() }
+    }
+
+    /// Factor further rows of the same matrix until `n` leading unknowns are
+    /// solvable (the rows already factored are kept: a leading block's factor
+    /// does not depend on what follows it), stopping at a non-positive pivot.
+    /// Returns `len()`.
+    pub(crate) fn extend_to(&mut self, n: usize, at: impl Fn(usize, usize) -> f64) -> usize {
+        let l = &mut self.l;
+        for i in self.n..n {
             let row0 = l.len();
             let mut ok = true;
             for j in 0..=i {
                 let rj = j * (j + 1) / 2;
-                let dot: f64 = (0..j).map(|k| l[row0 + k] * l[rj + k]).sum();
+                let dot: f64 = l[row0..row0 + j].iter().zip(&l[rj..rj + j]).map(|(u, v)| u * v).sum();
                 let v = at(i, j) - dot;
                 if j == i {
                     if !(v > 0.0 && v.is_finite()) {
@@ -72,9 +86,9 @@ impl PrefixCholesky {
                 l.truncate(row0);
                 break;
             }
-            done = i + 1;
+            self.n = i + 1;
         }
-        Self { n: done, l }
+        self.n
     }
 
     /// How many leading unknowns can be solved for.
@@ -136,6 +150,17 @@ mod tests {
             }
         }
         assert!(f.solve_prefix(&[1.0; 13]).is_none());
+    }
+
+    #[test]
+    fn a_factor_grown_in_pieces_is_the_factor_of_the_whole() {
+        let a = spd(10);
+        let whole = PrefixCholesky::new(10, |i, j| a[i][j]);
+        let mut grown = PrefixCholesky::empty();
+        for k in [3, 3, 7, 10] {
+            assert_eq!(grown.extend_to(k, |i, j| a[i][j]), k);
+        }
+        assert_eq!(grown.l, whole.l);
     }
 
     #[test]

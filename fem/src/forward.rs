@@ -4,7 +4,7 @@
 //! a few Poisson's ratios, interpolated in nu1 and scaled by 1/E1 — so one
 //! parameter set costs a small dense contact problem per stage position.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::f64::consts::PI;
 use std::sync::{Arc, Mutex, OnceLock};
 
@@ -107,7 +107,14 @@ pub struct Forward {
     radius_mm: f64,
     ind_normal: Arc<SurfaceCompliance>,
     ind_torsion: Vec<Vec<f64>>,
+    /// The models of the last few parameter sets asked for (see [`Forward::model_shared`]).
+    recent: Mutex<VecDeque<([u64; 2], Arc<Model>)>>,
 }
+
+/// How many parameter sets [`Forward::model_shared`] keeps: a fit's finite
+/// differences in the contact offset and the friction come back to the
+/// (E1, nu1) of the point they are taken about.
+const RECENT_MODELS: usize = 8;
 
 /// What the frictional contact of one parameter set is built from.
 struct FrictionalParts {
@@ -172,7 +179,35 @@ impl Forward {
         let ind_normal = Arc::new(
             Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance_rz(usize::MAX),
         );
-        Ok(Self { gel, n: rs.len(), radius_mm: indenter_r_mm, ind_normal, ind_torsion })
+        Ok(Self {
+            gel,
+            n: rs.len(),
+            radius_mm: indenter_r_mm,
+            ind_normal,
+            ind_torsion,
+            recent: Mutex::new(VecDeque::with_capacity(RECENT_MODELS)),
+        })
+    }
+
+    /// [`Forward::model`], shared with the last few callers that asked for
+    /// the same (E1, nu1) (bit for bit): a model's answers do not depend on
+    /// what it solved before, so a fit that varies only the contact offset or
+    /// the friction about a point builds the model (its interpolated
+    /// compliances and their factors) once.
+    pub fn model_shared(&self, e1_mpa: f64, nu1: f64) -> Arc<Model> {
+        let key = [e1_mpa.to_bits(), nu1.to_bits()];
+        if let Some(m) = self.recent.lock().ok().and_then(|r| r.iter().find(|(k, _)| *k == key).map(|(_, m)| m.clone()))
+        {
+            return m;
+        }
+        let m = Arc::new(self.model(e1_mpa, nu1));
+        if let Ok(mut r) = self.recent.lock() {
+            if r.len() == RECENT_MODELS {
+                r.pop_front();
+            }
+            r.push_back((key, m.clone()));
+        }
+        m
     }
 
     /// The model at elastomer modulus `e1_mpa` and Poisson's ratio `nu1` (0..0.5).

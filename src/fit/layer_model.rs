@@ -65,7 +65,7 @@ pub(super) fn predict_fe(
     if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
         return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
     }
-    let model = fw.model(p.e1_mpa, p.nu1);
+    let model = fw.model_shared(p.e1_mpa, p.nu1);
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
     let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).collect();
     // At large strain the press is frictionless, as in the neo-Hookean
