@@ -7,7 +7,8 @@
 //! (small strain, small sliding).
 
 use std::f64::consts::PI;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::FemError;
 use crate::dense::{self, PrefixCholesky};
@@ -39,11 +40,15 @@ pub struct TwoBodyContact {
     r: Vec<f64>,
     g_gel: Vec<Vec<f64>>,
     g_sum: Vec<Vec<f64>>,
-    /// Cholesky factor of `g_sum`: the contact on the first k nodes at O(k²).
-    factor: PrefixCholesky,
+    /// Cholesky factor of `g_sum`: the contact on the first k nodes at O(k²);
+    /// factored as far as a contact has reached (a sweep's contact stays well
+    /// inside the nodes an indenter could touch).
+    factor: Mutex<PrefixCholesky>,
     /// Nodes in contact at the last solve: where the next one starts looking
     /// (a sweep's depths come in order).
-    last_disc: AtomicUsize,
+    /// and how many nodes overlapped then (the disc's share of the overlap
+    /// changes slowly with depth), packed as `nodes << 32 | overlap`.
+    last_disc: AtomicU64,
 }
 
 /// A solved contact on surface nodes at radii `r`: `last` is the outermost
@@ -97,8 +102,7 @@ impl TwoBodyContact {
     }
 
     fn assemble(radius_mm: f64, r: Vec<f64>, g_gel: Vec<Vec<f64>>, g_sum: Vec<Vec<f64>>) -> Self {
-        let factor = PrefixCholesky::new(r.len(), |i, j| g_sum[j][i]);
-        Self { radius_mm, r, g_gel, g_sum, factor, last_disc: AtomicUsize::new(0) }
+        Self { radius_mm, r, g_gel, g_sum, factor: Mutex::new(PrefixCholesky::empty()), last_disc: AtomicU64::new(0) }
     }
 
     /// From compliance matrices already on common surface nodes at radii `r`
@@ -111,6 +115,17 @@ impl TwoBodyContact {
 
     pub fn radii(&self) -> &[f64] {
         &self.r
+    }
+
+    /// x with G[..k][..k] x = b on the first k = b.len() nodes (G the combined
+    /// compliance), the factor grown to them first; `None` when it cannot be.
+    fn solve_leading(&self, b: &[f64]) -> Option<Vec<f64>> {
+        let k = b.len();
+        let mut f = self.factor.lock().ok()?;
+        if f.extend_to(k, |i, j| self.g_sum[j][i]) < k {
+            return None;
+        }
+        f.solve_prefix(b)
     }
 
     /// The contact's edge in `st`, between its outermost node in contact and
@@ -127,11 +142,11 @@ impl TwoBodyContact {
             return 0.0;
         };
         let next = last + 1;
-        if next >= r.len() || next > self.factor.len() {
+        if next >= r.len() {
             return r[last];
         }
         // Forces per unit approach with this disc in contact.
-        let Some(x) = self.factor.solve_prefix(&vec![1.0; next]) else {
+        let Some(x) = self.solve_leading(&vec![1.0; next]) else {
             return r[last];
         };
         let delta = st.delta_mm;
@@ -164,20 +179,21 @@ impl TwoBodyContact {
     fn solve_disc(&self, delta_mm: f64, need: &[f64]) -> Option<ContactState> {
         let n = self.r.len();
         let overlap = need.iter().take_while(|&&d| d > 0.0).count();
-        let most = overlap.min(self.factor.len());
+        let most = overlap;
         if most == 0 {
             return None;
         }
         // Elastic contact reaches about 1/sqrt(2) of the overlap's radius (Hertz),
         // unless the last solve knows better.
         let hertz = (overlap as f64) * std::f64::consts::FRAC_1_SQRT_2;
-        let last = self.last_disc.load(Ordering::Relaxed) as f64;
-        let guess = if last > 0.0 && (last - hertz).abs() < 0.25 * hertz { last } else { hertz };
+        let last = self.last_disc.load(Ordering::Relaxed);
+        let (last_k, last_overlap) = ((last >> 32) as f64, (last & u64::from(u32::MAX)) as f64);
+        let guess = if last_k > 0.0 && last_overlap > 0.0 { last_k * overlap as f64 / last_overlap } else { hertz };
         let mut k = guess.round().clamp(1.0, most as f64) as usize;
         let tol = 1e-12 * delta_mm.abs().max(1e-9);
         let mut came_from = 0i8;
         for _ in 0..=n {
-            let p = self.factor.solve_prefix(&need[..k])?;
+            let p = self.solve_leading(&need[..k])?;
             if p.iter().any(|&v| v < 0.0) {
                 if came_from == 1 || k == 1 {
                     return None;
@@ -186,7 +202,12 @@ impl TwoBodyContact {
                 k -= 1;
                 continue;
             }
-            let enters = (k..n).any(|i| need[i] > (0..k).map(|j| self.g_sum[j][i] * p[j]).sum::<f64>() + tol);
+            // The closure of the nodes outside, column by column (contiguous).
+            let mut w = vec![0.0; n - k];
+            for (j, &pj) in p.iter().enumerate() {
+                w.iter_mut().zip(&self.g_sum[j][k..]).for_each(|(wi, g)| *wi += g * pj);
+            }
+            let enters = need[k..].iter().zip(&w).any(|(&d, &wi)| d > wi + tol);
             if enters {
                 if came_from == -1 || k == most {
                     return None;
@@ -195,7 +216,7 @@ impl TwoBodyContact {
                 k += 1;
                 continue;
             }
-            self.last_disc.store(k, Ordering::Relaxed);
+            self.last_disc.store(((k as u64) << 32) | overlap as u64, Ordering::Relaxed);
             let mut nodal_force = p;
             nodal_force.resize(n, 0.0);
             return Some(self.state(delta_mm, nodal_force, k - 1));
@@ -301,6 +322,9 @@ pub struct FrictionalContact {
     r: Vec<f64>,
     gel: SurfaceCompliance,
     sum: SurfaceCompliance,
+    /// The stuck core's factor as far as a path has grown it: the next path
+    /// starts from it (a fit follows several paths on one model).
+    stuck: Mutex<PrefixCholesky>,
 }
 
 impl FrictionalContact {
@@ -316,22 +340,30 @@ impl FrictionalContact {
             zr: add(&gel.zr, &indenter.zr),
             zz: add(&gel.zz, &indenter.zz),
         };
-        Self { radius_mm: indenter_radius_mm, r, gel, sum }
+        Self { radius_mm: indenter_radius_mm, r, gel, sum, stuck: Mutex::new(PrefixCholesky::empty()) }
     }
 
     /// Gap closure and relative radial slip at every node for normal forces `p`
-    /// and friction forces `q` on the gel: (gap + delta - f(r), slip).
-    fn kinematics(&self, p: &[f64], q: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    /// and friction forces `q` on the gel: (gap + delta - f(r), slip). The
+    /// first `stuck` nodes are a stuck core (in contact, sticking): their gap
+    /// is closed and their slip is `s_ref` by the equations just solved, and
+    /// nothing reads their gap, so only the nodes beyond are computed (the
+    /// core's gap is left at zero).
+    fn kinematics(&self, p: &[f64], q: &[f64], stuck: usize, s_ref: &[f64]) -> (Vec<f64>, Vec<f64>) {
         let n = self.r.len();
         let mut w = vec![0.0; n];
         let mut s = vec![0.0; n];
+        s[..stuck].copy_from_slice(&s_ref[..stuck]);
+        let (wo, so) = (&mut w[stuck..], &mut s[stuck..]);
         for j in 0..n {
             if p[j] == 0.0 && q[j] == 0.0 {
                 continue;
             }
-            for i in 0..n {
-                w[i] += self.sum.zz[j][i] * p[j] - self.sum.zr[j][i] * q[j];
-                s[i] += self.sum.rr[j][i] * q[j] - self.sum.rz[j][i] * p[j];
+            let (zz, zr) = (&self.sum.zz[j][stuck..], &self.sum.zr[j][stuck..]);
+            let (rr, rz) = (&self.sum.rr[j][stuck..], &self.sum.rz[j][stuck..]);
+            for i in 0..n - stuck {
+                wo[i] += zz[i] * p[j] - zr[i] * q[j];
+                so[i] += rr[i] * q[j] - rz[i] * p[j];
             }
         }
         (w, s)
@@ -352,8 +384,9 @@ impl FrictionalContact {
         let mut p = vec![0.0; n];
         let mut q = vec![0.0; n];
         let mut s_ref = vec![0.0; n];
-        // The stuck contact's factor, grown with the contact along the path.
-        let mut stuck = PrefixCholesky::empty();
+        // The stuck contact's factor, grown with the contact along the path
+        // (a copy: paths of one model may run at once).
+        let mut stuck = self.stuck.lock().map(|f| f.clone()).unwrap_or_else(|_| PrefixCholesky::empty());
         let mut at = 0.0f64;
         for &k in &order {
             let target = deltas_mm[k];
@@ -374,6 +407,11 @@ impl FrictionalContact {
             } else {
                 self.state(target, &p, &q)
             });
+        }
+        if let Ok(mut shared) = self.stuck.lock() {
+            if stuck.len() > shared.len() {
+                *shared = stuck;
+            }
         }
         out.into_iter()
             .map(|s| s.ok_or_else(|| FemError::Invalid("an approach of the path was not solved".into())))
@@ -567,7 +605,8 @@ impl FrictionalContact {
                 pulling.iter().for_each(|&i| slid_free[i] = true);
                 continue;
             }
-            let (w, s) = self.kinematics(p, q);
+            let core = (0..n).take_while(|&i| status[i] != Node::Free && (i == 0 || status[i] == Node::Stick)).count();
+            let (w, s) = self.kinematics(p, q, core, s_ref);
             // Every node that breaks its condition, with how far it breaks it.
             let mut wrong: Vec<(usize, Node, f64)> = Vec::new();
             for i in 0..n {

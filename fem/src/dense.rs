@@ -48,6 +48,7 @@ impl PrefixCholesky {
     /// Factor the n x n matrix whose (i, j) entry is `at(i, j)` (only j <= i is
     /// read). Rows past the first non-positive pivot are left out: `len()` tells
     /// how many leading unknowns the factor can solve for.
+    #[cfg(test)]
     pub(crate) fn new(n: usize, at: impl Fn(usize, usize) -> f64) -> Self {
         let mut f = Self::empty();
         f.extend_to(n, at);

@@ -135,8 +135,9 @@ pub struct Model {
     torsion_gel: Vec<Vec<f64>>,
     torsion_sum: Vec<Vec<f64>>,
     /// Cholesky factor of `torsion_sum` off the axis (nodes 1..): the stuck core
-    /// of a twisted contact, nodes 1..=m, at O(m²).
-    torsion_factor: PrefixCholesky,
+    /// of a twisted contact, nodes 1..=m, at O(m²); factored as far as a
+    /// stuck core has reached.
+    torsion_factor: Mutex<PrefixCholesky>,
 }
 
 impl Forward {
@@ -221,7 +222,7 @@ impl Forward {
             (0..n).map(|j| (0..n).map(|i| self.gel.torsion[j][i] / g1).collect()).collect();
         let torsion_sum: Vec<Vec<f64>> =
             (0..n).map(|j| (0..n).map(|i| torsion_gel[j][i] + self.ind_torsion[j][i]).collect()).collect();
-        let torsion_factor = PrefixCholesky::new(n.saturating_sub(1), |i, j| torsion_sum[j + 1][i + 1]);
+        let torsion_factor = Mutex::new(PrefixCholesky::empty());
         let contact =
             TwoBodyContact::from_compliances(self.gel.r[..n].to_vec(), gel_zz, &self.ind_normal.zz, self.radius_mm);
         let frictional_parts = FrictionalParts {
@@ -236,6 +237,17 @@ impl Forward {
 }
 
 impl Model {
+    /// The twist's stuck core, nodes 1..=b.len(): x with the torsion compliance's
+    /// leading block times x = b, the factor grown to it first.
+    fn solve_stuck_core(&self, b: &[f64]) -> Option<Vec<f64>> {
+        let k = b.len();
+        let mut f = self.torsion_factor.lock().ok()?;
+        if f.extend_to(k, |i, j| self.torsion_sum[j + 1][i + 1]) < k {
+            return None;
+        }
+        f.solve_prefix(b)
+    }
+
     fn frictional(&self) -> &FrictionalContact {
         self.frictional.get_or_init(|| {
             let f = &self.frictional_parts;
@@ -293,22 +305,20 @@ impl Model {
             let a = || -> Vec<Vec<f64>> {
                 stick.iter().map(|&k| stick.iter().map(|&l| self.torsion_sum[nodes[l]][nodes[k]]).collect()).collect()
             };
-            let b: Vec<f64> = stick
-                .iter()
-                .map(|&k| {
-                    twist_rad * r[nodes[k]]
-                        - (0..nodes.len())
-                            .filter(|&l| slip[l])
-                            .map(|l| self.torsion_sum[nodes[l]][nodes[k]] * cap[l])
-                            .sum::<f64>()
-                })
-                .collect();
+            // The slipping nodes' load on every node, column by column (in the
+            // same order per node as a row-wise sum: the same numbers).
+            let mut by_slip = vec![0.0; nodes.len()];
+            for l in (0..nodes.len()).filter(|&l| slip[l]) {
+                let col = &self.torsion_sum[nodes[l]];
+                by_slip.iter_mut().zip(&nodes).for_each(|(v, &i)| *v += col[i] * cap[l]);
+            }
+            let b: Vec<f64> = stick.iter().map(|&k| twist_rad * r[nodes[k]] - by_slip[k]).collect();
             // The stuck nodes are the core out to the slip annulus: the factor's
             // leading block; any other set by elimination.
             let core = stick.iter().enumerate().all(|(m, &k)| m == k);
             let x = match (stick.is_empty(), core) {
                 (true, _) => Vec::new(),
-                (false, true) => match self.torsion_factor.solve_prefix(&b) {
+                (false, true) => match self.solve_stuck_core(&b) {
                     Some(x) => x,
                     None => dense::solve(a(), b)?,
                 },
@@ -332,16 +342,11 @@ impl Model {
         // The gel's twist displacement at every node out to the first one
         // outside the contact (its surface moves there too).
         let outer = (last + 1).min(r.len() - 1);
-        let u: Vec<f64> =
-            (0..=outer)
-                .map(|i| {
-                    if i == 0 {
-                        0.0
-                    } else {
-                        nodes.iter().enumerate().map(|(l, &j)| self.torsion_gel[j][i] * t[l]).sum()
-                    }
-                })
-                .collect();
+        // Column by column (contiguous); the axis node does not turn.
+        let mut u = vec![0.0; outer + 1];
+        for (l, &j) in nodes.iter().enumerate() {
+            u[1..].iter_mut().zip(&self.torsion_gel[j][1..=outer]).for_each(|(ui, g)| *ui += g * t[l]);
+        }
         contact_twist(&r[..=outer], &u, self.contact.contact_edge_mm(st))
     }
 }
