@@ -138,7 +138,25 @@ pub struct Model {
     /// of a twisted contact, nodes 1..=m, at O(m²); factored as far as a
     /// stuck core has reached.
     torsion_factor: Mutex<PrefixCholesky>,
+    /// Frictionless states solved through [`Model::normal_memo`], by approach.
+    solved: Mutex<HashMap<u64, ContactState>>,
+    /// The last frictional paths followed through [`Model::normal_path_memo`].
+    paths: Mutex<VecDeque<(PathKey, Arc<Vec<ContactState>>)>>,
 }
+
+/// What a frictional path was asked: the approaches, the friction and the
+/// load step, bit for bit.
+#[derive(PartialEq)]
+struct PathKey {
+    deltas: Vec<u64>,
+    mu: u64,
+    step: u64,
+}
+
+/// How many states [`Model::normal_memo`] keeps before it starts afresh, and
+/// how many paths [`Model::normal_path_memo`] keeps.
+const MEMO_STATES: usize = 4096;
+const MEMO_PATHS: usize = 2;
 
 impl Forward {
     /// Shared per (thickness, indenter): built once per process.
@@ -232,7 +250,16 @@ impl Forward {
             indenter: self.ind_normal.clone(),
             radius_mm: self.radius_mm,
         };
-        Model { contact, frictional: OnceLock::new(), frictional_parts, torsion_gel, torsion_sum, torsion_factor }
+        Model {
+            contact,
+            frictional: OnceLock::new(),
+            frictional_parts,
+            torsion_gel,
+            torsion_sum,
+            torsion_factor,
+            solved: Mutex::new(HashMap::new()),
+            paths: Mutex::new(VecDeque::with_capacity(MEMO_PATHS)),
+        }
     }
 }
 
@@ -261,6 +288,52 @@ impl Model {
     /// The normal contact at platform approach `delta_mm`.
     pub fn normal(&self, delta_mm: f64) -> Result<ContactState, FemError> {
         self.contact.solve(delta_mm)
+    }
+
+    /// [`Model::normal`], remembered: a fit asks one model for the same
+    /// approaches again (a finite difference in the friction moves no depth,
+    /// and the fit's closing predictions repeat its last evaluation). The same
+    /// state as [`Model::normal`] gives (it depends on nothing else).
+    pub fn normal_memo(&self, delta_mm: f64) -> Result<ContactState, FemError> {
+        let key = delta_mm.to_bits();
+        if let Some(st) = self.solved.lock().ok().and_then(|m| m.get(&key).cloned()) {
+            return Ok(st);
+        }
+        let st = self.contact.solve(delta_mm)?;
+        if let Ok(mut m) = self.solved.lock() {
+            if m.len() >= MEMO_STATES {
+                m.clear();
+            }
+            m.insert(key, st.clone());
+        }
+        Ok(st)
+    }
+
+    /// [`Model::normal_path`], remembering the last few paths asked of this
+    /// model (bit for bit the same arguments give the same states).
+    pub fn normal_path_memo(
+        &self,
+        deltas_mm: &[f64],
+        mu: f64,
+        max_step_mm: f64,
+    ) -> Result<Arc<Vec<ContactState>>, FemError> {
+        let key = PathKey {
+            deltas: deltas_mm.iter().map(|d| d.to_bits()).collect(),
+            mu: mu.to_bits(),
+            step: max_step_mm.to_bits(),
+        };
+        if let Some(p) = self.paths.lock().ok().and_then(|q| q.iter().find(|(k, _)| *k == key).map(|(_, p)| p.clone()))
+        {
+            return Ok(p);
+        }
+        let path = Arc::new(self.normal_path(deltas_mm, mu, max_step_mm)?);
+        if let Ok(mut q) = self.paths.lock() {
+            if q.len() == MEMO_PATHS {
+                q.pop_front();
+            }
+            q.push_back((key, path.clone()));
+        }
+        Ok(path)
     }
 
     /// The normal contact with Coulomb friction `mu` between the bodies, followed

@@ -8,6 +8,7 @@
 use std::collections::HashMap;
 use std::collections::hash_map::Entry;
 
+use rayon::prelude::*;
 use sim::physics::Layer;
 use sim::recording::{Phase, Recording};
 
@@ -72,13 +73,13 @@ pub(super) fn predict_fe(
     // reference whose ratios scale it (a ratio taken between frictionless
     // presses applies to a frictionless press); friction acts in the twist.
     let normal = if p.large_strain { NormalContact::Frictionless } else { normal };
-    let states: Vec<fem::ContactState> = match normal {
+    let states: std::sync::Arc<Vec<fem::ContactState>> = match normal {
         // The gel and the indenter grip each other while the stage presses (the
         // same interface friction as in torsion), so the normal state depends on
         // the path: it is followed through the recording's depths in small steps.
         NormalContact::Frictional => {
             let deepest = deltas.iter().copied().fold(0.0, f64::max);
-            model.normal_path(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?
+            model.normal_path_memo(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?
         }
         NormalContact::Frictionless => {
             let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
@@ -86,16 +87,16 @@ pub(super) fn predict_fe(
             for &delta in &deltas {
                 let st = match solved.entry(delta.to_bits()) {
                     Entry::Occupied(e) => e.into_mut(),
-                    Entry::Vacant(e) => e.insert(model.normal(delta)?),
+                    Entry::Vacant(e) => e.insert(model.normal_memo(delta)?),
                 };
                 out.push(st.clone());
             }
-            out
+            std::sync::Arc::new(out)
         }
     };
     let table = if p.large_strain { Some(fem::hyper::LargeStrainTable::builtin()?) } else { None };
     let mut out = Vec::with_capacity(rec.samples.len());
-    for ((s, st), &delta) in rec.samples.iter().zip(&states).zip(&deltas) {
+    for ((s, st), &delta) in rec.samples.iter().zip(states.iter()).zip(&deltas) {
         let theta1_deg = match s.phase {
             Phase::Normal => 0.0,
             Phase::Torsion => {
@@ -143,7 +144,6 @@ pub(super) fn friction_correction(
         Ok(exact.iter().zip(&fast).map(|(e, f)| (e.gamma1_mm - f.gamma1_mm, e.theta1_deg - f.theta1_deg)).collect())
     };
     let at = physical(p);
-    let base = diff(p)?;
     let near = |c: &&Correction| {
         c.at.len() == at.len()
             && (c.at[0] / at[0] - 1.0).abs() < 5e-3
@@ -151,30 +151,40 @@ pub(super) fn friction_correction(
             && c.at.get(3).zip(at.get(3)).is_none_or(|(a, b)| (a / b - 1.0).abs() < 0.1)
     };
     if let Some(prev) = previous.filter(near) {
-        return Ok(Some(Correction { at, base, slope: prev.slope.clone() }));
+        return Ok(Some(Correction { at, base: diff(p)?, slope: prev.slope.clone() }));
     }
-    let mut slope = Vec::with_capacity(at.len());
-    for j in 0..at.len() {
-        // Steps well above the path's own discretisation, inside the range.
-        let step = match j {
+    // The difference at `p` and one step in each parameter: independent
+    // frictional paths, followed on the cores there are (the same numbers as
+    // one after the other).
+    let steps: Vec<f64> = (0..at.len())
+        .map(|j| match j {
+            // Steps well above the path's own discretisation, inside the range.
             0 => 1e-3 * at[0],
             1 if at[1] + 2e-3 > 0.5 => -2e-3,
             1 => 2e-3,
             2 => 2e-4,
             _ => 0.02 * at[3],
-        };
-        let mut v = at.clone();
-        v[j] += step;
-        let q = ModelParams {
-            e1_mpa: v[0],
-            nu1: v[1],
-            contact_offset_mm: v[2],
-            contact_friction: v.get(3).copied(),
-            large_strain: p.large_strain,
-        };
-        let moved = diff(&q)?;
-        slope.push(moved.iter().zip(&base).map(|(m, b)| ((m.0 - b.0) / step, (m.1 - b.1) / step)).collect());
-    }
+        })
+        .collect();
+    let points: Vec<ModelParams> = std::iter::once(*p)
+        .chain(steps.iter().enumerate().map(|(j, &step)| {
+            let mut v = at.clone();
+            v[j] += step;
+            ModelParams {
+                e1_mpa: v[0],
+                nu1: v[1],
+                contact_offset_mm: v[2],
+                contact_friction: v.get(3).copied(),
+                large_strain: p.large_strain,
+            }
+        }))
+        .collect();
+    let mut diffs = points.par_iter().map(diff).collect::<Result<Vec<_>, FitError>>()?.into_iter();
+    let base = diffs.next().ok_or_else(|| FitError::Model("no friction correction was taken".into()))?;
+    let slope = diffs
+        .zip(&steps)
+        .map(|(moved, &step)| moved.iter().zip(&base).map(|(m, b)| ((m.0 - b.0) / step, (m.1 - b.1) / step)).collect())
+        .collect();
     Ok(Some(Correction { at, base, slope }))
 }
 
