@@ -125,6 +125,17 @@ struct FrictionalParts {
     radius_mm: f64,
 }
 
+/// What the twists of one normal state share: its outermost node in contact,
+/// each node's Coulomb limit for the twist and the contact's edge.
+#[derive(Debug, Clone)]
+pub struct TwistSetup {
+    last: usize,
+    cap: Vec<f64>,
+    edge_mm: f64,
+    /// The tractions of the whole contact stuck, per radian of twist.
+    stuck_per_rad: Option<Vec<f64>>,
+}
+
 /// One parameter set (E1, nu1) of the forward model.
 pub struct Model {
     contact: TwoBodyContact,
@@ -350,19 +361,22 @@ impl Model {
     /// area-weighted least-squares twist of the gel's surface over the contact
     /// (see [`contact_twist`]).
     pub fn theta1_rad(&self, st: &ContactState, twist_rad: f64, mu: f64) -> Option<f64> {
+        self.theta1_rad_at(&self.twist_setup(st, mu)?, twist_rad)
+    }
+
+    /// What every twist of normal state `st` with friction `mu` shares (see
+    /// [`Model::theta1_rad_at`]); `None` when nothing is in contact off the axis.
+    pub fn twist_setup(&self, st: &ContactState, mu: f64) -> Option<TwistSetup> {
         let r = self.contact.radii();
         let last = (0..r.len()).rev().find(|&i| st.nodal_force[i] > 0.0)?;
-        // Node 0 is on the axis (no twist displacement); unknowns are nodes 1..=last.
-        let nodes: Vec<usize> = (1..=last).collect();
-        if nodes.is_empty() {
+        if last == 0 {
             return None;
         }
         // Coulomb bounds the whole tangential traction: a node already carrying
         // radial friction from the press has only the rest of its cone left for
         // the twist (docs/physics.md, "Finite-element reference").
-        let cap: Vec<f64> = nodes
-            .iter()
-            .map(|&i| {
+        let cap: Vec<f64> = (1..=last)
+            .map(|i| {
                 if mu.is_infinite() {
                     return f64::INFINITY;
                 }
@@ -370,6 +384,20 @@ impl Model {
                 ((mu * st.nodal_force[i]).powi(2) - radial * radial).max(0.0).sqrt()
             })
             .collect();
+        // The stuck contact's answer per radian of twist (a first try of every
+        // twist: the contact is linear in the twist while nothing slips).
+        let r_core: Vec<f64> = (1..=last).map(|i| r[i]).collect();
+        let stuck_per_rad = self.solve_stuck_core(&r_core);
+        Some(TwistSetup { last, cap, edge_mm: self.contact.contact_edge_mm(st), stuck_per_rad })
+    }
+
+    /// [`Model::theta1_rad`] for a mount twist `twist_rad` on a state prepared
+    /// by [`Model::twist_setup`] (a torsion sweep twists one state many times).
+    pub fn theta1_rad_at(&self, setup: &TwistSetup, twist_rad: f64) -> Option<f64> {
+        let r = self.contact.radii();
+        let (last, cap) = (setup.last, &setup.cap);
+        // Node 0 is on the axis (no twist displacement); unknowns are nodes 1..=last.
+        let nodes: Vec<usize> = (1..=last).collect();
         let mut slip = vec![false; nodes.len()];
         let mut t = vec![0.0; nodes.len()];
         for _ in 0..=nodes.len() {
@@ -391,6 +419,9 @@ impl Model {
             let core = stick.iter().enumerate().all(|(m, &k)| m == k);
             let x = match (stick.is_empty(), core) {
                 (true, _) => Vec::new(),
+                (false, true) if stick.len() == nodes.len() && setup.stuck_per_rad.is_some() => {
+                    setup.stuck_per_rad.iter().flatten().map(|v| v * twist_rad).collect()
+                }
                 (false, true) => match self.solve_stuck_core(&b) {
                     Some(x) => x,
                     None => dense::solve(a(), b)?,
@@ -420,7 +451,7 @@ impl Model {
         for (l, &j) in nodes.iter().enumerate() {
             u[1..].iter_mut().zip(&self.torsion_gel[j][1..=outer]).for_each(|(ui, g)| *ui += g * t[l]);
         }
-        contact_twist(&r[..=outer], &u, self.contact.contact_edge_mm(st))
+        contact_twist(&r[..=outer], &u, setup.edge_mm)
     }
 }
 

@@ -96,12 +96,19 @@ pub(super) fn predict_fe(
     };
     let table = if p.large_strain { Some(fem::hyper::LargeStrainTable::builtin()?) } else { None };
     let mut out = Vec::with_capacity(rec.samples.len());
+    // The torsion sweep twists the state at one depth many times: what its
+    // twists share is prepared once per depth.
+    let mut setups: HashMap<u64, Option<fem::forward::TwistSetup>> = HashMap::new();
     for ((s, st), &delta) in rec.samples.iter().zip(states.iter()).zip(&deltas) {
         let theta1_deg = match s.phase {
             Phase::Normal => 0.0,
             Phase::Torsion => {
                 let twist = s.rot_deg.to_radians();
-                model.theta1_rad(st, twist.abs(), mu).map_or(0.0, |t| t.to_degrees() * twist.signum())
+                let setup = setups.entry(delta.to_bits()).or_insert_with(|| model.twist_setup(st, mu));
+                setup
+                    .as_ref()
+                    .and_then(|setup| model.theta1_rad_at(setup, twist.abs()))
+                    .map_or(0.0, |t| t.to_degrees() * twist.signum())
             }
         };
         let (g1, t1) = match table {
