@@ -85,18 +85,31 @@ impl GelTables {
     /// Shared per thickness and node count: the tables take seconds and every
     /// fit of a gel reuses them.
     fn cached(h: f64, nodes: usize) -> Result<Arc<Self>, FemError> {
-        type Key = (u64, usize);
-        static CACHE: OnceLock<Mutex<HashMap<Key, Arc<GelTables>>>> = OnceLock::new();
-        let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
-        let key = (h.to_bits(), nodes);
-        if let Some(t) = cache.lock().ok().and_then(|c| c.get(&key).cloned()) {
-            return Ok(t);
-        }
-        let t = Arc::new(Self::build(h, nodes)?);
-        if let Ok(mut c) = cache.lock() {
-            c.insert(key, t.clone());
-        }
-        Ok(t)
+        static CACHE: BuildOnce<(u64, usize), GelTables> = BuildOnce::new();
+        CACHE.get((h.to_bits(), nodes), || Self::build(h, nodes))
+    }
+}
+
+/// One value per key, built once per process: callers that ask for a key
+/// while it is being built wait for that build instead of starting their own
+/// (the fit's parallel friction paths all ask for the tables on first use).
+/// A failed build is kept too (it fails the same way again).
+struct BuildOnce<K, T> {
+    cells: OnceLock<Mutex<HashMap<K, Arc<OnceLock<Result<Arc<T>, FemError>>>>>>,
+}
+
+impl<K: std::hash::Hash + Eq, T> BuildOnce<K, T> {
+    const fn new() -> Self {
+        Self { cells: OnceLock::new() }
+    }
+
+    fn get(&self, key: K, build: impl FnOnce() -> Result<T, FemError>) -> Result<Arc<T>, FemError> {
+        let cells = self.cells.get_or_init(|| Mutex::new(HashMap::new()));
+        let cell = {
+            let mut map = cells.lock().map_err(|_| FemError::Invalid("a cache's lock was poisoned".into()))?;
+            map.entry(key).or_default().clone()
+        };
+        cell.get_or_init(|| build().map(Arc::new)).clone()
     }
 }
 
@@ -177,18 +190,9 @@ impl Forward {
         indenter_nu: f64,
         indenter_r_mm: f64,
     ) -> Result<Arc<Self>, FemError> {
-        type Key = [u64; 4];
-        static CACHE: OnceLock<Mutex<HashMap<Key, Arc<Forward>>>> = OnceLock::new();
+        static CACHE: BuildOnce<[u64; 4], Forward> = BuildOnce::new();
         let key = [thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm].map(f64::to_bits);
-        let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
-        if let Some(f) = cache.lock().ok().and_then(|c| c.get(&key).cloned()) {
-            return Ok(f);
-        }
-        let f = Arc::new(Self::new(thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm)?);
-        if let Ok(mut c) = cache.lock() {
-            c.insert(key, f.clone());
-        }
-        Ok(f)
+        CACHE.get(key, || Self::new(thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm))
     }
 
     pub fn new(thickness_mm: f64, indenter_e_mpa: f64, indenter_nu: f64, indenter_r_mm: f64) -> Result<Self, FemError> {
