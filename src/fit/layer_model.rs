@@ -94,7 +94,13 @@ pub(super) fn predict_fe(
             std::sync::Arc::new(out)
         }
     };
-    let table = if p.large_strain { Some(fem::hyper::LargeStrainTable::builtin()?) } else { None };
+    // The large-strain ratios at this fit's materials, read at each sample's approach.
+    let table = match p.large_strain {
+        true => {
+            Some(fem::hyper::LargeStrainTable::builtin()?.at_groups(&super::large_strain::groups(rec, p, layer, 0.0)))
+        }
+        false => None,
+    };
     let mut out = Vec::with_capacity(rec.samples.len());
     // The torsion sweep twists the state at one depth many times: what its
     // twists share is prepared once per depth.
@@ -111,10 +117,10 @@ pub(super) fn predict_fe(
                     .map_or(0.0, |t| t.to_degrees() * twist.signum())
             }
         };
-        let (g1, t1) = match table {
+        let (g1, t1) = match &table {
             Some(t) => {
-                let g = super::large_strain::groups(rec, p, layer, delta);
-                (t.gamma1_ratio(&g).ratio, t.twist_ratio(&g).ratio)
+                let d = super::large_strain::groups(rec, p, layer, delta).delta_over_r2;
+                (t.gamma1_ratio(d).ratio, t.twist_ratio(d).ratio)
             }
             None => (1.0, 1.0),
         };
