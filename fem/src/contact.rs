@@ -43,7 +43,7 @@ pub struct TwoBodyContact {
     /// Cholesky factor of `g_sum`: the contact on the first k nodes at O(k²);
     /// factored as far as a contact has reached (a sweep's contact stays well
     /// inside the nodes an indenter could touch).
-    factor: Mutex<PrefixCholesky>,
+    factor: Mutex<Leading>,
     /// Nodes in contact at the last solve: where the next one starts looking
     /// (a sweep's depths come in order).
     /// and how many nodes overlapped then (the disc's share of the overlap
@@ -75,8 +75,24 @@ fn solved(
 /// How far each node at radii `r_mm` must close at platform approach
 /// `delta_mm`: the approach less the exact sphere's height above its tip there.
 fn approach_needed(delta_mm: f64, sphere_radius_mm: f64, r_mm: &[f64]) -> Vec<f64> {
+    r_mm.iter().map(|&r| delta_mm - sphere_height(sphere_radius_mm, r)).collect()
+}
+
+/// The exact sphere's height above its tip at radius `r_mm`.
+fn sphere_height(sphere_radius_mm: f64, r_mm: f64) -> f64 {
     let big = sphere_radius_mm;
-    r_mm.iter().map(|&r| delta_mm - (big - (big * big - r * r).max(0.0).sqrt())).collect()
+    big - (big * big - r_mm * r_mm).max(0.0).sqrt()
+}
+
+/// The frictionless contact's factor of the combined compliance and the
+/// forward substitutions of the two parts of every gap (ones, times the
+/// approach, and the sphere's heights), grown together as a contact reaches
+/// further nodes.
+#[derive(Default)]
+struct Leading {
+    factor: PrefixCholesky,
+    ones: Vec<f64>,
+    heights: Vec<f64>,
 }
 
 impl TwoBodyContact {
@@ -102,7 +118,7 @@ impl TwoBodyContact {
     }
 
     fn assemble(radius_mm: f64, r: Vec<f64>, g_gel: Vec<Vec<f64>>, g_sum: Vec<Vec<f64>>) -> Self {
-        Self { radius_mm, r, g_gel, g_sum, factor: Mutex::new(PrefixCholesky::empty()), last_disc: AtomicU64::new(0) }
+        Self { radius_mm, r, g_gel, g_sum, factor: Mutex::new(Leading::default()), last_disc: AtomicU64::new(0) }
     }
 
     /// From compliance matrices already on common surface nodes at radii `r`
@@ -117,15 +133,17 @@ impl TwoBodyContact {
         &self.r
     }
 
-    /// x with G[..k][..k] x = b on the first k = b.len() nodes (G the combined
-    /// compliance), the factor grown to them first; `None` when it cannot be.
-    fn solve_leading(&self, b: &[f64]) -> Option<Vec<f64>> {
-        let k = b.len();
-        let mut f = self.factor.lock().ok()?;
-        if f.extend_to(k, |i, j| self.g_sum[j][i]) < k {
+    /// The combined compliance's factor and forward substitutions, grown to
+    /// the first `k` nodes; `None` when the factor cannot reach them.
+    fn leading(&self, k: usize) -> Option<std::sync::MutexGuard<'_, Leading>> {
+        let mut l = self.factor.lock().ok()?;
+        if l.factor.extend_to(k, |i, j| self.g_sum[j][i]) < k {
             return None;
         }
-        f.solve_prefix(b)
+        let Leading { factor, ones, heights } = &mut *l;
+        factor.forward_extend(ones, k, |_| 1.0);
+        factor.forward_extend(heights, k, |i| sphere_height(self.radius_mm, self.r[i]));
+        Some(l)
     }
 
     /// The contact's edge in `st`, between its outermost node in contact and
@@ -146,7 +164,7 @@ impl TwoBodyContact {
             return r[last];
         }
         // Forces per unit approach with this disc in contact.
-        let Some(x) = self.solve_leading(&vec![1.0; next]) else {
+        let Some(x) = self.leading(next).and_then(|l| l.factor.backward(l.ones[..next].to_vec())) else {
             return r[last];
         };
         let delta = st.delta_mm;
@@ -193,7 +211,14 @@ impl TwoBodyContact {
         let tol = 1e-12 * delta_mm.abs().max(1e-9);
         let mut came_from = 0i8;
         for _ in 0..=n {
-            let p = self.solve_leading(&need[..k])?;
+            // The gap to close is the approach less the sphere's height: its
+            // forward substitution is the approach times that of ones less
+            // that of the heights, both kept with the factor.
+            let p = {
+                let l = self.leading(k)?;
+                let y: Vec<f64> = l.ones[..k].iter().zip(&l.heights[..k]).map(|(o, h)| delta_mm * o - h).collect();
+                l.factor.backward(y)?
+            };
             if p.iter().any(|&v| v < 0.0) {
                 if came_from == 1 || k == 1 {
                     return None;

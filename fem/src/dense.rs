@@ -37,7 +37,7 @@ pub(crate) fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
 /// definite matrix. The factor of a leading principal block is the leading block
 /// of L, so one factorisation solves the system restricted to the first k
 /// unknowns for every k, each at O(k²).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub(crate) struct PrefixCholesky {
     n: usize,
     /// Row i holds L[i][0..=i] at offset i(i+1)/2.
@@ -99,20 +99,40 @@ impl PrefixCholesky {
 
     /// x with A[..k][..k] x = b, k = b.len() (at most `len()`).
     pub(crate) fn solve_prefix(&self, b: &[f64]) -> Option<Vec<f64>> {
-        let k = b.len();
+        if b.len() > self.n {
+            return None;
+        }
+        let mut y = Vec::with_capacity(b.len());
+        self.forward_extend(&mut y, b.len(), |i| b[i]);
+        self.backward(y)
+    }
+
+    /// Row i of L (its entries up to the diagonal).
+    fn row(&self, i: usize) -> &[f64] {
+        &self.l[i * (i + 1) / 2..i * (i + 1) / 2 + i + 1]
+    }
+
+    /// Extend y = L⁻¹ b (the first `y.len()` entries already there; `b` by
+    /// index) to `k` entries, at most `len()`. A forward substitution's leading
+    /// entries are those of any longer one, so a right-hand side the contact
+    /// keeps meeting is substituted once, as far as it is needed.
+    pub(crate) fn forward_extend(&self, y: &mut Vec<f64>, k: usize, b: impl Fn(usize) -> f64) {
+        for i in y.len()..k.min(self.n) {
+            let r = self.row(i);
+            let s: f64 = r[..i].iter().zip(&y[..i]).map(|(u, v)| u * v).sum();
+            y.push((b(i) - s) / r[i]);
+        }
+    }
+
+    /// x with Lᵀ x = y on the leading y.len() unknowns (at most `len()`).
+    pub(crate) fn backward(&self, mut y: Vec<f64>) -> Option<Vec<f64>> {
+        let k = y.len();
         if k > self.n {
             return None;
         }
-        let row = |i: usize| &self.l[i * (i + 1) / 2..i * (i + 1) / 2 + i + 1];
-        let mut y = vec![0.0; k];
-        for i in 0..k {
-            let r = row(i);
-            let s: f64 = r[..i].iter().zip(&y[..i]).map(|(u, v)| u * v).sum();
-            y[i] = (b[i] - s) / r[i];
-        }
         // Lᵀ x = y by columns of Lᵀ, i.e. rows of L (contiguous).
         for i in (0..k).rev() {
-            let r = row(i);
+            let r = self.row(i);
             y[i] /= r[i];
             let xi = y[i];
             y[..i].iter_mut().zip(&r[..i]).for_each(|(v, l)| *v -= l * xi);
