@@ -95,8 +95,11 @@ impl GelTables {
 /// (the fit's parallel friction paths all ask for the tables on first use).
 /// A failed build is kept too (it fails the same way again).
 struct BuildOnce<K, T> {
-    cells: OnceLock<Mutex<HashMap<K, Arc<OnceLock<Result<Arc<T>, FemError>>>>>>,
+    cells: OnceLock<Mutex<HashMap<K, Arc<Built<T>>>>>,
 }
+
+/// A value of [`BuildOnce`], or how its build failed, once built.
+type Built<T> = OnceLock<Result<Arc<T>, FemError>>;
 
 impl<K: std::hash::Hash + Eq, T> BuildOnce<K, T> {
     const fn new() -> Self {

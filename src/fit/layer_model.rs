@@ -45,7 +45,7 @@ fn physical(p: &ModelParams) -> Vec<f64> {
 
 /// The normal contact in the FE model: followed with Coulomb friction along the
 /// approach (the model itself), or frictionless with each depth solved on its
-/// own (its fast form, hundreds of times cheaper; see [`friction_correction`]).
+/// own (its fast form, several times cheaper; see [`friction_correction`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) enum NormalContact {
     Frictional,
