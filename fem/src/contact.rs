@@ -7,7 +7,8 @@
 //! (small strain, small sliding).
 
 use std::f64::consts::PI;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::FemError;
 use crate::dense::{self, PrefixCholesky};
@@ -39,11 +40,15 @@ pub struct TwoBodyContact {
     r: Vec<f64>,
     g_gel: Vec<Vec<f64>>,
     g_sum: Vec<Vec<f64>>,
-    /// Cholesky factor of `g_sum`: the contact on the first k nodes at O(k²).
-    factor: PrefixCholesky,
+    /// Cholesky factor of `g_sum`: the contact on the first k nodes at O(k²);
+    /// factored as far as a contact has reached (a sweep's contact stays well
+    /// inside the nodes an indenter could touch).
+    factor: Mutex<Leading>,
     /// Nodes in contact at the last solve: where the next one starts looking
     /// (a sweep's depths come in order).
-    last_disc: AtomicUsize,
+    /// and how many nodes overlapped then (the disc's share of the overlap
+    /// changes slowly with depth), packed as `nodes << 32 | overlap`.
+    last_disc: AtomicU64,
 }
 
 /// A solved contact on surface nodes at radii `r`: `last` is the outermost
@@ -70,8 +75,24 @@ fn solved(
 /// How far each node at radii `r_mm` must close at platform approach
 /// `delta_mm`: the approach less the exact sphere's height above its tip there.
 fn approach_needed(delta_mm: f64, sphere_radius_mm: f64, r_mm: &[f64]) -> Vec<f64> {
+    r_mm.iter().map(|&r| delta_mm - sphere_height(sphere_radius_mm, r)).collect()
+}
+
+/// The exact sphere's height above its tip at radius `r_mm`.
+fn sphere_height(sphere_radius_mm: f64, r_mm: f64) -> f64 {
     let big = sphere_radius_mm;
-    r_mm.iter().map(|&r| delta_mm - (big - (big * big - r * r).max(0.0).sqrt())).collect()
+    big - (big * big - r_mm * r_mm).max(0.0).sqrt()
+}
+
+/// The frictionless contact's factor of the combined compliance and the
+/// forward substitutions of the two parts of every gap (ones, times the
+/// approach, and the sphere's heights), grown together as a contact reaches
+/// further nodes.
+#[derive(Default)]
+struct Leading {
+    factor: PrefixCholesky,
+    ones: Vec<f64>,
+    heights: Vec<f64>,
 }
 
 impl TwoBodyContact {
@@ -97,8 +118,7 @@ impl TwoBodyContact {
     }
 
     fn assemble(radius_mm: f64, r: Vec<f64>, g_gel: Vec<Vec<f64>>, g_sum: Vec<Vec<f64>>) -> Self {
-        let factor = PrefixCholesky::new(r.len(), |i, j| g_sum[j][i]);
-        Self { radius_mm, r, g_gel, g_sum, factor, last_disc: AtomicUsize::new(0) }
+        Self { radius_mm, r, g_gel, g_sum, factor: Mutex::new(Leading::default()), last_disc: AtomicU64::new(0) }
     }
 
     /// From compliance matrices already on common surface nodes at radii `r`
@@ -111,6 +131,19 @@ impl TwoBodyContact {
 
     pub fn radii(&self) -> &[f64] {
         &self.r
+    }
+
+    /// The combined compliance's factor and forward substitutions, grown to
+    /// the first `k` nodes; `None` when the factor cannot reach them.
+    fn leading(&self, k: usize) -> Option<std::sync::MutexGuard<'_, Leading>> {
+        let mut l = self.factor.lock().ok()?;
+        if l.factor.extend_to(k, |i, j| self.g_sum[j][i]) < k {
+            return None;
+        }
+        let Leading { factor, ones, heights } = &mut *l;
+        factor.forward_extend(ones, k, |_| 1.0);
+        factor.forward_extend(heights, k, |i| sphere_height(self.radius_mm, self.r[i]));
+        Some(l)
     }
 
     /// The contact's edge in `st`, between its outermost node in contact and
@@ -127,11 +160,11 @@ impl TwoBodyContact {
             return 0.0;
         };
         let next = last + 1;
-        if next >= r.len() || next > self.factor.len() {
+        if next >= r.len() {
             return r[last];
         }
         // Forces per unit approach with this disc in contact.
-        let Some(x) = self.factor.solve_prefix(&vec![1.0; next]) else {
+        let Some(x) = self.leading(next).and_then(|l| l.factor.backward(l.ones[..next].to_vec())) else {
             return r[last];
         };
         let delta = st.delta_mm;
@@ -164,20 +197,28 @@ impl TwoBodyContact {
     fn solve_disc(&self, delta_mm: f64, need: &[f64]) -> Option<ContactState> {
         let n = self.r.len();
         let overlap = need.iter().take_while(|&&d| d > 0.0).count();
-        let most = overlap.min(self.factor.len());
+        let most = overlap;
         if most == 0 {
             return None;
         }
         // Elastic contact reaches about 1/sqrt(2) of the overlap's radius (Hertz),
         // unless the last solve knows better.
         let hertz = (overlap as f64) * std::f64::consts::FRAC_1_SQRT_2;
-        let last = self.last_disc.load(Ordering::Relaxed) as f64;
-        let guess = if last > 0.0 && (last - hertz).abs() < 0.25 * hertz { last } else { hertz };
+        let last = self.last_disc.load(Ordering::Relaxed);
+        let (last_k, last_overlap) = ((last >> 32) as f64, (last & u64::from(u32::MAX)) as f64);
+        let guess = if last_k > 0.0 && last_overlap > 0.0 { last_k * overlap as f64 / last_overlap } else { hertz };
         let mut k = guess.round().clamp(1.0, most as f64) as usize;
         let tol = 1e-12 * delta_mm.abs().max(1e-9);
         let mut came_from = 0i8;
         for _ in 0..=n {
-            let p = self.factor.solve_prefix(&need[..k])?;
+            // The gap to close is the approach less the sphere's height: its
+            // forward substitution is the approach times that of ones less
+            // that of the heights, both kept with the factor.
+            let p = {
+                let l = self.leading(k)?;
+                let y: Vec<f64> = l.ones[..k].iter().zip(&l.heights[..k]).map(|(o, h)| delta_mm * o - h).collect();
+                l.factor.backward(y)?
+            };
             if p.iter().any(|&v| v < 0.0) {
                 if came_from == 1 || k == 1 {
                     return None;
@@ -186,7 +227,12 @@ impl TwoBodyContact {
                 k -= 1;
                 continue;
             }
-            let enters = (k..n).any(|i| need[i] > (0..k).map(|j| self.g_sum[j][i] * p[j]).sum::<f64>() + tol);
+            // The closure of the nodes outside, column by column (contiguous).
+            let mut w = vec![0.0; n - k];
+            for (j, &pj) in p.iter().enumerate() {
+                w.iter_mut().zip(&self.g_sum[j][k..]).for_each(|(wi, g)| *wi += g * pj);
+            }
+            let enters = need[k..].iter().zip(&w).any(|(&d, &wi)| d > wi + tol);
             if enters {
                 if came_from == -1 || k == most {
                     return None;
@@ -195,7 +241,7 @@ impl TwoBodyContact {
                 k += 1;
                 continue;
             }
-            self.last_disc.store(k, Ordering::Relaxed);
+            self.last_disc.store(((k as u64) << 32) | overlap as u64, Ordering::Relaxed);
             let mut nodal_force = p;
             nodal_force.resize(n, 0.0);
             return Some(self.state(delta_mm, nodal_force, k - 1));
@@ -254,6 +300,31 @@ impl TwoBodyContact {
     }
 }
 
+/// An unknown of the frictional contact: a node's normal force or its radial friction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Unknown {
+    P(usize),
+    Q(usize),
+}
+
+impl Unknown {
+    fn node(self) -> usize {
+        match self {
+            Unknown::P(i) | Unknown::Q(i) => i,
+        }
+    }
+}
+
+/// The k-th unknown in node order: p0, p1, q1, p2, q2, ... (the axis node
+/// carries no radial friction).
+fn interleaved(k: usize) -> Unknown {
+    match k {
+        0 => Unknown::P(0),
+        _ if k % 2 == 1 => Unknown::P(k.div_ceil(2)),
+        _ => Unknown::Q(k / 2),
+    }
+}
+
 /// A node's state in frictional contact.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Node {
@@ -276,6 +347,9 @@ pub struct FrictionalContact {
     r: Vec<f64>,
     gel: SurfaceCompliance,
     sum: SurfaceCompliance,
+    /// The stuck core's factor as far as a path has grown it: the next path
+    /// starts from it (a fit follows several paths on one model).
+    stuck: Mutex<PrefixCholesky>,
 }
 
 impl FrictionalContact {
@@ -291,22 +365,30 @@ impl FrictionalContact {
             zr: add(&gel.zr, &indenter.zr),
             zz: add(&gel.zz, &indenter.zz),
         };
-        Self { radius_mm: indenter_radius_mm, r, gel, sum }
+        Self { radius_mm: indenter_radius_mm, r, gel, sum, stuck: Mutex::new(PrefixCholesky::empty()) }
     }
 
     /// Gap closure and relative radial slip at every node for normal forces `p`
-    /// and friction forces `q` on the gel: (gap + delta - f(r), slip).
-    fn kinematics(&self, p: &[f64], q: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    /// and friction forces `q` on the gel: (gap + delta - f(r), slip). The
+    /// first `stuck` nodes are a stuck core (in contact, sticking): their gap
+    /// is closed and their slip is `s_ref` by the equations just solved, and
+    /// nothing reads their gap, so only the nodes beyond are computed (the
+    /// core's gap is left at zero).
+    fn kinematics(&self, p: &[f64], q: &[f64], stuck: usize, s_ref: &[f64]) -> (Vec<f64>, Vec<f64>) {
         let n = self.r.len();
         let mut w = vec![0.0; n];
         let mut s = vec![0.0; n];
+        s[..stuck].copy_from_slice(&s_ref[..stuck]);
+        let (wo, so) = (&mut w[stuck..], &mut s[stuck..]);
         for j in 0..n {
             if p[j] == 0.0 && q[j] == 0.0 {
                 continue;
             }
-            for i in 0..n {
-                w[i] += self.sum.zz[j][i] * p[j] - self.sum.zr[j][i] * q[j];
-                s[i] += self.sum.rr[j][i] * q[j] - self.sum.rz[j][i] * p[j];
+            let (zz, zr) = (&self.sum.zz[j][stuck..], &self.sum.zr[j][stuck..]);
+            let (rr, rz) = (&self.sum.rr[j][stuck..], &self.sum.rz[j][stuck..]);
+            for i in 0..n - stuck {
+                wo[i] += zz[i] * p[j] - zr[i] * q[j];
+                so[i] += rr[i] * q[j] - rz[i] * p[j];
             }
         }
         (w, s)
@@ -327,6 +409,9 @@ impl FrictionalContact {
         let mut p = vec![0.0; n];
         let mut q = vec![0.0; n];
         let mut s_ref = vec![0.0; n];
+        // The stuck contact's factor, grown with the contact along the path
+        // (a copy: paths of one model may run at once).
+        let mut stuck = self.stuck.lock().map(|f| f.clone()).unwrap_or_else(|_| PrefixCholesky::empty());
         let mut at = 0.0f64;
         for &k in &order {
             let target = deltas_mm[k];
@@ -338,7 +423,7 @@ impl FrictionalContact {
                 let from = at;
                 for m in 1..=steps {
                     let delta = from + (target - from) * m as f64 / steps as f64;
-                    self.step(delta, mu, &mut status, &mut p, &mut q, &mut s_ref)?;
+                    self.step(delta, mu, &mut status, &mut p, &mut q, &mut s_ref, &mut stuck)?;
                 }
                 at = target;
             }
@@ -347,6 +432,11 @@ impl FrictionalContact {
             } else {
                 self.state(target, &p, &q)
             });
+        }
+        if let Ok(mut shared) = self.stuck.lock() {
+            if stuck.len() > shared.len() {
+                *shared = stuck;
+            }
         }
         out.into_iter()
             .map(|s| s.ok_or_else(|| FemError::Invalid("an approach of the path was not solved".into())))
@@ -360,67 +450,148 @@ impl FrictionalContact {
         solved(delta_mm, gamma1, &self.r, last, p.to_vec(), q.to_vec())
     }
 
+    /// The coefficient of unknown `col` in the equation of unknown `row` when
+    /// the node of a friction unknown sticks: a normal force's row closes its
+    /// node's gap, a friction force's row holds its node's relative radial
+    /// displacement. In the interleaved order ([`interleaved`]) these are the
+    /// combined compliance of both bodies with the friction's sign turned, so
+    /// symmetric positive definite, and a stuck disc of nodes is its leading
+    /// block.
+    fn stick_coef(&self, row: Unknown, col: Unknown) -> f64 {
+        match (row, col) {
+            (Unknown::P(i), Unknown::P(j)) => self.sum.zz[j][i],
+            (Unknown::P(i), Unknown::Q(j)) => -self.sum.zr[j][i],
+            (Unknown::Q(i), Unknown::P(j)) => -self.sum.rz[j][i],
+            (Unknown::Q(i), Unknown::Q(j)) => self.sum.rr[j][i],
+        }
+    }
+
+    /// The coefficient of `col` in `row`'s equation under the nodes' `status`: a
+    /// slipping node's friction row is q + mu d p = 0 instead.
+    fn coef(&self, row: Unknown, col: Unknown, status: &[Node], mu: f64) -> f64 {
+        match (row, status[row.node()]) {
+            (Unknown::Q(i), Node::Slip(d)) => match col {
+                Unknown::Q(j) if j == i => 1.0,
+                Unknown::P(j) if j == i && d != 0.0 => mu * d,
+                _ => 0.0,
+            },
+            _ => self.stick_coef(row, col),
+        }
+    }
+
+    /// The right-hand side of `row`'s equation (see [`Self::coef`]).
+    fn rhs(row: Unknown, need: &[f64], status: &[Node], s_ref: &[f64]) -> f64 {
+        match (row, status[row.node()]) {
+            (Unknown::P(i), _) => need[i],
+            (Unknown::Q(_), Node::Slip(_)) => 0.0,
+            (Unknown::Q(i), _) => s_ref[i],
+        }
+    }
+
     /// The forces of the current active set: normal forces `p` on the nodes in
     /// contact (closing them by `need`), friction `q` on those off the axis
     /// (sticking ones keep their slip `s_ref`, slipping ones carry mu p).
     /// Returns the nodes in contact.
+    ///
+    /// A contact sticks over a core from the axis out, with at most a few
+    /// nodes outside it slipping or touching down: the core is a leading block
+    /// of `stuck` (the interleaved factor, grown as the contact grows and kept
+    /// along the path), and the rest is its Schur complement, a small dense
+    /// system. Anything else, or a factor that cannot reach the core, is
+    /// eliminated as a whole.
+    #[allow(clippy::too_many_arguments)]
     fn solve_active_set(
         &self,
         need: &[f64],
         mu: f64,
         status: &[Node],
         s_ref: &[f64],
+        stuck: &mut PrefixCholesky,
         p: &mut [f64],
         q: &mut [f64],
     ) -> Result<Vec<usize>, FemError> {
-        let n = self.r.len();
-        // Unknowns: p on the nodes in contact, then q on those off the axis.
-        let contact: Vec<usize> = (0..n).filter(|&i| status[i] != Node::Free).collect();
-        let shear: Vec<usize> = contact.iter().copied().filter(|&i| i > 0).collect();
-        let m = contact.len() + shear.len();
-        let mut a = vec![vec![0.0; m]; m];
-        let mut b = vec![0.0; m];
-        for (row, &i) in contact.iter().enumerate() {
-            for (c, &j) in contact.iter().enumerate() {
-                a[row][c] = self.sum.zz[j][i];
-            }
-            for (c, &j) in shear.iter().enumerate() {
-                a[row][contact.len() + c] = -self.sum.zr[j][i];
-            }
-            b[row] = need[i];
-        }
-        for (k, &i) in shear.iter().enumerate() {
-            let row = contact.len() + k;
-            match status[i] {
-                Node::Slip(d) => {
-                    a[row][contact.len() + k] = 1.0;
-                    let c = contact.iter().position(|&x| x == i).unwrap_or(0);
-                    a[row][c] = if d == 0.0 { 0.0 } else { mu * d };
-                }
-                _ => {
-                    for (c, &j) in contact.iter().enumerate() {
-                        a[row][c] = -self.sum.rz[j][i];
-                    }
-                    for (c, &j) in shear.iter().enumerate() {
-                        a[row][contact.len() + c] = self.sum.rr[j][i];
-                    }
-                    b[row] = s_ref[i];
-                }
-            }
-        }
-        let x = if m == 0 { Vec::new() } else { dense::solve(a, b).ok_or(FemError::NotPositiveDefinite(0))? };
+        let (unknowns, x) = self.solve_system(need, mu, status, s_ref, Some(stuck))?;
         p.iter_mut().for_each(|v| *v = 0.0);
         q.iter_mut().for_each(|v| *v = 0.0);
-        for (c, &i) in contact.iter().enumerate() {
-            p[i] = x[c];
+        for (u, v) in unknowns.into_iter().zip(x) {
+            match u {
+                Unknown::P(i) => p[i] = v,
+                Unknown::Q(i) => q[i] = v,
+            }
         }
-        for (c, &i) in shear.iter().enumerate() {
-            q[i] = x[contact.len() + c];
+        Ok((0..self.r.len()).filter(|&i| status[i] != Node::Free).collect())
+    }
+
+    /// The active set's unknowns and their values: on the stuck core's factor
+    /// and the Schur complement of the rest when `stuck` is given (and reaches
+    /// the core), else by elimination of the whole system.
+    fn solve_system(
+        &self,
+        need: &[f64],
+        mu: f64,
+        status: &[Node],
+        s_ref: &[f64],
+        stuck: Option<&mut PrefixCholesky>,
+    ) -> Result<(Vec<Unknown>, Vec<f64>), FemError> {
+        let n = self.r.len();
+        // The stuck core: nodes 0..c all in contact, sticking off the axis.
+        let c = (0..n).take_while(|&i| status[i] != Node::Free && (i == 0 || status[i] == Node::Stick)).count();
+        let nc = (2 * c).saturating_sub(1);
+        let core: Vec<Unknown> = (0..nc).map(interleaved).collect();
+        let extra: Vec<Unknown> = (c..n)
+            .filter(|&i| status[i] != Node::Free)
+            .flat_map(|i| std::iter::once(Unknown::P(i)).chain((i > 0).then_some(Unknown::Q(i))))
+            .collect();
+        let rhs = |u: Unknown| Self::rhs(u, need, status, s_ref);
+        // The block form pays when the core is most of the system.
+        let blocks = nc > 0 && extra.len() <= nc;
+        let stuck = stuck
+            .filter(|_| blocks)
+            .and_then(|f| (f.extend_to(nc, |a, b| self.stick_coef(interleaved(a), interleaved(b))) >= nc).then_some(f));
+        let Some(stuck) = stuck else {
+            let unknowns: Vec<Unknown> = core.into_iter().chain(extra).collect();
+            let a: Vec<Vec<f64>> =
+                unknowns.iter().map(|&r| unknowns.iter().map(|&u| self.coef(r, u, status, mu)).collect()).collect();
+            let b: Vec<f64> = unknowns.iter().map(|&u| rhs(u)).collect();
+            let x = if unknowns.is_empty() {
+                Vec::new()
+            } else {
+                dense::solve(a, b).ok_or(FemError::NotPositiveDefinite(0))?
+            };
+            return Ok((unknowns, x));
+        };
+        let f: Vec<f64> = core.iter().map(|&u| rhs(u)).collect();
+        let z = stuck.solve_prefix(&f).ok_or(FemError::NotPositiveDefinite(0))?;
+        // The core's response to each unknown outside it.
+        let ys: Vec<Vec<f64>> = extra
+            .iter()
+            .map(|&e| {
+                let col: Vec<f64> = core.iter().map(|&r| self.stick_coef(r, e)).collect();
+                stuck.solve_prefix(&col).ok_or(FemError::NotPositiveDefinite(0))
+            })
+            .collect::<Result<_, _>>()?;
+        let ne = extra.len();
+        let mut schur = vec![vec![0.0; ne]; ne];
+        let mut g = vec![0.0; ne];
+        for (a, &ea) in extra.iter().enumerate() {
+            let row: Vec<f64> = core.iter().map(|&r| self.coef(ea, r, status, mu)).collect();
+            let dot = |v: &[f64]| row.iter().zip(v).map(|(u, w)| u * w).sum::<f64>();
+            g[a] = rhs(ea) - dot(&z);
+            for (b, &eb) in extra.iter().enumerate() {
+                schur[a][b] = self.coef(ea, eb, status, mu) - dot(&ys[b]);
+            }
         }
-        Ok(contact)
+        let xe = if ne == 0 { Vec::new() } else { dense::solve(schur, g).ok_or(FemError::NotPositiveDefinite(0))? };
+        let mut x = z;
+        for (y, &v) in ys.iter().zip(&xe) {
+            x.iter_mut().zip(y).for_each(|(xi, yi)| *xi -= yi * v);
+        }
+        x.extend(xe);
+        Ok((core.into_iter().chain(extra).collect(), x))
     }
 
     /// One load step to approach `delta`, from the converged state in the arguments.
+    #[allow(clippy::too_many_arguments)]
     fn step(
         &self,
         delta: f64,
@@ -429,6 +600,7 @@ impl FrictionalContact {
         p: &mut [f64],
         q: &mut [f64],
         s_ref: &mut [f64],
+        stuck: &mut PrefixCholesky,
     ) -> Result<(), FemError> {
         let n = self.r.len();
         let need = approach_needed(delta, self.radius_mm, &self.r);
@@ -442,7 +614,7 @@ impl FrictionalContact {
             status.iter_mut().filter(|st| **st == Node::Slip(0.0)).for_each(|st| *st = Node::Stick);
         }
         for _ in 0..limit {
-            let contact = self.solve_active_set(&need, mu, status, s_ref, p, q)?;
+            let contact = self.solve_active_set(&need, mu, status, s_ref, stuck, p, q)?;
             // Pulling nodes let go (all at once while that converges, then the worst).
             let pulling: Vec<usize> = contact.iter().copied().filter(|&i| p[i] < 0.0).collect();
             if !pulling.is_empty() {
@@ -458,7 +630,8 @@ impl FrictionalContact {
                 pulling.iter().for_each(|&i| slid_free[i] = true);
                 continue;
             }
-            let (w, s) = self.kinematics(p, q);
+            let core = (0..n).take_while(|&i| status[i] != Node::Free && (i == 0 || status[i] == Node::Stick)).count();
+            let (w, s) = self.kinematics(p, q, core, s_ref);
             // Every node that breaks its condition, with how far it breaks it.
             let mut wrong: Vec<(usize, Node, f64)> = Vec::new();
             for i in 0..n {
@@ -514,6 +687,43 @@ mod tests {
     use super::*;
     use crate::elastic::Material;
     use crate::mesh::Mesh;
+
+    /// The frictional active set solved on the stuck core's factor and the
+    /// Schur complement of the rest is the elimination of the whole system,
+    /// for cores with slipping, stuck and missing nodes beyond them.
+    #[test]
+    fn the_stuck_core_and_its_complement_solve_as_elimination_does() {
+        let gel_mesh = Mesh::gel(12.0, 3.0, 0.15, 4.0, 1.0).unwrap();
+        let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * 3.0).collect();
+        let hemi = Mesh::hemisphere(3.0, &rs, 12).unwrap();
+        let gel = Body::new(gel_mesh, Material { e_mpa: 1.0, nu: 0.48 }).unwrap();
+        let ind = Body::new(hemi, Material { e_mpa: 3.0, nu: 0.4 }).unwrap();
+        let n = rs.len();
+        let c = FrictionalContact::new(rs, gel.surface_compliance_rz(n), &ind.surface_compliance_rz(usize::MAX), 3.0);
+        let need = approach_needed(0.8, 3.0, &c.r);
+        let s_ref: Vec<f64> = (0..n).map(|i| 1e-3 * (i as f64 * 0.37).sin()).collect();
+        let (st, sl, fr) = (Node::Stick, Node::Slip(1.0), Node::Free);
+        let patterns: Vec<Vec<Node>> = vec![
+            [vec![st; 12], vec![fr; n - 12]].concat(),
+            [vec![st; 9], vec![sl, Node::Slip(-1.0), st], vec![fr; n - 12]].concat(),
+            [vec![Node::Slip(0.0)], vec![st; 8], vec![fr, st, sl], vec![fr; n - 12]].concat(),
+            [vec![st; 3], vec![sl; 9], vec![fr; n - 12]].concat(),
+        ];
+        let mut stuck = PrefixCholesky::empty();
+        for (k, status) in patterns.iter().enumerate() {
+            for mu in [0.3, 1.0] {
+                let (u_block, x_block) = c.solve_system(&need, mu, status, &s_ref, Some(&mut stuck)).unwrap();
+                let (u_whole, x_whole) = c.solve_system(&need, mu, status, &s_ref, None).unwrap();
+                assert_eq!(u_block, u_whole, "pattern {k}");
+                let scale = x_whole.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                for (a, b) in x_block.iter().zip(&x_whole) {
+                    assert!((a - b).abs() < 1e-9 * scale, "pattern {k} mu {mu}: {a} vs {b}");
+                }
+            }
+        }
+        // The factor grew with the largest core and no further.
+        assert_eq!(stuck.len(), 2 * 12 - 1);
+    }
 
     /// The disc search on the factor answers as the general active set does, on
     /// an elastic hemisphere pressing a bonded gel from first touch to a contact

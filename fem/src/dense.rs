@@ -37,7 +37,7 @@ pub(crate) fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
 /// definite matrix. The factor of a leading principal block is the leading block
 /// of L, so one factorisation solves the system restricted to the first k
 /// unknowns for every k, each at O(k²).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub(crate) struct PrefixCholesky {
     n: usize,
     /// Row i holds L[i][0..=i] at offset i(i+1)/2.
@@ -48,15 +48,30 @@ impl PrefixCholesky {
     /// Factor the n x n matrix whose (i, j) entry is `at(i, j)` (only j <= i is
     /// read). Rows past the first non-positive pivot are left out: `len()` tells
     /// how many leading unknowns the factor can solve for.
+    #[cfg(test)]
     pub(crate) fn new(n: usize, at: impl Fn(usize, usize) -> f64) -> Self {
-        let mut l = Vec::with_capacity(n * (n + 1) / 2);
-        let mut done = 0;
-        for i in 0..n {
+        let mut f = Self::empty();
+        f.extend_to(n, at);
+        f
+    }
+
+    /// A factor of nothing yet, to be grown with [`Self::extend_to`].
+    pub(crate) fn empty() -> Self {
+        Self { n: 0, l: Vec::new() }
+    }
+
+    /// Factor further rows of the same matrix until `n` leading unknowns are
+    /// solvable (the rows already factored are kept: a leading block's factor
+    /// does not depend on what follows it), stopping at a non-positive pivot.
+    /// Returns `len()`.
+    pub(crate) fn extend_to(&mut self, n: usize, at: impl Fn(usize, usize) -> f64) -> usize {
+        let l = &mut self.l;
+        for i in self.n..n {
             let row0 = l.len();
             let mut ok = true;
             for j in 0..=i {
                 let rj = j * (j + 1) / 2;
-                let dot: f64 = (0..j).map(|k| l[row0 + k] * l[rj + k]).sum();
+                let dot: f64 = l[row0..row0 + j].iter().zip(&l[rj..rj + j]).map(|(u, v)| u * v).sum();
                 let v = at(i, j) - dot;
                 if j == i {
                     if !(v > 0.0 && v.is_finite()) {
@@ -72,9 +87,9 @@ impl PrefixCholesky {
                 l.truncate(row0);
                 break;
             }
-            done = i + 1;
+            self.n = i + 1;
         }
-        Self { n: done, l }
+        self.n
     }
 
     /// How many leading unknowns can be solved for.
@@ -84,20 +99,40 @@ impl PrefixCholesky {
 
     /// x with A[..k][..k] x = b, k = b.len() (at most `len()`).
     pub(crate) fn solve_prefix(&self, b: &[f64]) -> Option<Vec<f64>> {
-        let k = b.len();
+        if b.len() > self.n {
+            return None;
+        }
+        let mut y = Vec::with_capacity(b.len());
+        self.forward_extend(&mut y, b.len(), |i| b[i]);
+        self.backward(y)
+    }
+
+    /// Row i of L (its entries up to the diagonal).
+    fn row(&self, i: usize) -> &[f64] {
+        &self.l[i * (i + 1) / 2..i * (i + 1) / 2 + i + 1]
+    }
+
+    /// Extend y = L⁻¹ b (the first `y.len()` entries already there; `b` by
+    /// index) to `k` entries, at most `len()`. A forward substitution's leading
+    /// entries are those of any longer one, so a right-hand side the contact
+    /// keeps meeting is substituted once, as far as it is needed.
+    pub(crate) fn forward_extend(&self, y: &mut Vec<f64>, k: usize, b: impl Fn(usize) -> f64) {
+        for i in y.len()..k.min(self.n) {
+            let r = self.row(i);
+            let s: f64 = r[..i].iter().zip(&y[..i]).map(|(u, v)| u * v).sum();
+            y.push((b(i) - s) / r[i]);
+        }
+    }
+
+    /// x with Lᵀ x = y on the leading y.len() unknowns (at most `len()`).
+    pub(crate) fn backward(&self, mut y: Vec<f64>) -> Option<Vec<f64>> {
+        let k = y.len();
         if k > self.n {
             return None;
         }
-        let row = |i: usize| &self.l[i * (i + 1) / 2..i * (i + 1) / 2 + i + 1];
-        let mut y = vec![0.0; k];
-        for i in 0..k {
-            let r = row(i);
-            let s: f64 = r[..i].iter().zip(&y[..i]).map(|(u, v)| u * v).sum();
-            y[i] = (b[i] - s) / r[i];
-        }
         // Lᵀ x = y by columns of Lᵀ, i.e. rows of L (contiguous).
         for i in (0..k).rev() {
-            let r = row(i);
+            let r = self.row(i);
             y[i] /= r[i];
             let xi = y[i];
             y[..i].iter_mut().zip(&r[..i]).for_each(|(v, l)| *v -= l * xi);
@@ -136,6 +171,17 @@ mod tests {
             }
         }
         assert!(f.solve_prefix(&[1.0; 13]).is_none());
+    }
+
+    #[test]
+    fn a_factor_grown_in_pieces_is_the_factor_of_the_whole() {
+        let a = spd(10);
+        let whole = PrefixCholesky::new(10, |i, j| a[i][j]);
+        let mut grown = PrefixCholesky::empty();
+        for k in [3, 3, 7, 10] {
+            assert_eq!(grown.extend_to(k, |i, j| a[i][j]), k);
+        }
+        assert_eq!(grown.l, whole.l);
     }
 
     #[test]

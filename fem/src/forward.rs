@@ -4,7 +4,7 @@
 //! a few Poisson's ratios, interpolated in nu1 and scaled by 1/E1 — so one
 //! parameter set costs a small dense contact problem per stage position.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::f64::consts::PI;
 use std::sync::{Arc, Mutex, OnceLock};
 
@@ -85,18 +85,34 @@ impl GelTables {
     /// Shared per thickness and node count: the tables take seconds and every
     /// fit of a gel reuses them.
     fn cached(h: f64, nodes: usize) -> Result<Arc<Self>, FemError> {
-        type Key = (u64, usize);
-        static CACHE: OnceLock<Mutex<HashMap<Key, Arc<GelTables>>>> = OnceLock::new();
-        let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
-        let key = (h.to_bits(), nodes);
-        if let Some(t) = cache.lock().ok().and_then(|c| c.get(&key).cloned()) {
-            return Ok(t);
-        }
-        let t = Arc::new(Self::build(h, nodes)?);
-        if let Ok(mut c) = cache.lock() {
-            c.insert(key, t.clone());
-        }
-        Ok(t)
+        static CACHE: BuildOnce<(u64, usize), GelTables> = BuildOnce::new();
+        CACHE.get((h.to_bits(), nodes), || Self::build(h, nodes))
+    }
+}
+
+/// One value per key, built once per process: callers that ask for a key
+/// while it is being built wait for that build instead of starting their own
+/// (the fit's parallel friction paths all ask for the tables on first use).
+/// A failed build is kept too (it fails the same way again).
+struct BuildOnce<K, T> {
+    cells: OnceLock<Mutex<HashMap<K, Arc<Built<T>>>>>,
+}
+
+/// A value of [`BuildOnce`], or how its build failed, once built.
+type Built<T> = OnceLock<Result<Arc<T>, FemError>>;
+
+impl<K: std::hash::Hash + Eq, T> BuildOnce<K, T> {
+    const fn new() -> Self {
+        Self { cells: OnceLock::new() }
+    }
+
+    fn get(&self, key: K, build: impl FnOnce() -> Result<T, FemError>) -> Result<Arc<T>, FemError> {
+        let cells = self.cells.get_or_init(|| Mutex::new(HashMap::new()));
+        let cell = {
+            let mut map = cells.lock().map_err(|_| FemError::Invalid("a cache's lock was poisoned".into()))?;
+            map.entry(key).or_default().clone()
+        };
+        cell.get_or_init(|| build().map(Arc::new)).clone()
     }
 }
 
@@ -107,7 +123,14 @@ pub struct Forward {
     radius_mm: f64,
     ind_normal: Arc<SurfaceCompliance>,
     ind_torsion: Vec<Vec<f64>>,
+    /// The models of the last few parameter sets asked for (see [`Forward::model_shared`]).
+    recent: Mutex<VecDeque<([u64; 2], Arc<Model>)>>,
 }
+
+/// How many parameter sets [`Forward::model_shared`] keeps: a fit's finite
+/// differences in the contact offset and the friction come back to the
+/// (E1, nu1) of the point they are taken about.
+const RECENT_MODELS: usize = 8;
 
 /// What the frictional contact of one parameter set is built from.
 struct FrictionalParts {
@@ -116,6 +139,17 @@ struct FrictionalParts {
     e1_mpa: f64,
     indenter: Arc<SurfaceCompliance>,
     radius_mm: f64,
+}
+
+/// What the twists of one normal state share: its outermost node in contact,
+/// each node's Coulomb limit for the twist and the contact's edge.
+#[derive(Debug, Clone)]
+pub struct TwistSetup {
+    last: usize,
+    cap: Vec<f64>,
+    edge_mm: f64,
+    /// The tractions of the whole contact stuck, per radian of twist.
+    stuck_per_rad: Option<Vec<f64>>,
 }
 
 /// One parameter set (E1, nu1) of the forward model.
@@ -128,9 +162,28 @@ pub struct Model {
     torsion_gel: Vec<Vec<f64>>,
     torsion_sum: Vec<Vec<f64>>,
     /// Cholesky factor of `torsion_sum` off the axis (nodes 1..): the stuck core
-    /// of a twisted contact, nodes 1..=m, at O(m²).
-    torsion_factor: PrefixCholesky,
+    /// of a twisted contact, nodes 1..=m, at O(m²); factored as far as a
+    /// stuck core has reached.
+    torsion_factor: Mutex<PrefixCholesky>,
+    /// Frictionless states solved through [`Model::normal_memo`], by approach.
+    solved: Mutex<HashMap<u64, ContactState>>,
+    /// The last frictional paths followed through [`Model::normal_path_memo`].
+    paths: Mutex<VecDeque<(PathKey, Arc<Vec<ContactState>>)>>,
 }
+
+/// What a frictional path was asked: the approaches, the friction and the
+/// load step, bit for bit.
+#[derive(PartialEq)]
+struct PathKey {
+    deltas: Vec<u64>,
+    mu: u64,
+    step: u64,
+}
+
+/// How many states [`Model::normal_memo`] keeps before it starts afresh, and
+/// how many paths [`Model::normal_path_memo`] keeps.
+const MEMO_STATES: usize = 4096;
+const MEMO_PATHS: usize = 2;
 
 impl Forward {
     /// Shared per (thickness, indenter): built once per process.
@@ -140,18 +193,9 @@ impl Forward {
         indenter_nu: f64,
         indenter_r_mm: f64,
     ) -> Result<Arc<Self>, FemError> {
-        type Key = [u64; 4];
-        static CACHE: OnceLock<Mutex<HashMap<Key, Arc<Forward>>>> = OnceLock::new();
+        static CACHE: BuildOnce<[u64; 4], Forward> = BuildOnce::new();
         let key = [thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm].map(f64::to_bits);
-        let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
-        if let Some(f) = cache.lock().ok().and_then(|c| c.get(&key).cloned()) {
-            return Ok(f);
-        }
-        let f = Arc::new(Self::new(thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm)?);
-        if let Ok(mut c) = cache.lock() {
-            c.insert(key, f.clone());
-        }
-        Ok(f)
+        CACHE.get(key, || Self::new(thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm))
     }
 
     pub fn new(thickness_mm: f64, indenter_e_mpa: f64, indenter_nu: f64, indenter_r_mm: f64) -> Result<Self, FemError> {
@@ -172,7 +216,35 @@ impl Forward {
         let ind_normal = Arc::new(
             Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance_rz(usize::MAX),
         );
-        Ok(Self { gel, n: rs.len(), radius_mm: indenter_r_mm, ind_normal, ind_torsion })
+        Ok(Self {
+            gel,
+            n: rs.len(),
+            radius_mm: indenter_r_mm,
+            ind_normal,
+            ind_torsion,
+            recent: Mutex::new(VecDeque::with_capacity(RECENT_MODELS)),
+        })
+    }
+
+    /// [`Forward::model`], shared with the last few callers that asked for
+    /// the same (E1, nu1) (bit for bit): a model's answers do not depend on
+    /// what it solved before, so a fit that varies only the contact offset or
+    /// the friction about a point builds the model (its interpolated
+    /// compliances and their factors) once.
+    pub fn model_shared(&self, e1_mpa: f64, nu1: f64) -> Arc<Model> {
+        let key = [e1_mpa.to_bits(), nu1.to_bits()];
+        if let Some(m) = self.recent.lock().ok().and_then(|r| r.iter().find(|(k, _)| *k == key).map(|(_, m)| m.clone()))
+        {
+            return m;
+        }
+        let m = Arc::new(self.model(e1_mpa, nu1));
+        if let Ok(mut r) = self.recent.lock() {
+            if r.len() == RECENT_MODELS {
+                r.pop_front();
+            }
+            r.push_back((key, m.clone()));
+        }
+        m
     }
 
     /// The model at elastomer modulus `e1_mpa` and Poisson's ratio `nu1` (0..0.5).
@@ -186,7 +258,7 @@ impl Forward {
             (0..n).map(|j| (0..n).map(|i| self.gel.torsion[j][i] / g1).collect()).collect();
         let torsion_sum: Vec<Vec<f64>> =
             (0..n).map(|j| (0..n).map(|i| torsion_gel[j][i] + self.ind_torsion[j][i]).collect()).collect();
-        let torsion_factor = PrefixCholesky::new(n.saturating_sub(1), |i, j| torsion_sum[j + 1][i + 1]);
+        let torsion_factor = Mutex::new(PrefixCholesky::empty());
         let contact =
             TwoBodyContact::from_compliances(self.gel.r[..n].to_vec(), gel_zz, &self.ind_normal.zz, self.radius_mm);
         let frictional_parts = FrictionalParts {
@@ -196,11 +268,31 @@ impl Forward {
             indenter: self.ind_normal.clone(),
             radius_mm: self.radius_mm,
         };
-        Model { contact, frictional: OnceLock::new(), frictional_parts, torsion_gel, torsion_sum, torsion_factor }
+        Model {
+            contact,
+            frictional: OnceLock::new(),
+            frictional_parts,
+            torsion_gel,
+            torsion_sum,
+            torsion_factor,
+            solved: Mutex::new(HashMap::new()),
+            paths: Mutex::new(VecDeque::with_capacity(MEMO_PATHS)),
+        }
     }
 }
 
 impl Model {
+    /// The twist's stuck core, nodes 1..=b.len(): x with the torsion compliance's
+    /// leading block times x = b, the factor grown to it first.
+    fn solve_stuck_core(&self, b: &[f64]) -> Option<Vec<f64>> {
+        let k = b.len();
+        let mut f = self.torsion_factor.lock().ok()?;
+        if f.extend_to(k, |i, j| self.torsion_sum[j + 1][i + 1]) < k {
+            return None;
+        }
+        f.solve_prefix(b)
+    }
+
     fn frictional(&self) -> &FrictionalContact {
         self.frictional.get_or_init(|| {
             let f = &self.frictional_parts;
@@ -214,6 +306,52 @@ impl Model {
     /// The normal contact at platform approach `delta_mm`.
     pub fn normal(&self, delta_mm: f64) -> Result<ContactState, FemError> {
         self.contact.solve(delta_mm)
+    }
+
+    /// [`Model::normal`], remembered: a fit asks one model for the same
+    /// approaches again (a finite difference in the friction moves no depth,
+    /// and the fit's closing predictions repeat its last evaluation). The same
+    /// state as [`Model::normal`] gives (it depends on nothing else).
+    pub fn normal_memo(&self, delta_mm: f64) -> Result<ContactState, FemError> {
+        let key = delta_mm.to_bits();
+        if let Some(st) = self.solved.lock().ok().and_then(|m| m.get(&key).cloned()) {
+            return Ok(st);
+        }
+        let st = self.contact.solve(delta_mm)?;
+        if let Ok(mut m) = self.solved.lock() {
+            if m.len() >= MEMO_STATES {
+                m.clear();
+            }
+            m.insert(key, st.clone());
+        }
+        Ok(st)
+    }
+
+    /// [`Model::normal_path`], remembering the last few paths asked of this
+    /// model (bit for bit the same arguments give the same states).
+    pub fn normal_path_memo(
+        &self,
+        deltas_mm: &[f64],
+        mu: f64,
+        max_step_mm: f64,
+    ) -> Result<Arc<Vec<ContactState>>, FemError> {
+        let key = PathKey {
+            deltas: deltas_mm.iter().map(|d| d.to_bits()).collect(),
+            mu: mu.to_bits(),
+            step: max_step_mm.to_bits(),
+        };
+        if let Some(p) = self.paths.lock().ok().and_then(|q| q.iter().find(|(k, _)| *k == key).map(|(_, p)| p.clone()))
+        {
+            return Ok(p);
+        }
+        let path = Arc::new(self.normal_path(deltas_mm, mu, max_step_mm)?);
+        if let Ok(mut q) = self.paths.lock() {
+            if q.len() == MEMO_PATHS {
+                q.pop_front();
+            }
+            q.push_back((key, path.clone()));
+        }
+        Ok(path)
     }
 
     /// The normal contact with Coulomb friction `mu` between the bodies, followed
@@ -230,19 +368,22 @@ impl Model {
     /// area-weighted least-squares twist of the gel's surface over the contact
     /// (see [`contact_twist`]).
     pub fn theta1_rad(&self, st: &ContactState, twist_rad: f64, mu: f64) -> Option<f64> {
+        self.theta1_rad_at(&self.twist_setup(st, mu)?, twist_rad)
+    }
+
+    /// What every twist of normal state `st` with friction `mu` shares (see
+    /// [`Model::theta1_rad_at`]); `None` when nothing is in contact off the axis.
+    pub fn twist_setup(&self, st: &ContactState, mu: f64) -> Option<TwistSetup> {
         let r = self.contact.radii();
         let last = (0..r.len()).rev().find(|&i| st.nodal_force[i] > 0.0)?;
-        // Node 0 is on the axis (no twist displacement); unknowns are nodes 1..=last.
-        let nodes: Vec<usize> = (1..=last).collect();
-        if nodes.is_empty() {
+        if last == 0 {
             return None;
         }
         // Coulomb bounds the whole tangential traction: a node already carrying
         // radial friction from the press has only the rest of its cone left for
         // the twist (docs/physics.md, "Finite-element reference").
-        let cap: Vec<f64> = nodes
-            .iter()
-            .map(|&i| {
+        let cap: Vec<f64> = (1..=last)
+            .map(|i| {
                 if mu.is_infinite() {
                     return f64::INFINITY;
                 }
@@ -250,6 +391,20 @@ impl Model {
                 ((mu * st.nodal_force[i]).powi(2) - radial * radial).max(0.0).sqrt()
             })
             .collect();
+        // The stuck contact's answer per radian of twist (a first try of every
+        // twist: the contact is linear in the twist while nothing slips).
+        let r_core: Vec<f64> = (1..=last).map(|i| r[i]).collect();
+        let stuck_per_rad = self.solve_stuck_core(&r_core);
+        Some(TwistSetup { last, cap, edge_mm: self.contact.contact_edge_mm(st), stuck_per_rad })
+    }
+
+    /// [`Model::theta1_rad`] for a mount twist `twist_rad` on a state prepared
+    /// by [`Model::twist_setup`] (a torsion sweep twists one state many times).
+    pub fn theta1_rad_at(&self, setup: &TwistSetup, twist_rad: f64) -> Option<f64> {
+        let r = self.contact.radii();
+        let (last, cap) = (setup.last, &setup.cap);
+        // Node 0 is on the axis (no twist displacement); unknowns are nodes 1..=last.
+        let nodes: Vec<usize> = (1..=last).collect();
         let mut slip = vec![false; nodes.len()];
         let mut t = vec![0.0; nodes.len()];
         for _ in 0..=nodes.len() {
@@ -258,22 +413,23 @@ impl Model {
             let a = || -> Vec<Vec<f64>> {
                 stick.iter().map(|&k| stick.iter().map(|&l| self.torsion_sum[nodes[l]][nodes[k]]).collect()).collect()
             };
-            let b: Vec<f64> = stick
-                .iter()
-                .map(|&k| {
-                    twist_rad * r[nodes[k]]
-                        - (0..nodes.len())
-                            .filter(|&l| slip[l])
-                            .map(|l| self.torsion_sum[nodes[l]][nodes[k]] * cap[l])
-                            .sum::<f64>()
-                })
-                .collect();
+            // The slipping nodes' load on every node, column by column (in the
+            // same order per node as a row-wise sum: the same numbers).
+            let mut by_slip = vec![0.0; nodes.len()];
+            for l in (0..nodes.len()).filter(|&l| slip[l]) {
+                let col = &self.torsion_sum[nodes[l]];
+                by_slip.iter_mut().zip(&nodes).for_each(|(v, &i)| *v += col[i] * cap[l]);
+            }
+            let b: Vec<f64> = stick.iter().map(|&k| twist_rad * r[nodes[k]] - by_slip[k]).collect();
             // The stuck nodes are the core out to the slip annulus: the factor's
             // leading block; any other set by elimination.
             let core = stick.iter().enumerate().all(|(m, &k)| m == k);
             let x = match (stick.is_empty(), core) {
                 (true, _) => Vec::new(),
-                (false, true) => match self.torsion_factor.solve_prefix(&b) {
+                (false, true) if stick.len() == nodes.len() && setup.stuck_per_rad.is_some() => {
+                    setup.stuck_per_rad.iter().flatten().map(|v| v * twist_rad).collect()
+                }
+                (false, true) => match self.solve_stuck_core(&b) {
                     Some(x) => x,
                     None => dense::solve(a(), b)?,
                 },
@@ -297,17 +453,12 @@ impl Model {
         // The gel's twist displacement at every node out to the first one
         // outside the contact (its surface moves there too).
         let outer = (last + 1).min(r.len() - 1);
-        let u: Vec<f64> =
-            (0..=outer)
-                .map(|i| {
-                    if i == 0 {
-                        0.0
-                    } else {
-                        nodes.iter().enumerate().map(|(l, &j)| self.torsion_gel[j][i] * t[l]).sum()
-                    }
-                })
-                .collect();
-        contact_twist(&r[..=outer], &u, self.contact.contact_edge_mm(st))
+        // Column by column (contiguous); the axis node does not turn.
+        let mut u = vec![0.0; outer + 1];
+        for (l, &j) in nodes.iter().enumerate() {
+            u[1..].iter_mut().zip(&self.torsion_gel[j][1..=outer]).for_each(|(ui, g)| *ui += g * t[l]);
+        }
+        contact_twist(&r[..=outer], &u, setup.edge_mm)
     }
 }
 

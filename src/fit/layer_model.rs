@@ -8,6 +8,7 @@
 use std::collections::HashMap;
 use std::collections::hash_map::Entry;
 
+use rayon::prelude::*;
 use sim::physics::Layer;
 use sim::recording::{Phase, Recording};
 
@@ -44,7 +45,7 @@ fn physical(p: &ModelParams) -> Vec<f64> {
 
 /// The normal contact in the FE model: followed with Coulomb friction along the
 /// approach (the model itself), or frictionless with each depth solved on its
-/// own (its fast form, hundreds of times cheaper; see [`friction_correction`]).
+/// own (its fast form, several times cheaper; see [`friction_correction`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) enum NormalContact {
     Frictional,
@@ -65,20 +66,20 @@ pub(super) fn predict_fe(
     if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
         return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
     }
-    let model = fw.model(p.e1_mpa, p.nu1);
+    let model = fw.model_shared(p.e1_mpa, p.nu1);
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
     let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).collect();
     // At large strain the press is frictionless, as in the neo-Hookean
     // reference whose ratios scale it (a ratio taken between frictionless
     // presses applies to a frictionless press); friction acts in the twist.
     let normal = if p.large_strain { NormalContact::Frictionless } else { normal };
-    let states: Vec<fem::ContactState> = match normal {
+    let states: std::sync::Arc<Vec<fem::ContactState>> = match normal {
         // The gel and the indenter grip each other while the stage presses (the
         // same interface friction as in torsion), so the normal state depends on
         // the path: it is followed through the recording's depths in small steps.
         NormalContact::Frictional => {
             let deepest = deltas.iter().copied().fold(0.0, f64::max);
-            model.normal_path(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?
+            model.normal_path_memo(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?
         }
         NormalContact::Frictionless => {
             let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
@@ -86,27 +87,40 @@ pub(super) fn predict_fe(
             for &delta in &deltas {
                 let st = match solved.entry(delta.to_bits()) {
                     Entry::Occupied(e) => e.into_mut(),
-                    Entry::Vacant(e) => e.insert(model.normal(delta)?),
+                    Entry::Vacant(e) => e.insert(model.normal_memo(delta)?),
                 };
                 out.push(st.clone());
             }
-            out
+            std::sync::Arc::new(out)
         }
     };
-    let table = if p.large_strain { Some(fem::hyper::LargeStrainTable::builtin()?) } else { None };
+    // The large-strain ratios at this fit's materials, read at each sample's approach.
+    let table = match p.large_strain {
+        true => {
+            Some(fem::hyper::LargeStrainTable::builtin()?.at_groups(&super::large_strain::groups(rec, p, layer, 0.0)))
+        }
+        false => None,
+    };
     let mut out = Vec::with_capacity(rec.samples.len());
-    for ((s, st), &delta) in rec.samples.iter().zip(&states).zip(&deltas) {
+    // The torsion sweep twists the state at one depth many times: what its
+    // twists share is prepared once per depth.
+    let mut setups: HashMap<u64, Option<fem::forward::TwistSetup>> = HashMap::new();
+    for ((s, st), &delta) in rec.samples.iter().zip(states.iter()).zip(&deltas) {
         let theta1_deg = match s.phase {
             Phase::Normal => 0.0,
             Phase::Torsion => {
                 let twist = s.rot_deg.to_radians();
-                model.theta1_rad(st, twist.abs(), mu).map_or(0.0, |t| t.to_degrees() * twist.signum())
+                let setup = setups.entry(delta.to_bits()).or_insert_with(|| model.twist_setup(st, mu));
+                setup
+                    .as_ref()
+                    .and_then(|setup| model.theta1_rad_at(setup, twist.abs()))
+                    .map_or(0.0, |t| t.to_degrees() * twist.signum())
             }
         };
-        let (g1, t1) = match table {
+        let (g1, t1) = match &table {
             Some(t) => {
-                let g = super::large_strain::groups(rec, p, layer, delta);
-                (t.gamma1_ratio(&g).ratio, t.twist_ratio(&g).ratio)
+                let d = super::large_strain::groups(rec, p, layer, delta).delta_over_r2;
+                (t.gamma1_ratio(d).ratio, t.twist_ratio(d).ratio)
             }
             None => (1.0, 1.0),
         };
@@ -143,7 +157,6 @@ pub(super) fn friction_correction(
         Ok(exact.iter().zip(&fast).map(|(e, f)| (e.gamma1_mm - f.gamma1_mm, e.theta1_deg - f.theta1_deg)).collect())
     };
     let at = physical(p);
-    let base = diff(p)?;
     let near = |c: &&Correction| {
         c.at.len() == at.len()
             && (c.at[0] / at[0] - 1.0).abs() < 5e-3
@@ -151,30 +164,40 @@ pub(super) fn friction_correction(
             && c.at.get(3).zip(at.get(3)).is_none_or(|(a, b)| (a / b - 1.0).abs() < 0.1)
     };
     if let Some(prev) = previous.filter(near) {
-        return Ok(Some(Correction { at, base, slope: prev.slope.clone() }));
+        return Ok(Some(Correction { at, base: diff(p)?, slope: prev.slope.clone() }));
     }
-    let mut slope = Vec::with_capacity(at.len());
-    for j in 0..at.len() {
-        // Steps well above the path's own discretisation, inside the range.
-        let step = match j {
+    // The difference at `p` and one step in each parameter: independent
+    // frictional paths, followed on the cores there are (the same numbers as
+    // one after the other).
+    let steps: Vec<f64> = (0..at.len())
+        .map(|j| match j {
+            // Steps well above the path's own discretisation, inside the range.
             0 => 1e-3 * at[0],
             1 if at[1] + 2e-3 > 0.5 => -2e-3,
             1 => 2e-3,
             2 => 2e-4,
             _ => 0.02 * at[3],
-        };
-        let mut v = at.clone();
-        v[j] += step;
-        let q = ModelParams {
-            e1_mpa: v[0],
-            nu1: v[1],
-            contact_offset_mm: v[2],
-            contact_friction: v.get(3).copied(),
-            large_strain: p.large_strain,
-        };
-        let moved = diff(&q)?;
-        slope.push(moved.iter().zip(&base).map(|(m, b)| ((m.0 - b.0) / step, (m.1 - b.1) / step)).collect());
-    }
+        })
+        .collect();
+    let points: Vec<ModelParams> = std::iter::once(*p)
+        .chain(steps.iter().enumerate().map(|(j, &step)| {
+            let mut v = at.clone();
+            v[j] += step;
+            ModelParams {
+                e1_mpa: v[0],
+                nu1: v[1],
+                contact_offset_mm: v[2],
+                contact_friction: v.get(3).copied(),
+                large_strain: p.large_strain,
+            }
+        }))
+        .collect();
+    let mut diffs = points.par_iter().map(diff).collect::<Result<Vec<_>, FitError>>()?.into_iter();
+    let base = diffs.next().ok_or_else(|| FitError::Model("no friction correction was taken".into()))?;
+    let slope = diffs
+        .zip(&steps)
+        .map(|(moved, &step)| moved.iter().zip(&base).map(|(m, b)| ((m.0 - b.0) / step, (m.1 - b.1) / step)).collect())
+        .collect();
     Ok(Some(Correction { at, base, slope }))
 }
 

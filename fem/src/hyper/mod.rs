@@ -21,7 +21,7 @@ mod twist;
 
 pub use body::HyperBody;
 pub use sweep::{Sweep, SweepPlan, calibration_sweep};
-pub use table::{Groups, LargeStrainTable, Lookup};
+pub use table::{AtGroups, Groups, LargeStrainTable, Lookup};
 
 use crate::FemError;
 use crate::banded::Factor;

@@ -109,19 +109,23 @@ impl LargeStrainTable {
 
     /// gamma1 (large strain) / gamma1 (linear) at the groups `g`.
     pub fn gamma1_ratio(&self, g: &Groups) -> Lookup {
-        self.lookup(g, |c| &c.gamma1)
+        self.at_groups(g).gamma1_ratio(g.delta_over_r2)
     }
 
     /// The stuck twist ratio theta1 / twist (large strain over linear) at `g`.
     pub fn twist_ratio(&self, g: &Groups) -> Lookup {
-        self.lookup(g, |c| &c.twist)
+        self.at_groups(g).twist_ratio(g.delta_over_r2)
     }
 
+    /// The table at the material groups of `g` (its approach is not read), to
+    /// be read at any approach: a sweep's samples share their materials, and
+    /// the interpolation weights are most of a lookup.
+    ///
     /// Tensor-product Lagrange interpolation through every node of each axis
     /// (three or four per axis: the ratios bend with the Poisson's ratios near
     /// incompressibility, which a straight line between nodes misses), at the
     /// query clamped to the grid (the Poisson's ratios to 0.5).
-    fn lookup(&self, g: &Groups, pick: impl Fn(&Case) -> &Vec<(f64, f64)>) -> Lookup {
+    pub fn at_groups(&self, g: &Groups) -> AtGroups<'_> {
         let q = [g.e2_over_e1.ln(), g.nu1, g.nu2];
         let mut clamped = (g.h_over_r2 / self.h_over_r2 - 1.0).abs() > 0.05;
         let mut weights: [Vec<f64>; 3] = Default::default();
@@ -143,18 +147,49 @@ impl LargeStrainTable {
                 })
                 .collect();
         }
+        let cases = self
+            .cases
+            .iter()
+            .map(|case| {
+                let w: f64 = (0..3)
+                    .map(|i| {
+                        let k = self.axes[i].iter().position(|a| (a - case.key[i]).abs() < 1e-9).unwrap_or(0);
+                        weights[i][k]
+                    })
+                    .product();
+                (w, case)
+            })
+            .filter(|(w, _)| *w != 0.0)
+            .collect();
+        AtGroups { cases, clamped }
+    }
+}
+
+/// The large-strain table at one set of material groups (see
+/// [`LargeStrainTable::at_groups`]): each case's interpolation weight.
+#[derive(Debug, Clone)]
+pub struct AtGroups<'a> {
+    cases: Vec<(f64, &'a Case)>,
+    /// The materials lay outside the tabulated groups.
+    clamped: bool,
+}
+
+impl AtGroups<'_> {
+    /// gamma1 (large strain) / gamma1 (linear) at approach `delta_over_r2`.
+    pub fn gamma1_ratio(&self, delta_over_r2: f64) -> Lookup {
+        self.lookup(delta_over_r2, |c| &c.gamma1)
+    }
+
+    /// The stuck twist ratio at approach `delta_over_r2`.
+    pub fn twist_ratio(&self, delta_over_r2: f64) -> Lookup {
+        self.lookup(delta_over_r2, |c| &c.twist)
+    }
+
+    fn lookup(&self, d: f64, pick: impl Fn(&Case) -> &Vec<(f64, f64)>) -> Lookup {
+        let mut clamped = self.clamped;
         let mut ratio = 0.0;
-        for case in &self.cases {
-            let w: f64 = (0..3)
-                .map(|i| {
-                    let k = self.axes[i].iter().position(|a| (a - case.key[i]).abs() < 1e-9).unwrap_or(0);
-                    weights[i][k]
-                })
-                .product();
-            if w == 0.0 {
-                continue;
-            }
-            let (r, out) = along(pick(case), g.delta_over_r2);
+        for &(w, case) in &self.cases {
+            let (r, out) = along(pick(case), d);
             clamped |= out;
             ratio += w * r;
         }
