@@ -7,7 +7,7 @@
 //! commanded stage by v t, so the stage a rig records is the recording's
 //! less v t.
 
-use std::path::PathBuf;
+mod common;
 
 use easycalib::diagnosis::{DiagnoseOptions, Diagnosis, diagnose};
 use easycalib::fit::{FitOptions, calibrate};
@@ -21,15 +21,13 @@ struct Dev {
 }
 
 fn dev(set: &str) -> Vec<Dev> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev").join(set);
-    let truth = std::fs::read_to_string(dir.join("truth.csv")).unwrap();
-    truth
-        .lines()
-        .skip(1)
-        .map(|line| {
-            let f: Vec<&str> = line.split(',').collect();
-            let rec = Recording::read_path(&dir.join(f[0])).unwrap();
-            Dev { name: format!("{set}/{}", f[0]), rec, e1: f[1].parse().unwrap(), nu1: f[2].parse().unwrap() }
+    common::fem_dev(set)
+        .into_iter()
+        .map(|(f, rec)| Dev {
+            name: format!("{set}/{}", f[0]),
+            rec,
+            e1: f[1].parse().unwrap(),
+            nu1: f[2].parse().unwrap(),
         })
         .collect()
 }

@@ -7,6 +7,8 @@
 //! printed and asserted at the level they hold today, with intervals that cover
 //! the truth (the model error is part of them).
 
+mod common;
+
 use std::path::PathBuf;
 
 use easycalib::fit::{FitOptions, calibrate};
@@ -31,15 +33,10 @@ fn assert_covers(full: &easycalib::fit::FullFit, e1: f64, nu1: f64, what: &str) 
 }
 
 fn recovered(set: &str) -> Vec<Recovered> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev").join(set);
-    let truth = std::fs::read_to_string(dir.join("truth.csv")).unwrap();
-    truth
-        .lines()
-        .skip(1)
-        .map(|line| {
-            let f: Vec<String> = line.split(',').map(str::to_string).collect();
+    common::fem_dev(set)
+        .into_iter()
+        .map(|(f, rec)| {
             let (e1, nu1): (f64, f64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
-            let rec = Recording::read_path(&dir.join(&f[0])).unwrap();
             let cal = calibrate(&rec, &FitOptions::default()).unwrap();
             let (de, dn) = ((cal.full.e1_mpa / e1 - 1.0) * 100.0, (cal.full.nu1 / nu1 - 1.0) * 100.0);
             Recovered { f, cal, e1, nu1, de, dn }

@@ -12,7 +12,7 @@ use sim::physics::Layer;
 use sim::recording::Recording;
 
 use super::FitError;
-use super::full::{FullFit, LAYER_MODEL_SD_E1, LAYER_MODEL_SD_NU1, ModelParams, fe_layer};
+use super::full::{FullFit, ModelParams, fe_layer, layer_model_sd};
 use super::layer_model::{Correction, friction_correction};
 
 /// The FE layer model of a fitted recording, as a family of contact laws in
@@ -104,11 +104,7 @@ impl LayeredBase {
     /// of E1 and nu1 (docs/physics.md section 3): added in quadrature to a
     /// refit's intervals.
     pub fn relative_model_sd(&self) -> [f64; 2] {
-        if self.large_strain {
-            [super::large_strain::MODEL_SD_E1, super::large_strain::MODEL_SD_NU1]
-        } else {
-            [LAYER_MODEL_SD_E1, LAYER_MODEL_SD_NU1]
-        }
+        layer_model_sd(self.large_strain)
     }
 
     /// Whether the model is the large-strain one.

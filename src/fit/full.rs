@@ -236,8 +236,20 @@ pub struct R2 {
 /// the intervals: the RMS error of its recoveries over the eight small-strain
 /// recordings of the independent finite-element dev set (1.1 % in E1, 1.4 % in
 /// nu1, noise included; docs/physics.md, "Finite-element reference").
-pub(super) const LAYER_MODEL_SD_E1: f64 = 0.011;
-pub(super) const LAYER_MODEL_SD_NU1: f64 = 0.014;
+const LAYER_MODEL_SD_E1: f64 = 0.011;
+const LAYER_MODEL_SD_NU1: f64 = 0.014;
+
+/// The layer model's own approximation error, relative, one standard
+/// deviation, of E1 and nu1: the linear model's above, or the large-strain
+/// model's (`super::large_strain`). Added in quadrature to the intervals of
+/// the fit and of the diagnosis's refits on a layer.
+pub(super) fn layer_model_sd(large_strain: bool) -> [f64; 2] {
+    if large_strain {
+        [super::large_strain::MODEL_SD_E1, super::large_strain::MODEL_SD_NU1]
+    } else {
+        [LAYER_MODEL_SD_E1, LAYER_MODEL_SD_NU1]
+    }
+}
 
 /// Distance from either end of nu1's range (0, 0.5) at which the fit counts as pinned.
 const NU1_EDGE: f64 = 0.005;
@@ -696,12 +708,12 @@ const BIAS_WARN_SE: f64 = 0.25;
 /// "Finite-element reference": the spread of its recoveries on independent
 /// finite-element recordings).
 fn standard_errors(params: &ModelParams, cov: &DMatrix<f64>) -> [f64; 3] {
-    let model_sd = match (params.contact_friction.is_some(), params.large_strain) {
-        (true, true) => {
-            [super::large_strain::MODEL_SD_E1 * params.e1_mpa, super::large_strain::MODEL_SD_NU1 * params.nu1, 0.0]
+    let model_sd = match params.contact_friction {
+        Some(_) => {
+            let [e1, nu1] = layer_model_sd(params.large_strain);
+            [e1 * params.e1_mpa, nu1 * params.nu1, 0.0]
         }
-        (true, false) => [LAYER_MODEL_SD_E1 * params.e1_mpa, LAYER_MODEL_SD_NU1 * params.nu1, 0.0],
-        _ => [0.0; 3],
+        None => [0.0; 3],
     };
     std::array::from_fn(|i| (cov[(i, i)] + model_sd[i] * model_sd[i]).sqrt())
 }
