@@ -46,16 +46,21 @@ fn clean_runs_on_the_emulated_rig_fit_near_their_errors_and_mostly_name_nothing(
     // zero moves its E1 by about 1.5 % and its nu1 by about 6 %. The run moves
     // its zero to the full fit's (docs/run.md, "Stage zero"), and the readings
     // are unbiased across its 0.2-0.8 mm window, so it must do as well as on
-    // the generator's ideal recordings of the same script, seeds 1..20: no
-    // larger an rms error (a fifth of margin for the rms of 20), and within 2 %
-    // (E1) and 6 % (nu1) as often (ideal recordings stray beyond 6 % in nu1
-    // about once in ten: 3 of 30 seeds, rms 3.1 %).
+    // the generator's ideal recordings of the same script.
+    //
+    // The rig's runs are not repeatable draw for draw (its clock is wall time,
+    // sped up), so this is a comparison of two scatters, judged as one: the
+    // ideal recordings' scatter is measured on 100 seeds (its rms then known
+    // to about 7 %), and 20 rig runs as good as them have a mean square of
+    // sigma^2 chi^2_20 / 20, which exceeds 2.00 sigma^2 (rms 1.41 sigma) in
+    // 0.5 % of test runs. The counts within 2 % / 6 % are binomial: 20 draws
+    // at the ideal rate fall below the 0.5 % quantile in as few test runs.
     let rms = |v: &[(f64, f64)], f: fn(&(f64, f64)) -> f64| {
         (v.iter().map(|x| f(x).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
     };
     let within = |v: &[(f64, f64)]| v.iter().filter(|x| x.0.abs() <= 2.0 && x.1.abs() <= 6.0).count();
     let rig: Vec<(f64, f64)> = runs.iter().map(|o| o.paper).collect();
-    let ideal: Vec<(f64, f64)> = (1..=20)
+    let ideal: Vec<(f64, f64)> = (1..=100)
         .map(|seed| {
             let rec = generate(&GeneratorConfig { seed, ..GeneratorConfig::default() }).unwrap();
             let p = calibrate(&rec, &FitOptions::default()).unwrap().paper;
@@ -64,23 +69,37 @@ fn clean_runs_on_the_emulated_rig_fit_near_their_errors_and_mostly_name_nothing(
         .collect();
     let (rig_e1, rig_nu1, ideal_e1, ideal_nu1) =
         (rms(&rig, |x| x.0), rms(&rig, |x| x.1), rms(&ideal, |x| x.0), rms(&ideal, |x| x.1));
+    let ideal_rate = within(&ideal) as f64 / ideal.len() as f64;
+    let fewest = binomial_quantile(20, ideal_rate, 0.005);
     println!(
-        "paper's method, rms error E1 / nu1: rig {rig_e1:.2} / {rig_nu1:.2} %, ideal {ideal_e1:.2} / {ideal_nu1:.2} %; within 2 % / 6 %: rig {}, ideal {} of 20",
+        "paper's method, rms error E1 / nu1: rig {rig_e1:.2} / {rig_nu1:.2} % (20 runs), ideal {ideal_e1:.2} / {ideal_nu1:.2} % (100 seeds); within 2 % / 6 %: rig {} of 20, ideal {:.0} %, fewest allowed {fewest}",
         within(&rig),
-        within(&ideal)
+        100.0 * ideal_rate
     );
+    let bound = (CHI2_20_Q995 / 20.0).sqrt();
     assert!(
-        rig_e1 <= 1.2 * ideal_e1 && rig_nu1 <= 1.2 * ideal_nu1,
-        "the paper's method is further off on the rig than on ideal recordings"
+        rig_e1 <= bound * ideal_e1 && rig_nu1 <= bound * ideal_nu1,
+        "the paper's method is further off on the rig ({rig_e1:.2} / {rig_nu1:.2} %) than ideal recordings allow ({:.2} / {:.2} %)",
+        bound * ideal_e1,
+        bound * ideal_nu1
     );
-    // The rms above is the comparison; the counts are binomial draws of 20.
-    // A rig exactly as good as the ideal recordings (18 of 20 within here)
-    // still draws 17 or fewer in about a third of runs, 15 or fewer in under
-    // 5 %: so the count may fall two below the ideal one, not three.
-    assert!(
-        within(&rig) + 2 >= 18.min(within(&ideal)),
-        "{} of 20 rig runs within 2 % / 6 %, {} ideal",
-        within(&rig),
-        within(&ideal)
-    );
+    assert!(within(&rig) >= fewest, "{} of 20 rig runs within 2 % / 6 %, at least {fewest} expected", within(&rig));
+}
+
+/// The 99.5th percentile of chi-squared with 20 degrees of freedom.
+const CHI2_20_Q995: f64 = 39.997;
+
+/// The largest k with P(X < k) <= `tail` for X ~ Binomial(n, p): fewer than k
+/// successes happen in at most `tail` of draws.
+fn binomial_quantile(n: u64, p: f64, tail: f64) -> usize {
+    let mut below = 0.0;
+    for k in 0..=n {
+        let choose: f64 = (0..k).map(|i| (n - i) as f64 / (i + 1) as f64).product();
+        let pk = choose * p.powi(k as i32) * (1.0 - p).powi((n - k) as i32);
+        if below + pk > tail {
+            return k as usize;
+        }
+        below += pk;
+    }
+    n as usize
 }
