@@ -122,31 +122,15 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
     Ok(RigChoice { spec: rig.spec(), truth: Some(rig.truth()), script, emulated: Some(rig) })
 }
 
-/// The emulated rig on the script's declared gel layer: the linear FE layer
-/// model pressed and twisted with friction, as `simulate --thickness-mm`
-/// simulates it, wrapped by the set-up's rig-level effects.
+/// The emulated rig on the script's declared gel layer
+/// ([`crate::rig::emulated::on_declared_layer`]); a refusal names the key.
 fn layered_setup(setup: sim::setup::SimSetup, layer: sim::physics::Layer) -> Result<sim::setup::SimSetup, CliError> {
-    let refuse = |why: String| {
+    crate::rig::emulated::on_declared_layer(setup, layer).map_err(|why| {
         CliError::bad_input(format!(
             "the script declares a {} mm gel layer ([sensor] elastomer_thickness_mm): {why}",
             layer.thickness_mm
         ))
-    };
-    if layer.base != sim::physics::LayerBase::Bonded {
-        return Err(refuse(
-            "the emulated rig simulates a gel bonded to its window (elastomer_base = \"bonded\")".into(),
-        ));
-    }
-    let (gel, indenter) = (setup.pair().elastomer, setup.pair().indenter);
-    if gel.r_mm.is_finite() {
-        return Err(refuse(format!(
-            "a layer is simulated flat: set [sensor] elastomer_r_mm = \"inf\" (it is {} mm)",
-            gel.r_mm
-        )));
-    }
-    let law = crate::fit::fe_law::frictional_truth(layer, indenter, gel.e_mpa, gel.nu, sim::defaults::GEL_FRICTION)
-        .map_err(|e| refuse(format!("cannot simulate it: {e}")))?;
-    setup.on_layer(layer, law).map_err(|e| refuse(e.to_string()))
+    })
 }
 
 async fn run_async(args: &RunArgs) -> Result<(), CliError> {

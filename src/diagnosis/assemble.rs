@@ -11,17 +11,43 @@ use super::locate::{self, Floor, Quantity, Segment, SegmentReport};
 use super::model::{Candidate, Fitted};
 use super::search::{Search, chi2_crit};
 use super::{
-    Ci95, DiagnoseError, Diagnosis, Explained, FitSummary, Mismatch, ParamEstimate, Rms, SampleResidual, prose,
+    Alternative, Ci95, DiagnoseError, Diagnosis, Explained, FitSummary, Mismatch, ParamEstimate, Rms, SampleResidual,
+    prose,
 };
 use crate::numerics::stats::t_quantile_975;
 
 /// The diagnosis from the baseline and the search's outcome.
 pub(super) fn diagnosis(rec: &Recording, base: Baseline, search: Search) -> Result<Diagnosis, DiagnoseError> {
     let Baseline { model, fit: baseline, segs, floor_g, floor_t, before, warnings, standard_errors } = base;
-    let Search { scores, ambiguous, degenerate, last, .. } = search;
+    let Search { scores, mut ambiguous, degenerate, last, closest } = search;
     let after = locate::locate(rec, &last.readings, &segs, floor_g, floor_t);
     let mismatch = located_mismatch(rec, &baseline, &last, &segs, [floor_g, floor_t], &before, &after);
-    let remaining = mismatches(&after);
+    let mut remaining = mismatches(&after);
+    // The best explanation refused only because E1/nu1 can stand in for it
+    // (degenerate) does explain what the baseline leaves: that is not a
+    // mismatch no effect explains, but one these sweeps cannot attribute
+    // (on a declared layer, a frame compliance of 4 µm/N left curvature
+    // the compliance removed to chi²/dof 1.09, refused at variance inflation
+    // 4000; docs/diagnosis.md, "Degenerate is not unexplained").
+    let refused = last.cands.is_empty()
+        && !closest.cands.is_empty()
+        && closest.cands.iter().all(|c| degenerate.iter().any(|g| g.effect == c.name()));
+    if refused && !remaining.is_empty() {
+        let after_closest = locate::locate(rec, &closest.readings, &segs, floor_g, floor_t);
+        if mismatches(&after_closest).is_empty() {
+            remaining.clear();
+            if ambiguous.is_empty() {
+                let s = summary(rec, &closest);
+                ambiguous.push(Alternative {
+                    effects: closest.cands.iter().map(|c| c.name()).collect(),
+                    delta_bic: 0.0,
+                    e1_mpa: s.e1_mpa,
+                    nu1: s.nu1,
+                    ci95: s.ci95,
+                });
+            }
+        }
+    }
     let unexplained = !remaining.is_empty();
     // Never a forced attribution: when structure remains, or the data cannot
     // rank the explanations, nothing is named.

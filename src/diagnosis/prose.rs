@@ -36,6 +36,16 @@ fn estimate_change(b: &FitSummary, c: &FitSummary) -> String {
     format!("E1 {:.4} -> {:.4} MPa, nu1 {:.4} -> {:.4}", b.e1_mpa, c.e1_mpa, b.nu1, c.nu1)
 }
 
+/// From the baseline to the best of the explanations the sweeps cannot rank.
+fn best_alternative_change(d: &Diagnosis) -> String {
+    match d.ambiguous.first() {
+        Some(a) => {
+            format!("E1 {:.4} -> {:.4} MPa, nu1 {:.4} -> {:.4}", d.baseline.e1_mpa, a.e1_mpa, d.baseline.nu1, a.nu1)
+        }
+        None => estimate_change(&d.baseline, &d.corrected),
+    }
+}
+
 /// The residual RMS per reading group, from the baseline to the corrected fit.
 fn rms_change(b: &Rms, c: &Rms) -> String {
     format!(
@@ -118,11 +128,21 @@ fn ambiguous_verdict(d: &Diagnosis) -> String {
             format!("{} (dBIC {:.1}: E1 {:.4} MPa, nu1 {:.4})", a.effects.join(" + "), a.delta_bic, a.e1_mpa, a.nu1)
         })
         .collect();
+    let mismatch = if d.mismatch.is_empty() { String::new() } else { format!("Mismatch: {}. ", where_(&d.mismatch)) };
+    // One explanation alone: it is refused as degenerate (E1/nu1 can stand in for it).
+    if let [only] = d.ambiguous.as_slice() {
+        return format!(
+            "{mismatch}AMBIGUOUS: {} explains the mismatch, but these sweeps cannot tell it from a change of E1/nu1 \
+             (E1 {:.4} MPa, nu1 {:.4} with it); it is not named, and E1 and nu1 stay the calibration's.",
+            only.effects.join(" + "),
+            only.e1_mpa,
+            only.nu1
+        );
+    }
     format!(
-        "{}AMBIGUOUS: these sweeps cannot tell apart {}; none is named. {} with the best of them.",
-        if d.mismatch.is_empty() { String::new() } else { format!("Mismatch: {}. ", where_(&d.mismatch)) },
+        "{mismatch}AMBIGUOUS: these sweeps cannot tell apart {}; none is named. {} with the best of them.",
         alts.join(" / "),
-        estimate_change(&d.baseline, &d.corrected)
+        best_alternative_change(d)
     )
 }
 
@@ -219,13 +239,20 @@ pub fn brief(d: &Diagnosis) -> String {
              is named, E1 and nu1 stay the calibration's.\n",
             where_(&d.remaining)
         )
+    } else if let [only] = d.ambiguous.as_slice() {
+        format!(
+            "AMBIGUOUS: {} explains the mismatch, but these sweeps cannot tell it from a change of E1/nu1; it is \
+             not named, E1 and nu1 stay the calibration's (with it: {}).\n",
+            only.effects.join(" + "),
+            best_alternative_change(d)
+        )
     } else if !d.ambiguous.is_empty() {
         let alts: Vec<String> = d.ambiguous.iter().map(|a| a.effects.join(" + ")).collect();
         format!(
             "AMBIGUOUS: these sweeps cannot tell apart {}; none is named, E1 and nu1 stay the calibration's \
              (the best of them: {}).\n",
             alts.join(" / "),
-            estimate_change(&d.baseline, &d.corrected)
+            best_alternative_change(d)
         )
     } else if d.effects.is_empty() {
         if d.mismatch.is_empty() {

@@ -128,6 +128,27 @@ the recording does not carry all of the profile's effect"
     }
 }
 
+/// `setup` on a declared gel layer (docs/physics.md, "The layer in the
+/// generator and the emulated rig"): the linear FE layer model pressed and
+/// twisted with friction, as `simulate --thickness-mm` simulates it, wrapped by
+/// the set-up's rig-level effects. The error says why the rig cannot simulate
+/// that layer (a sliding base, a domed gel, a contact effect in the profile).
+pub fn on_declared_layer(setup: SimSetup, layer: sim::physics::Layer) -> Result<SimSetup, String> {
+    if layer.base != sim::physics::LayerBase::Bonded {
+        return Err("the emulated rig simulates a gel bonded to its window (elastomer_base = \"bonded\")".into());
+    }
+    let (gel, indenter) = (setup.pair().elastomer, setup.pair().indenter);
+    if gel.r_mm.is_finite() {
+        return Err(format!(
+            "a layer is simulated flat: set [sensor] elastomer_r_mm = \"inf\" (it is {} mm)",
+            gel.r_mm
+        ));
+    }
+    let law = crate::fit::fe_law::frictional_truth(layer, indenter, gel.e_mpa, gel.nu, sim::defaults::GEL_FRICTION)
+        .map_err(|e| format!("cannot simulate it: {e}"))?;
+    setup.on_layer(layer, law).map_err(|e| e.to_string())
+}
+
 impl Deref for EmulatedRig {
     type Target = ServedRig;
 

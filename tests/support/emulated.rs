@@ -53,7 +53,21 @@ pub fn run_script(seed: u64, profile: SimProfile, script: Script) -> (Outcome, R
     let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     rt.block_on(async {
-        let setup = SimSetupInput { speedup: 40.0, seed, profile, ..SimSetupInput::default() }.resolve().unwrap();
+        // A script that declares a gel layer runs on that layer with the
+        // script's R1 and indenter, as `easycalib run --script` does.
+        let layer = script.sensor.layer().expect("a valid script");
+        let mut input = SimSetupInput { speedup: 40.0, seed, profile, ..SimSetupInput::default() };
+        if layer.is_some() {
+            input.pair.elastomer.r_mm = script.sensor.elastomer_r_mm;
+            input.pair.indenter = script.indenter;
+        }
+        let setup = input.resolve().unwrap();
+        let setup = match layer {
+            Some(layer) => {
+                easycalib::rig::emulated::on_declared_layer(setup, layer).expect("a layer the rig simulates")
+            }
+            None => setup,
+        };
         let rig = EmulatedRig::start(setup, ServeOptions::default()).await.unwrap();
         let dir = tempfile::tempdir().unwrap();
         let truth = rig.truth();
