@@ -12,7 +12,7 @@ use crate::fit::ModelParams;
 use crate::fit::fe_law::LayeredBase;
 use crate::fit::full::fe_layer;
 use crate::fit::weights::SampleSd;
-use crate::fit::{FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper};
+use crate::fit::{Calibration, FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper};
 
 /// The baseline of a diagnosis: the model weighted by the noise floors, its
 /// fit without any effect, and where that fit's residuals are systematic.
@@ -40,12 +40,24 @@ struct Starts {
     layer: Option<LayeredBase>,
 }
 
-/// Compare and locate: the baseline fit, the noise floors, the branch tests.
-/// On a declared layer, `anchor` is where the layer model's friction
-/// correction is taken (the full fit's optimum when `None`).
+/// The calibration the diagnosis starts from (the full fit with the given
+/// gamma1 noise, if any): made once per diagnosis, whatever passes follow.
+pub(super) fn calibration(rec: &Recording, opts: &DiagnoseOptions) -> Result<Calibration, FitError> {
+    calibrate(rec, &fit_options(opts.noise_um.map(|u| u * 1e-3)))
+}
+
+fn fit_options(sg_given: Option<f64>) -> FitOptions {
+    FitOptions { full: FullOptions { gamma1_sigma_mm: sg_given, theta1_sigma_deg: None }, ..Default::default() }
+}
+
+/// Compare and locate: the baseline fit, the noise floors, the branch tests,
+/// from the recording's calibration `cal` ([`calibration`]). On a declared
+/// layer, `anchor` is where the layer model's friction correction is taken
+/// (the full fit's optimum when `None`).
 pub(super) fn compare<'a>(
     rec: &'a Recording,
     opts: &DiagnoseOptions,
+    cal: &Result<Calibration, FitError>,
     anchor: Option<&ModelParams>,
 ) -> Result<Baseline<'a>, DiagnoseError> {
     let sg_given = opts.noise_um.map(|u| u * 1e-3);
@@ -54,7 +66,7 @@ pub(super) fn compare<'a>(
     if sg_given.is_some() {
         sd.gamma1_mm = None;
     }
-    let starts = start_points(rec, sg_given, anchor)?;
+    let starts = start_points(rec, sg_given, cal, anchor)?;
     // With recorded errors, a channel's sigma is the factor on them: 1 to start.
     let sg0 = if sd.gamma1_mm.is_some() { 1.0 } else { starts.sigma_g_mm };
     let st0 = if sd.theta1_deg.is_some() { 1.0 } else { starts.sigma_t_deg };
@@ -111,10 +123,14 @@ fn full_fit_possible(rec: &Recording) -> bool {
 
 /// Starts: the full-model fit, else the paper's answer, else generic guesses
 /// (a recording far from the paper's physics can defeat both fits).
-fn start_points(rec: &Recording, sg_given: Option<f64>, anchor: Option<&ModelParams>) -> Result<Starts, DiagnoseError> {
+fn start_points(
+    rec: &Recording,
+    sg_given: Option<f64>,
+    cal: &Result<Calibration, FitError>,
+    anchor: Option<&ModelParams>,
+) -> Result<Starts, DiagnoseError> {
     // compare: the full-model fit gives the start; refit on the true-rig model with our weights.
-    let full_opts = FullOptions { gamma1_sigma_mm: sg_given, theta1_sigma_deg: None };
-    let fit_opts = FitOptions { full: full_opts, ..Default::default() };
+    let fit_opts = fit_options(sg_given);
     let mut starts = Vec::new();
     let (mut sg0, mut st0) = (sg_given.unwrap_or(sim::defaults::GAMMA1_SIGMA_MM), sim::defaults::THETA1_SIGMA_DEG);
     let pos = |v: f64, d: f64| if v.is_finite() && v > 0.0 { v } else { d };
@@ -122,7 +138,7 @@ fn start_points(rec: &Recording, sg_given: Option<f64>, anchor: Option<&ModelPar
     let mut fallback = true;
     let mut pinned_start: Option<Base> = None;
     let mut layer = None;
-    match calibrate(rec, &fit_opts) {
+    match cal {
         Ok(c) => {
             // A declared layer: the contact is the layer model the fit ended on.
             layer = LayeredBase::of(rec, &c.full, anchor)?;
@@ -142,10 +158,10 @@ fn start_points(rec: &Recording, sg_given: Option<f64>, anchor: Option<&ModelPar
                 starts.push(start);
             }
         }
-        Err(FitError::Implausible(e)) => return Err(FitError::Implausible(e).into()),
+        Err(FitError::Implausible(e)) => return Err(FitError::Implausible(e.clone()).into()),
         Err(first) => {
             if !full_fit_possible(rec) {
-                return Err(first.into());
+                return Err(first.clone().into());
             }
         }
     }

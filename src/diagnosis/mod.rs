@@ -162,7 +162,8 @@ fn compare_and_explain<'a>(
     opts: &DiagnoseOptions,
     explain: impl Fn(&baseline::Baseline<'a>) -> Result<search::Search, DiagnoseError>,
 ) -> Result<(baseline::Baseline<'a>, search::Search), DiagnoseError> {
-    let first = passes(rec, opts, &explain, None)?;
+    let cal = baseline::calibration(rec, opts);
+    let first = passes(rec, opts, &cal, &explain, None)?;
     let Some(layer) = first.0.model.layer() else {
         return Ok(first);
     };
@@ -177,7 +178,7 @@ fn compare_and_explain<'a>(
     let b = closest.base();
     let mut p = layer.params(b.e1_mpa, b.nu1, b.contact_offset_mm, first.0.model.friction(&closest.x));
     p.large_strain = !p.large_strain;
-    let Ok(other) = passes(rec, opts, &explain, Some(p)) else {
+    let Ok(other) = passes(rec, opts, &cal, &explain, Some(p)) else {
         return Ok(first);
     };
     let (m1, m2) = (&first.0.model, &other.0.model);
@@ -192,11 +193,12 @@ fn compare_and_explain<'a>(
 fn passes<'a>(
     rec: &'a Recording,
     opts: &DiagnoseOptions,
+    cal: &Result<crate::fit::Calibration, FitError>,
     explain: &impl Fn(&baseline::Baseline<'a>) -> Result<search::Search, DiagnoseError>,
     mut anchor: Option<crate::fit::ModelParams>,
 ) -> Result<(baseline::Baseline<'a>, search::Search), DiagnoseError> {
     for pass in 1..=LAYER_PASSES {
-        let base = baseline::compare(rec, opts, anchor.as_ref())?;
+        let base = baseline::compare(rec, opts, cal, anchor.as_ref())?;
         let search = explain(&base)?;
         let Some(layer) = base.model.layer() else {
             return Ok((base, search));
