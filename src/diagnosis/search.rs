@@ -232,6 +232,12 @@ fn needs_fallback(add: Candidate, results: &[Fitted]) -> bool {
     }
 }
 
+/// Further starts of the gain on a declared layer: from g = 1 the layered
+/// model's refit stops where it began (one iteration, the baseline's chi², on
+/// a rig run with a gain of 0.99), its chi² surface having shallow minima
+/// along the gain's valley.
+const GAIN_STARTS_ON_A_LAYER: [&[f64]; 2] = [&[0.99], &[1.01]];
+
 /// Fit with a candidate on top of `from`'s parameters: from a typical amount
 /// of the effect and from next to none, keeping the better (a typical start
 /// can stall in a local minimum; next to none starts from the baseline's cost).
@@ -243,7 +249,11 @@ pub(crate) fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fit
     let nu_lo = (0.1f64 / 0.9).ln();
     let nu_hi = (0.96f64 / 0.04).ln();
     let fallback = add.fallback_starts();
-    let all: Vec<&[f64]> = add.starts().into_iter().chain(fallback.iter().copied()).collect();
+    let mut usual = add.starts();
+    if model.layer().is_some() && add == Candidate::SensorGain {
+        usual.extend(GAIN_STARTS_ON_A_LAYER);
+    }
+    let all: Vec<&[f64]> = usual.into_iter().chain(fallback.iter().copied()).collect();
     let n_usual = all.len() - fallback.len();
     for (tried, st) in all.into_iter().enumerate() {
         if tried >= n_usual && !needs_fallback(add, &results) {
