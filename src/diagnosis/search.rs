@@ -232,11 +232,17 @@ fn needs_fallback(add: Candidate, results: &[Fitted]) -> bool {
     }
 }
 
-/// Further starts of the gain on a declared layer: from g = 1 the layered
-/// model's refit stops where it began (one iteration, the baseline's chi², on
-/// a rig run with a gain of 0.99), its chi² surface having shallow minima
-/// along the gain's valley.
+/// Further starts of the gain on a declared layer, when the refit from g = 1
+/// stops where it began (one iteration, the baseline's chi², on a rig run with
+/// a gain of 0.99): the layered model's chi² surface has shallow minima along
+/// the gain's valley.
 const GAIN_STARTS_ON_A_LAYER: [&[f64]; 2] = [&[0.99], &[1.01]];
+
+/// Whether every refit so far ended within a tenth of a chi² unit of where it
+/// started from (`from`'s cost): it did not move.
+fn stalled(from: &Fitted, results: &[Fitted]) -> bool {
+    results.iter().all(|f| f.chi2 > from.chi2 - 0.1)
+}
 
 /// Fit with a candidate on top of `from`'s parameters: from a typical amount
 /// of the effect and from next to none, keeping the better (a typical start
@@ -250,13 +256,19 @@ pub(crate) fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fit
     let nu_hi = (0.96f64 / 0.04).ln();
     let fallback = add.fallback_starts();
     let mut usual = add.starts();
-    if model.layer().is_some() && add == Candidate::SensorGain {
+    let n_usual = usual.len();
+    // The gain's further starts on a layer, tried only when g = 1 stalled.
+    let gain_on_layer = model.layer().is_some() && add == Candidate::SensorGain;
+    if gain_on_layer {
         usual.extend(GAIN_STARTS_ON_A_LAYER);
     }
+    let n_further = usual.len();
     let all: Vec<&[f64]> = usual.into_iter().chain(fallback.iter().copied()).collect();
-    let n_usual = all.len() - fallback.len();
     for (tried, st) in all.into_iter().enumerate() {
-        if tried >= n_usual && !needs_fallback(add, &results) {
+        if tried >= n_usual && tried < n_further && !stalled(from, &results) {
+            continue;
+        }
+        if tried >= n_further && !needs_fallback(add, &results) {
             break;
         }
         let mut x = from.x.clone();
