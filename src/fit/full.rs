@@ -464,8 +464,8 @@ struct Passes {
     out: LmResult,
     /// Per-sample noise of gamma1 and theta1 the last pass weighted by.
     sigma: Sigmas,
-    /// Whether the passes iterated on the FE model's friction correction.
-    corrected: bool,
+    /// The FE model's friction correction the last pass iterated on, if any.
+    correction: Option<Correction>,
 }
 
 /// Pass 1 with nominal noise, pass 2 re-weighted by the noise floor the data
@@ -512,7 +512,7 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result
         }
     }
     let out = res.ok_or_else(|| FitError::Model("no fit pass ran".into()))?;
-    Ok(Passes { params, out, sigma, corrected: correction.is_some() })
+    Ok(Passes { params, out, sigma, correction })
 }
 
 /// nu1 is mapped onto (0, 0.5); an optimum pressed against either end means
@@ -611,7 +611,12 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<AtOptimum, FitE
     let mut phys = vec![params.e1_mpa, params.nu1, params.contact_offset_mm];
     phys.extend(params.contact_friction);
     let np = phys.len();
-    let correction = if passes.corrected { friction_correction(rec, params, None)? } else { None };
+    // Taken again at the optimum; its derivatives are the last pass's when
+    // the optimum is near where they were taken (`friction_correction`).
+    let correction = match &passes.correction {
+        Some(last) => friction_correction(rec, params, Some(last))?,
+        None => None,
+    };
     let mut r0 = Vec::new();
     weighted_residuals(rec, params, correction.as_ref(), sig, &mut r0);
     let m = r0.len();
