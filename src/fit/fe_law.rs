@@ -201,11 +201,13 @@ impl FeLaw {
         Ok(st)
     }
 
-    /// The large-strain ratios (gamma1, twist) at approach `delta_mm`; 1 at small strain.
-    fn ratios(&self, delta_mm: f64) -> (f64, f64) {
+    /// The large-strain ratios (gamma1, twist at `twist_deg` under the law's
+    /// friction) at approach `delta_mm`; 1 at small strain.
+    fn ratios(&self, delta_mm: f64, twist_deg: f64) -> (f64, f64) {
         self.table.map_or((1.0, 1.0), |(t, g)| {
-            let g = fem::hyper::Groups { delta_over_r2: delta_mm.max(0.0) / self.indenter_r_mm, ..g };
-            (t.gamma1_ratio(&g).ratio, t.twist_ratio(&g).ratio)
+            let d = delta_mm.max(0.0) / self.indenter_r_mm;
+            let at = t.at_groups(&g);
+            (at.gamma1_ratio(d).ratio, at.frictional_twist_ratio(d, twist_deg, self.friction).ratio)
         })
     }
 }
@@ -213,7 +215,7 @@ impl FeLaw {
 impl ContactLaw for FeLaw {
     fn normal(&self, delta_mm: f64) -> Result<LawState, String> {
         let st = self.state(delta_mm)?;
-        let gamma1_mm = st.gamma1_mm * self.ratios(delta_mm).0;
+        let gamma1_mm = st.gamma1_mm * self.ratios(delta_mm, 0.0).0;
         // The contact's edge lies between the outermost node in contact and the next.
         let [inner, outer] = st.contact_radius_mm;
         Ok(LawState {
@@ -228,7 +230,7 @@ impl ContactLaw for FeLaw {
         let st = self.state(delta_mm)?;
         let twist = twist_deg.to_radians();
         let t = self.model.theta1_rad(&st, twist.abs(), self.friction).map_or(0.0, |t| t.to_degrees());
-        Ok(t * self.ratios(delta_mm).1 * twist.signum())
+        Ok(t * self.ratios(delta_mm, twist_deg).1 * twist.signum())
     }
 }
 

@@ -120,7 +120,7 @@ pub(super) fn predict_fe(
         let (g1, t1) = match &table {
             Some(t) => {
                 let d = super::large_strain::groups(rec, p, layer, delta).delta_over_r2;
-                (t.gamma1_ratio(d).ratio, t.twist_ratio(d).ratio)
+                (t.gamma1_ratio(d).ratio, t.frictional_twist_ratio(d, s.rot_deg, mu).ratio)
             }
             None => (1.0, 1.0),
         };

@@ -18,6 +18,9 @@ struct Case {
     gamma1: Vec<(f64, f64)>,
     /// (delta / R2, twist ratio), increasing delta.
     twist: Vec<(f64, f64)>,
+    /// The slip ratio (see [`AtGroups::slip_ratio`]) per tabulated twist / mu
+    /// (degrees, increasing): (twist / mu, its (delta / R2, ratio) series).
+    slip: Vec<(f64, Vec<(f64, f64)>)>,
 }
 
 /// Where a query falls against the table.
@@ -51,7 +54,53 @@ impl LargeStrainTable {
     /// The table shipped with the project (fem/data/large_strain.csv).
     pub fn builtin() -> Result<&'static Self, FemError> {
         static TABLE: OnceLock<Result<LargeStrainTable, FemError>> = OnceLock::new();
-        TABLE.get_or_init(|| Self::parse(include_str!("../../data/large_strain.csv"))).as_ref().map_err(Clone::clone)
+        TABLE
+            .get_or_init(|| {
+                let mut t = Self::parse(include_str!("../../data/large_strain.csv"))?;
+                t.parse_slip(include_str!("../../data/large_strain_slip.csv"))?;
+                Ok(t)
+            })
+            .as_ref()
+            .map_err(Clone::clone)
+    }
+
+    /// Reads the slip table's CSV (fem/examples/large_strain_slip.rs) into
+    /// the cases it belongs to: every case of the grid, one series per
+    /// tabulated twist / mu, each smoothed in the approach as the twist ratio is.
+    pub fn parse_slip(&mut self, text: &str) -> Result<(), FemError> {
+        for (n, line) in text.lines().enumerate().filter(|(_, l)| !l.starts_with('#') && !l.trim().is_empty()).skip(1) {
+            let bad = || FemError::Invalid(format!("large-strain slip table, line {}: {line:?}", n + 1));
+            let f: Vec<&str> = line.split(',').collect();
+            if f.len() != 7 {
+                return Err(bad());
+            }
+            let num = |i: usize| f[i].trim().parse::<f64>().map_err(|_| bad());
+            let key = [num(0)?.ln(), num(1)?, num(2)?];
+            let (hr, d, x, r) = (num(3)?, num(4)?, num(5)?, num(6)?);
+            if !(d > 0.0 && x > 0.0 && r > 0.0 && r.is_finite()) || (hr - self.h_over_r2).abs() > 1e-9 {
+                return Err(bad());
+            }
+            let case = self
+                .cases
+                .iter_mut()
+                .find(|c| c.key.iter().zip(&key).all(|(a, b)| (a - b).abs() < 1e-9))
+                .ok_or_else(bad)?;
+            match case.slip.iter_mut().find(|(v, _)| (v - x).abs() < 1e-9) {
+                Some((_, series)) => series.push((d, r)),
+                None => case.slip.push((x, vec![(d, r)])),
+            }
+        }
+        for case in &mut self.cases {
+            if case.slip.is_empty() {
+                return Err(FemError::Invalid("large-strain slip table: not a full grid of cases".into()));
+            }
+            case.slip.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for (_, series) in &mut case.slip {
+                series.sort_by(|a, b| a.0.total_cmp(&b.0));
+                smooth_twist(series);
+            }
+        }
+        Ok(())
     }
 
     /// Reads the table's CSV (comment lines start with `#`; one header line).
@@ -77,7 +126,7 @@ impl LargeStrainTable {
             let case = match cases.iter_mut().find(|c| c.key.iter().zip(&key).all(|(a, b)| (a - b).abs() < 1e-9)) {
                 Some(c) => c,
                 None => {
-                    cases.push(Case { key, gamma1: Vec::new(), twist: Vec::new() });
+                    cases.push(Case { key, gamma1: Vec::new(), twist: Vec::new(), slip: Vec::new() });
                     cases.last_mut().ok_or_else(bad)?
                 }
             };
@@ -183,6 +232,49 @@ impl AtGroups<'_> {
     /// The stuck twist ratio at approach `delta_over_r2`.
     pub fn twist_ratio(&self, delta_over_r2: f64) -> Lookup {
         self.lookup(delta_over_r2, |c| &c.twist)
+    }
+
+    /// The ratio (large strain over linear) of the twist under Coulomb friction
+    /// `mu` at platform twist `twist_deg`: the stuck twist ratio times the slip
+    /// ratio at twist / mu (`mu` infinite: the stuck ratio alone).
+    pub fn frictional_twist_ratio(&self, delta_over_r2: f64, twist_deg: f64, mu: f64) -> Lookup {
+        let stuck = self.twist_ratio(delta_over_r2);
+        let slip = self.slip_ratio(delta_over_r2, twist_deg.abs() / mu);
+        Lookup { ratio: stuck.ratio * slip.ratio, clamped: stuck.clamped || slip.clamped }
+    }
+
+    /// The fraction of the stuck twist the neo-Hookean reference keeps under
+    /// Coulomb friction over the fraction the linear model keeps, at approach
+    /// `delta_over_r2` and twist / mu `twist_over_mu_deg` (degrees): the
+    /// linear model's frictional twist times the stuck twist ratio times this
+    /// is the large-strain frictional twist (docs/physics.md, "The twist at
+    /// large strain"). 1 for a stuck twist (zero twist / mu) and at zero
+    /// approach; linear in twist / mu between the tabulated ones, held past
+    /// the last (flagged). A table without slip data gives 1, flagged.
+    pub fn slip_ratio(&self, delta_over_r2: f64, twist_over_mu_deg: f64) -> Lookup {
+        let mut clamped = self.clamped;
+        let mut ratio = 0.0;
+        for &(w, case) in &self.cases {
+            let x = twist_over_mu_deg.abs();
+            let mut prev = (0.0, 1.0);
+            let mut at = None;
+            for (xk, series) in &case.slip {
+                let (r, out) = along(series, delta_over_r2);
+                clamped |= out;
+                if x <= *xk {
+                    let t = if *xk > prev.0 { (x - prev.0) / (xk - prev.0) } else { 1.0 };
+                    at = Some(prev.1 + t * (r - prev.1));
+                    break;
+                }
+                prev = (*xk, r);
+            }
+            let r = at.unwrap_or_else(|| {
+                clamped = true;
+                prev.1
+            });
+            ratio += w * r;
+        }
+        Lookup { ratio, clamped }
     }
 
     fn lookup(&self, d: f64, pick: impl Fn(&Case) -> &Vec<(f64, f64)>) -> Lookup {
@@ -352,6 +444,35 @@ mod tests {
 
     fn k_odd(d: f64) -> bool {
         ((d / 0.02).round() as i64) % 2 == 1
+    }
+
+    #[test]
+    fn the_slip_ratio_is_one_when_nothing_slips_and_bounded_where_it_is_tabulated() {
+        let t = LargeStrainTable::builtin().unwrap();
+        for (e, n1, n2) in [(1.0, 0.48, 0.4), (2.0, 0.45, 0.38), (4.0, 0.4, 0.47)] {
+            let at = t.at_groups(&Groups { e2_over_e1: e, nu1: n1, nu2: n2, h_over_r2: 1.0, delta_over_r2: 0.0 });
+            for d in [0.1, 0.3, 0.5] {
+                // A stuck twist, and none at all: the stuck ratio alone.
+                let stuck = at.twist_ratio(d).ratio;
+                assert!((at.frictional_twist_ratio(d, 8.0, f64::INFINITY).ratio - stuck).abs() < 1e-12);
+                assert!((at.slip_ratio(d, 0.0).ratio - 1.0).abs() < 1e-12);
+                // The neo-Hookean contact slips less than the linear one, by a
+                // few percent of the twist at most (fem/data/large_strain_slip.csv).
+                for x in [2.0, 10.0, 25.0, 50.0] {
+                    let r = at.slip_ratio(d, x);
+                    assert!(!r.clamped && r.ratio > 0.97 && r.ratio < 1.1, "E2/E1 {e} nu1 {n1} d {d} x {x}: {r:?}");
+                }
+            }
+            // Zero approach is linear elasticity.
+            assert!((at.slip_ratio(0.0, 25.0).ratio - 1.0).abs() < 1e-12);
+            // Past the last tabulated twist / mu: held, flagged.
+            assert!(at.slip_ratio(0.3, 80.0).clamped);
+        }
+        // A table without its slip part gives 1, flagged.
+        let bare = LargeStrainTable::parse(include_str!("../../data/large_strain.csv")).unwrap();
+        let g = Groups { e2_over_e1: 2.0, nu1: 0.48, nu2: 0.4, h_over_r2: 1.0, delta_over_r2: 0.0 };
+        let r = bare.at_groups(&g).slip_ratio(0.3, 10.0);
+        assert!(r.clamped && r.ratio == 1.0, "{r:?}");
     }
 
     #[test]
