@@ -252,26 +252,28 @@ impl AtGroups<'_> {
     /// approach; linear in twist / mu between the tabulated ones, held past
     /// the last (flagged). A table without slip data gives 1, flagged.
     pub fn slip_ratio(&self, delta_over_r2: f64, twist_over_mu_deg: f64) -> Lookup {
+        let x = twist_over_mu_deg.abs();
         let mut clamped = self.clamped;
         let mut ratio = 0.0;
         for &(w, case) in &self.cases {
-            let x = twist_over_mu_deg.abs();
-            let mut prev = (0.0, 1.0);
-            let mut at = None;
-            for (xk, series) in &case.slip {
-                let (r, out) = along(series, delta_over_r2);
+            let mut at = |series: &[(f64, f64)]| {
+                let (r, out) = along_held(series, delta_over_r2, SLIP_HOLD_BEYOND);
                 clamped |= out;
-                if x <= *xk {
-                    let t = if *xk > prev.0 { (x - prev.0) / (xk - prev.0) } else { 1.0 };
-                    at = Some(prev.1 + t * (r - prev.1));
-                    break;
+                r
+            };
+            // The tabulated twists / mu around x: 1 at zero below the first.
+            let k = case.slip.partition_point(|(xk, _)| *xk < x);
+            let (r, past_last) = match (k.checked_sub(1).map(|j| &case.slip[j]), case.slip.get(k)) {
+                (lower, Some((x1, s1))) => {
+                    let (x0, r0) = lower.map_or((0.0, 1.0), |(x0, s0)| (*x0, at(s0)));
+                    let r1 = at(s1);
+                    let t = if *x1 > x0 { (x - x0) / (x1 - x0) } else { 1.0 };
+                    (r0 + t * (r1 - r0), false)
                 }
-                prev = (*xk, r);
-            }
-            let r = at.unwrap_or_else(|| {
-                clamped = true;
-                prev.1
-            });
+                (Some((_, s0)), None) => (at(s0), true),
+                (None, None) => (1.0, true),
+            };
+            clamped |= past_last;
             ratio += w * r;
         }
         Lookup { ratio, clamped }
@@ -347,6 +349,11 @@ fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
 /// (delta/R2: the twist ratio is tabulated every second load step, 0.02 apart).
 const HOLD_BEYOND: f64 = 0.025;
 
+/// [`HOLD_BEYOND`] for the slip ratio, tabulated every fourth load step
+/// (0.04 apart), whose last row may lie up to three steps short of where the
+/// neo-Hookean reference stopped.
+const SLIP_HOLD_BEYOND: f64 = 0.065;
+
 /// How far past its last tabulated approach a case is extended along its
 /// trend at all (delta/R2); beyond, the ratio is held at that point's value.
 const EXTEND_AT_MOST: f64 = 0.2;
@@ -365,6 +372,11 @@ const NU_TRUSTED: f64 = 0.49;
 /// where the physics changes), for at most [`EXTEND_AT_MOST`], flagged past
 /// [`HOLD_BEYOND`].
 fn along(points: &[(f64, f64)], d: f64) -> (f64, bool) {
+    along_held(points, d, HOLD_BEYOND)
+}
+
+/// [`along`], flagged past `hold` beyond the last tabulated approach.
+fn along_held(points: &[(f64, f64)], d: f64, hold: f64) -> (f64, bool) {
     let Some(&(d_last, r_last)) = points.last() else {
         return (1.0, true);
     };
@@ -375,7 +387,7 @@ fn along(points: &[(f64, f64)], d: f64) -> (f64, bool) {
         let sxx: f64 = tail.iter().map(|p| (p.0 - mx).powi(2)).sum();
         let slope = if sxx > 0.0 { tail.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / sxx } else { 0.0 };
         let reach = (d - d_last).min(EXTEND_AT_MOST);
-        return (r_last + slope * reach, d > d_last + HOLD_BEYOND);
+        return (r_last + slope * reach, d > d_last + hold);
     }
     let mut prev = (0.0, 1.0);
     for &(x, r) in points {
