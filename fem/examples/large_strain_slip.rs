@@ -11,6 +11,9 @@
 //!
 //! `cargo run --release -p fem --example large_strain_slip > fem/data/large_strain_slip.csv`
 //! (`CASE=2,0.48,0.4` runs one case; `THREADS` sets the workers, default 2).
+#[path = "support/cases.rs"]
+mod cases;
+
 use fem::Material;
 use fem::forward::Forward;
 use fem::hyper::LargeStrainContact;
@@ -62,44 +65,19 @@ fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
 }
 
 fn main() {
-    let mut cases = Vec::new();
-    for e_ratio in [1.0, 2.0, 4.0, 8.0] {
-        for nu1 in [0.3, 0.4, 0.48] {
-            for nu2 in [0.33, 0.4, 0.47] {
-                cases.push((e_ratio, nu1, nu2));
-            }
-        }
-    }
+    let mut cases = cases::grid();
     if let Ok(one) = std::env::var("CASE") {
         let v: Vec<f64> = one.split(',').filter_map(|s| s.trim().parse().ok()).collect();
         if let [e, n1, n2] = v[..] {
             cases = vec![(e, n1, n2)];
         }
     }
-    let threads: usize = std::env::var("THREADS").ok().and_then(|v| v.parse().ok()).unwrap_or(2);
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let results = std::sync::Mutex::new(vec![Vec::new(); cases.len()]);
-    std::thread::scope(|s| {
-        for _ in 0..threads {
-            s.spawn(|| {
-                loop {
-                    let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-                    let Some(&(e, n1, n2)) = cases.get(i) else { break };
-                    let t = std::time::Instant::now();
-                    let rows = run(e, n1, n2);
-                    eprintln!("E2/E1 {e} nu1 {n1} nu2 {n2}: {} rows in {:.1?}", rows.len(), t.elapsed());
-                    if let Ok(mut r) = results.lock() {
-                        r[i] = rows;
-                    }
-                }
-            });
-        }
-    });
+    let results = cases::run_all(&cases, run);
     println!(
         "# slip fraction, large strain over linear (fem/examples/large_strain_slip.rs; docs/physics.md, \"The twist at large strain\")"
     );
     println!("e2_over_e1,nu1,nu2,h_over_r2,delta_over_r2,twist_over_mu_deg,slip_ratio");
-    for rows in results.into_inner().unwrap_or_default() {
+    for rows in results {
         for r in rows {
             println!("{r}");
         }

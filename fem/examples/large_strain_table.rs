@@ -6,6 +6,9 @@
 //! depend only on the dimensionless groups (docs/physics.md, "Large strain").
 //!
 //! `cargo run --release -p fem --example large_strain_table > fem/data/large_strain.csv`
+#[path = "support/cases.rs"]
+mod cases;
+
 use fem::hyper::LargeStrainContact;
 use fem::torsion::{TorsionBody, stick_ratio};
 use fem::{Body, Material, Mesh, TwoBodyContact};
@@ -66,39 +69,10 @@ fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
 }
 
 fn main() {
-    let mut cases = Vec::new();
-    for e_ratio in [1.0, 2.0, 4.0, 8.0] {
-        for nu1 in [0.3, 0.4, 0.48] {
-            for nu2 in [0.33, 0.4, 0.47] {
-                cases.push((e_ratio, nu1, nu2));
-            }
-        }
-    }
-    // Above nu1 = 0.48 the neo-Hookean reference does not reach these depths
-    // (at 0.499 it stops within the first few steps): the table ends there and
-    // the fit extends it polynomially to 0.5 (fem/src/hyper/table.rs).
-    let threads: usize = std::env::var("THREADS").ok().and_then(|v| v.parse().ok()).unwrap_or(2);
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let results = std::sync::Mutex::new(vec![Vec::new(); cases.len()]);
-    std::thread::scope(|s| {
-        for _ in 0..threads {
-            s.spawn(|| {
-                loop {
-                    let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-                    let Some(&(e, n1, n2)) = cases.get(i) else { break };
-                    let t = std::time::Instant::now();
-                    let rows = run(e, n1, n2);
-                    eprintln!("E2/E1 {e} nu1 {n1} nu2 {n2}: {} steps in {:.1?}", rows.len(), t.elapsed());
-                    if let Ok(mut r) = results.lock() {
-                        r[i] = rows;
-                    }
-                }
-            });
-        }
-    });
+    let results = cases::run_all(&cases::grid(), run);
     println!("# large-strain / linear ratios (fem/examples/large_strain_table.rs; docs/physics.md, \"Large strain\")");
     println!("e2_over_e1,nu1,nu2,h_over_r2,delta_over_r2,gamma1_ratio,gamma2_over_r2,twist_ratio");
-    for rows in results.into_inner().unwrap_or_default() {
+    for rows in results {
         for r in rows {
             println!("{r}");
         }
