@@ -2,7 +2,8 @@
 //! "Finite-element reference" and "Large strain"): the project's FE reference
 //! of a hemisphere on a bonded gel, with Coulomb friction in both sweeps, its
 //! fast frictionless form plus a deferred friction correction, and at large
-//! strain the tabulated ratios of the neo-Hookean reference on the
+//! strain the tabulated ratios of the neo-Hookean reference (its press, its stuck
+//! twist and its slip) on the
 //! frictionless press (friction then acts in the twist only).
 
 use std::collections::HashMap;
