@@ -10,7 +10,8 @@
 //! (docs/physics.md, "The twist at large strain").
 //!
 //! `cargo run --release -p fem --example large_strain_slip > fem/data/large_strain_slip.csv`
-//! (`CASE=2,0.48,0.4` runs one case; `THREADS` sets the workers, default 2).
+//! (`CASE=2,0.48,0.4` runs one case, `E_RATIO=2` one modulus ratio; `THREADS`
+//! sets the workers, default 2).
 #[path = "support/cases.rs"]
 mod cases;
 
@@ -65,13 +66,7 @@ fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
 }
 
 fn main() {
-    let mut cases = cases::grid();
-    if let Ok(one) = std::env::var("CASE") {
-        let v: Vec<f64> = one.split(',').filter_map(|s| s.trim().parse().ok()).collect();
-        if let [e, n1, n2] = v[..] {
-            cases = vec![(e, n1, n2)];
-        }
-    }
+    let cases = cases::selected();
     let results = cases::run_all(&cases, run);
     println!(
         "# slip fraction, large strain over linear (fem/examples/large_strain_slip.rs; docs/physics.md, \"The twist at large strain\")"

@@ -17,6 +17,20 @@ pub fn grid() -> Vec<(f64, f64, f64)> {
     cases
 }
 
+/// The cases to build: the whole [`grid`], or those with `E_RATIO=r` (one
+/// modulus ratio), or the one `CASE=e,nu1,nu2`.
+pub fn selected() -> Vec<(f64, f64, f64)> {
+    let num = |v: &str| v.trim().parse::<f64>().ok();
+    if let Ok(one) = std::env::var("CASE") {
+        let v: Vec<f64> = one.split(',').filter_map(num).collect();
+        if let [e, n1, n2] = v[..] {
+            return vec![(e, n1, n2)];
+        }
+    }
+    let e_ratio = std::env::var("E_RATIO").ok().and_then(|v| num(&v));
+    grid().into_iter().filter(|c| e_ratio.is_none_or(|e| (c.0 - e).abs() < 1e-9)).collect()
+}
+
 /// `run` on every case, `THREADS` (default 2) at a time, each case's rows in
 /// the cases' order; progress on stderr.
 pub fn run_all(cases: &[(f64, f64, f64)], run: impl Fn(f64, f64, f64) -> Vec<String> + Sync) -> Vec<Vec<String>> {
