@@ -28,6 +28,8 @@ pub struct LayeredBase {
     indenter_r_mm: f64,
     friction: Option<f64>,
     large_strain: bool,
+    /// The model's own error, relative, of E1 and nu1 on this recording.
+    model_sd: [f64; 2],
     correction: Option<Correction>,
     /// The fit's E1, nu1 and their 95 % intervals (model error included).
     fit: [[f64; 3]; 2],
@@ -54,6 +56,7 @@ impl LayeredBase {
             indenter_r_mm: ind.r_mm,
             friction: p.contact_friction.or(full.contact_friction),
             large_strain: p.large_strain,
+            model_sd: layer_model_sd(rec, &full.params()),
             correction: friction_correction(rec, p, None)?,
             fit: [
                 [full.e1_mpa, full.ci95.e1_mpa[0], full.ci95.e1_mpa[1]],
@@ -104,7 +107,7 @@ impl LayeredBase {
     /// of E1 and nu1 (docs/physics.md section 3): added in quadrature to a
     /// refit's intervals.
     pub fn relative_model_sd(&self) -> [f64; 2] {
-        layer_model_sd(self.large_strain)
+        self.model_sd
     }
 
     /// Whether the model is the large-strain one.

@@ -240,15 +240,12 @@ const LAYER_MODEL_SD_E1: f64 = 0.011;
 const LAYER_MODEL_SD_NU1: f64 = 0.014;
 
 /// The layer model's own approximation error, relative, one standard
-/// deviation, of E1 and nu1: the linear model's above, or the large-strain
-/// model's (`super::large_strain`). Added in quadrature to the intervals of
-/// the fit and of the diagnosis's refits on a layer.
-pub(super) fn layer_model_sd(large_strain: bool) -> [f64; 2] {
-    if large_strain {
-        [super::large_strain::MODEL_SD_E1, super::large_strain::MODEL_SD_NU1]
-    } else {
-        [LAYER_MODEL_SD_E1, LAYER_MODEL_SD_NU1]
-    }
+/// deviation, of E1 and nu1 on recording `rec` at `p`: the linear model's
+/// above, or the large-strain model's (`super::large_strain::model_sd`, which
+/// grows where the sweep goes deeper than its table). Added in quadrature to
+/// the intervals of the fit and of the diagnosis's refits on a layer.
+pub(super) fn layer_model_sd(rec: &Recording, p: &ModelParams) -> [f64; 2] {
+    if p.large_strain { super::large_strain::model_sd(rec, p) } else { [LAYER_MODEL_SD_E1, LAYER_MODEL_SD_NU1] }
 }
 
 /// Distance from either end of nu1's range (0, 0.5) at which the fit counts as pinned.
@@ -368,7 +365,7 @@ pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Resu
     warnings.extend(systematic_warning(&r));
     warnings.extend(super::large_strain::warning(rec, &params));
     let curvature_bias = curvature_bias(rec, &passes, &cov, &mut warnings);
-    let se = standard_errors(&params, &cov.matrix);
+    let se = standard_errors(rec, &params, &cov.matrix);
     let dof = cov.dof;
     Ok(FullFit {
         e1_mpa: params.e1_mpa,
@@ -712,10 +709,10 @@ const BIAS_WARN_SE: f64 = 0.25;
 /// model's own approximation error in quadrature (docs/physics.md,
 /// "Finite-element reference": the spread of its recoveries on independent
 /// finite-element recordings).
-fn standard_errors(params: &ModelParams, cov: &DMatrix<f64>) -> [f64; 3] {
+fn standard_errors(rec: &Recording, params: &ModelParams, cov: &DMatrix<f64>) -> [f64; 3] {
     let model_sd = match params.contact_friction {
         Some(_) => {
-            let [e1, nu1] = layer_model_sd(params.large_strain);
+            let [e1, nu1] = layer_model_sd(rec, params);
             [e1 * params.e1_mpa, nu1 * params.nu1, 0.0]
         }
         None => [0.0; 3],

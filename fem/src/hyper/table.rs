@@ -279,6 +279,17 @@ impl AtGroups<'_> {
         Lookup { ratio, clamped }
     }
 
+    /// How deep the cases this query interpolates between were followed
+    /// (delta/R2): the shallowest last tabulated approach among them. Past
+    /// it the ratios are the extension of [`along`], not the reference's.
+    pub fn tabulated_to(&self) -> f64 {
+        self.cases
+            .iter()
+            .filter(|(w, _)| w.abs() > 1e-9)
+            .filter_map(|(_, case)| case.gamma1.last().map(|p| p.0))
+            .fold(f64::INFINITY, f64::min)
+    }
+
     fn lookup(&self, d: f64, pick: impl Fn(&Case) -> &Vec<(f64, f64)>) -> Lookup {
         let mut clamped = self.clamped;
         let mut ratio = 0.0;
@@ -424,6 +435,27 @@ mod tests {
         // Outside the table: flagged.
         assert!(t.gamma1_ratio(&Groups { e2_over_e1: 50.0, ..g }).clamped);
         assert!(t.gamma1_ratio(&Groups { h_over_r2: 0.4, ..g }).clamped);
+    }
+
+    /// The reach of a query is the last tabulated approach of its case on a
+    /// grid node, and no deeper than any case it interpolates between off it.
+    #[test]
+    fn a_query_reaches_as_deep_as_its_shallowest_case() {
+        let t = LargeStrainTable::builtin().unwrap();
+        let on = |e: f64, nu1: f64, nu2: f64| {
+            let g = Groups { e2_over_e1: e, nu1, nu2, h_over_r2: 1.0, delta_over_r2: 0.3 };
+            let at = t.at_groups(&g);
+            let case = t.cases.iter().find(|c| c.key == [e.ln(), nu1, nu2]).unwrap();
+            (at.tabulated_to(), case.gamma1.last().unwrap().0)
+        };
+        for (e, nu1, nu2) in [(2.0, 0.48, 0.4), (4.0, 0.3, 0.33), (8.0, 0.4, 0.47)] {
+            let (reach, last) = on(e, nu1, nu2);
+            assert!((reach - last).abs() < 1e-12 && reach > 0.3, "{e} {nu1} {nu2}: {reach} {last}");
+        }
+        let between =
+            t.at_groups(&Groups { e2_over_e1: 3.0, nu1: 0.45, nu2: 0.38, h_over_r2: 1.0, delta_over_r2: 0.3 });
+        let neighbours = [on(2.0, 0.48, 0.4).1, on(4.0, 0.48, 0.4).1, on(2.0, 0.4, 0.33).1, on(4.0, 0.4, 0.47).1];
+        assert!(neighbours.iter().all(|&d| between.tabulated_to() <= d + 1e-12), "{}", between.tabulated_to());
     }
 
     #[test]
