@@ -81,8 +81,8 @@ pub(super) fn warning(rec: &Recording, p: &ModelParams) -> Option<Warning> {
                  thick as the indenter's radius and twist / friction up to 50 deg, to the depth its reference \
                  followed ({:.2} R2 for these materials); this fit (E2/E1 {:.2}, nu1 {:.3}, nu2 {:.2}, h/R2 {:.2}, \
                  deepest approach {:.2} R2, widest twist / friction {:.0} deg) takes it past the table's edge; the \
-                 intervals carry a model error of {:.1} % in E1 and {:.1} % in nu1 for the depth, which does not \
-                 cover the other groups",
+                 intervals carry a model error of {:.1} % in E1 and {:.1} % in nu1 (one standard deviation, the \
+                 depth's extension included; not the other groups')",
                 reach,
                 g.e2_over_e1,
                 g.nu1,
