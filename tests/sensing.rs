@@ -144,7 +144,7 @@ fn axis() -> AxisConfig {
 fn simulated_sensor_reproduces_the_physics_over_both_sweeps() {
     let rig = Rig::new(VirtualClock::new(1.0), axis(), axis());
     let mut sensor = RigSensor::new(rig, SensorSimConfig::default()).unwrap();
-    let cfg = SensingConfig::default();
+    let cfg = SensingConfig::for_contact(5.0, 33.0);
     let pose = |stage_mm, rot_deg| RigPose { t_s: 0.0, stage_mm, rot_deg };
     // Normal sweep from first touch to beta = 0.2.
     let mut stage = 0.0;
@@ -279,7 +279,7 @@ async fn end_to_end_stage_move_reaches_gamma1_over_loopback_tac3d() {
     let cfg = SensorSimConfig::default();
     let model = NormalModel::new(*cfg.setup.pair()).unwrap();
     let stream = sim::sensor::stream::spawn_sensor_stream(rig.clone(), cfg, sink).unwrap();
-    let scfg = SensingConfig::default();
+    let scfg = SensingConfig::for_contact(5.0, 33.0);
 
     let f = rx.next_frame(Duration::from_secs(2)).await.unwrap();
     assert!(matches!(measure(&f, &scfg), Err(SensingError::NoContact { .. })));
@@ -357,7 +357,9 @@ fn gamma1_is_unbiased_from_first_contact_to_torsion_sizes() {
         let mut frame_of = |a: f64, rng: &mut Rng| {
             let st = state_at(a);
             index += 1;
-            let state = ContactState::new(centre, st.gamma1_mm, st.contact_radius_mm, 0.0).with_nu1(0.39);
+            let state = ContactState::new(centre, st.gamma1_mm, st.contact_radius_mm, 0.0)
+                .with_nu1(0.39)
+                .with_spheres(5.0, 33.0);
             (st.gamma1_mm, synth_frame(&state, &grid, &noise, rng, index, 0.0))
         };
         // The approach: settled frames at contacts of 1.5-1.8 mm.
@@ -499,7 +501,7 @@ fn theta1_errors_are_what_the_rotation_fit_reports() {
     for (a, gamma1, theta, centre) in
         [(2.7, 1.2, 0.05, [0.0, 0.0]), (2.7, 1.2, 0.05, [0.13, -0.21]), (2.0, 0.7, 0.03, [0.0, 0.0])]
     {
-        let state = ContactState::new(centre, gamma1, a, theta).with_nu1(0.39);
+        let state = ContactState::new(centre, gamma1, a, theta).with_nu1(0.39).with_spheres(5.0, 33.0);
         let cfg = SensingConfig { marker_noise_mm: Some((0.004, 0.004)), ..SensingConfig::for_contact(5.0, 33.0) };
         let n = 1500;
         let z2 = (0..n)
@@ -536,7 +538,10 @@ fn an_adhesive_contact_reads_its_depth() {
     let mut index = 0;
     let mut frame = |a: f64, punch: f64, rng: &mut Rng| {
         index += 1;
-        let state = ContactState::new(centre, c * a * a + punch, a, 0.0).with_nu1(0.39).with_punch(punch);
+        let state = ContactState::new(centre, c * a * a + punch, a, 0.0)
+            .with_nu1(0.39)
+            .with_punch(punch)
+            .with_spheres(5.0, 33.0);
         (state.gamma1_mm, synth_frame(&state, &grid, &noise, rng, index, 0.0))
     };
     // Resolved contacts teach the curvature and centre (the deep loading branch).
@@ -574,5 +579,104 @@ fn an_adhesive_contact_reads_its_depth() {
         println!("{a:8.2}  {:8.0}   {bias:+7.2}", punch * 1e3);
         // Without the punch term these read 4-30 um low.
         assert!(bias.abs() <= bar, "a {a}, punch {punch}: bias {bias:+.2} um");
+    }
+}
+
+/// The estimator on a field our sensor model did not draw: the surface of a
+/// 5 mm gel bonded to its window, pressed by the 5 mm hemisphere (exact
+/// spheres), from the project's finite-element reference (`fem`: the gel's
+/// surface compliance at every surface node under the contact's nodal
+/// forces). Tac3D-like pair (gel E1 0.33 MPa, nu1 0.39; indenter 1.1 MPa,
+/// 0.39), Tac3D grid and 4 µm noise. Inside a wide contact the gel follows
+/// the indenter's sphere, which sags below Hertz's paraboloid (0.1 mm at 3 mm
+/// from the axis): read as a paraboloid the deep contacts came out up to 26
+/// µm deep (docs/sensing.md, "The spheres inside a wide contact"). With the
+/// spheres' sag taken out, resolved contacts (1.75-4 mm) must read within 3
+/// µm (mean of 100 frames; measured within 2 µm; the test prints the
+/// curve). Contacts of 1.25-1.5 mm are printed, not held: they are read
+/// through Hertz's tie of radius to depth, which a layer does not follow
+/// (11-25 µm shallow; docs/sensing.md, "On a layer").
+#[test]
+fn a_bonded_gels_own_field_reads_its_depth_at_resolved_contacts() {
+    use easycalib::sensing::FrameEstimator;
+    let (e1, nu1, e2, nu2, r2, h) = (0.33, 0.39, 1.1, 0.39, 5.0, 5.0);
+    let mesh = fem::forward::gel_mesh(h).unwrap();
+    let radii = mesh.surface_radii();
+    let gel = fem::Body::new(mesh, fem::Material { e_mpa: e1, nu: nu1 }).unwrap();
+    let compliance = gel.surface_compliance_rz(usize::MAX);
+    let model = fem::forward::Forward::new(h, e2, nu2, r2).unwrap().model(e1, nu1);
+    // The gel's surface (depression, outward displacement) at every surface
+    // node for the frictionless contact at approach `delta`.
+    let surface = |delta: f64| -> (Vec<f64>, Vec<f64>, f64) {
+        let st = model.normal(delta).unwrap();
+        let (mut w, mut u) = (vec![0.0; radii.len()], vec![0.0; radii.len()]);
+        for (j, &p) in st.nodal_force.iter().enumerate().filter(|(_, p)| **p != 0.0) {
+            for i in 0..radii.len() {
+                w[i] += compliance.zz[j][i] * p;
+                u[i] -= compliance.rz[j][i] * p;
+            }
+        }
+        (w, u, st.contact_radius_mm[0])
+    };
+    let along = |v: &[f64], r: f64| -> f64 {
+        let k = radii.partition_point(|&x| x <= r).clamp(1, radii.len() - 1);
+        let t = ((r - radii[k - 1]) / (radii[k] - radii[k - 1])).min(1.0);
+        v[k - 1] + t * (v[k] - v[k - 1])
+    };
+    // The approach whose contact reaches radius `a`.
+    let delta_at = |a: f64| {
+        let (mut lo, mut hi) = (1e-4, 4.5);
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if model.normal(mid).unwrap().contact_radius_mm[0] < a { lo = mid } else { hi = mid }
+        }
+        hi
+    };
+    let grid = MarkerGrid::tac3d();
+    let sigma = 0.004;
+    println!("centre        a mm   gamma1 um   bias um (100 frames, 4 um noise)");
+    for centre in [[0.0, 0.0], [0.5, 0.5]] {
+        let mut rng = Rng::seed_from(31);
+        let mut estimator = FrameEstimator::new(SensingConfig::for_contact(r2, f64::INFINITY));
+        let mut index = 0;
+        let mut frame_at = |delta: f64, rng: &mut Rng| -> (f64, f64, SensorFrame) {
+            let (w, u, a) = surface(delta);
+            index += 1;
+            let displacements = grid
+                .positions
+                .iter()
+                .map(|p| {
+                    let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
+                    let r = dx.hypot(dy);
+                    let (ex, ey) = if r > 0.0 { (dx / r, dy / r) } else { (0.0, 0.0) };
+                    let (wz, ur) = (along(&w, r), along(&u, r));
+                    [ur * ex + sigma * rng.normal(), ur * ey + sigma * rng.normal(), -wz + sigma * rng.normal()]
+                })
+                .collect();
+            (w[0], a, SensorFrame { index, t_s: 0.0, positions: grid.positions.clone(), displacements })
+        };
+        // The approach teaches the curvature and the centre, as in a run.
+        let learn = delta_at(1.6);
+        for _ in 0..40 {
+            let (_, _, f) = frame_at(learn, &mut rng);
+            let _ = estimator.measure(&f);
+        }
+        // (contact radius, held to the bar): the two smallest are printed
+        // only (read through the tie of radius to depth, which is Hertz's).
+        for (a, held) in
+            [(1.25, false), (1.5, false), (1.75, true), (2.0, true), (2.5, true), (3.0, true), (3.5, true), (4.0, true)]
+        {
+            let delta = delta_at(a);
+            let mut errs = Vec::new();
+            let (mut truth, mut reached) = (0.0, 0.0);
+            for _ in 0..100 {
+                let (g, at, f) = frame_at(delta, &mut rng);
+                (truth, reached) = (g, at);
+                errs.push((estimator.measure(&f).expect("a resolved contact").gamma1_mm - g) * 1e3);
+            }
+            let bias = errs.iter().sum::<f64>() / errs.len() as f64;
+            println!("{centre:?}  {reached:5.2}  {:9.1}   {bias:+6.2}", truth * 1e3);
+            assert!(!held || bias.abs() <= 3.0, "centre {centre:?}, a {reached:.2} mm: bias {bias:+.2} um");
+        }
     }
 }

@@ -65,7 +65,7 @@ fn adhesion_probe(
         .iter()
         .zip(&frame.displacements)
         .filter(|(p, _)| dist2(xy(p), centre) <= reach * reach)
-        .map(|(p, d)| [p[0], p[1], -d[2]])
+        .map(|(p, d)| [p[0], p[1], hertz_depth(-d[2], dist2(xy(p), centre).sqrt(), (gamma1 / c).sqrt(), cfg)])
         .collect();
     let Some((p, kept)) = punch_stage(&pts, centre, c, gamma1, cfg) else {
         return false;
@@ -143,6 +143,14 @@ pub struct SensingConfig {
     /// Probe resolved contacts at the known centre for a punch
     /// ([`FrameEstimator`] asks while it has not decided `adhesive`).
     pub probe_adhesion: bool,
+    /// The indenter's and the elastomer's radii (mm; infinite: flat or not
+    /// known). Inside a contact the gel's surface follows the two spheres,
+    /// whose sag departs from a paraboloid by r^4 / 8R^3 and more (17 µm at
+    /// 2 mm and 0.1 mm at 3 mm from the axis of a 5 mm indenter); the
+    /// paraboloid fit takes that part out first (docs/sensing.md, "The
+    /// spheres inside a wide contact").
+    pub indenter_radius_mm: f64,
+    pub elastomer_radius_mm: f64,
 }
 
 /// A frame whose own noise estimate exceeds the pooled one by more than this
@@ -165,7 +173,12 @@ impl SensingConfig {
     /// of radius `elastomer_r_mm` (infinite when flat).
     pub fn for_contact(indenter_r_mm: f64, elastomer_r_mm: f64) -> Self {
         let c = 1.0 / indenter_r_mm + if elastomer_r_mm.is_finite() { 1.0 / elastomer_r_mm } else { 0.0 };
-        Self { max_curvature_per_mm: (c.is_finite() && c > 0.0).then_some(c), ..Self::default() }
+        Self {
+            max_curvature_per_mm: (c.is_finite() && c > 0.0).then_some(c),
+            indenter_radius_mm: indenter_r_mm,
+            elastomer_radius_mm: elastomer_r_mm,
+            ..Self::default()
+        }
     }
 }
 
@@ -187,6 +200,8 @@ impl Default for SensingConfig {
             marker_noise_mm: None,
             adhesive: false,
             probe_adhesion: false,
+            indenter_radius_mm: f64::INFINITY,
+            elastomer_radius_mm: f64::INFINITY,
         }
     }
 }
@@ -291,6 +306,14 @@ fn validate(frame: &SensorFrame) -> Result<(), SensingError> {
     Ok(())
 }
 
+/// The marker's depth as Hertz's field would have it: its measured depth
+/// plus the spheres' sag at `r_mm` from the centre of a contact of radius
+/// `contact_radius_mm` (docs/sensing.md, "The spheres inside a wide contact").
+fn hertz_depth(depth_mm: f64, r_mm: f64, contact_radius_mm: f64, cfg: &SensingConfig) -> f64 {
+    depth_mm
+        + sim::sensor::field::spheres_sag_mm(r_mm, contact_radius_mm, cfg.indenter_radius_mm, cfg.elastomer_radius_mm)
+}
+
 fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)
 }
@@ -377,6 +400,10 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
     let mut centre = xy(&frame.positions[seed]);
     let mut window = min_window;
     let mut best: Option<Depth> = None;
+    // The window lies inside the contact (it is kept to a fraction of the
+    // radius; a wider one hands over to the Hertz field's fit): there the
+    // surface follows the spheres.
+    let reach = f64::INFINITY;
     for _ in 0..5 {
         let mut sel: Vec<usize> = Vec::new();
         let mut w = window;
@@ -392,7 +419,8 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
             .iter()
             .map(|&i| {
                 let p = frame.positions[i];
-                [p[0] - centre[0], p[1] - centre[1], -frame.displacements[i][2]]
+                let (x, y) = (p[0] - centre[0], p[1] - centre[1]);
+                [x, y, hertz_depth(-frame.displacements[i][2], x.hypot(y), reach, cfg)]
             })
             .collect();
         let found = pts.len();
@@ -473,6 +501,24 @@ fn punch_stage(
 
 /// Hertz-field fit over the markers within about three contact radii.
 fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg: &SensingConfig) -> Option<Depth> {
+    let first = hertz_stage_sagged(frame, start, start.2, pitch, cfg)?;
+    // The spheres' sag was taken at the starting radius: once more at the
+    // radius found when that moved (a punch widens the contact its depth implies).
+    let sag_free = !(cfg.indenter_radius_mm.is_finite() || cfg.elastomer_radius_mm.is_finite());
+    if sag_free || (first.radius - start.2).abs() <= 0.02 * start.2 {
+        return Some(first);
+    }
+    hertz_stage_sagged(frame, start, first.radius, pitch, cfg).or(Some(first))
+}
+
+/// [`hertz_stage`] with the spheres' sag taken for a contact of radius `sag_radius`.
+fn hertz_stage_sagged(
+    frame: &SensorFrame,
+    start: (f64, [f64; 2], f64),
+    sag_radius: f64,
+    pitch: f64,
+    cfg: &SensingConfig,
+) -> Option<Depth> {
     let reach = (3.0 * start.2).max(3.0 * pitch);
     let selected: Vec<usize> =
         (0..frame.positions.len()).filter(|&i| dist2(xy(&frame.positions[i]), start.1) <= reach * reach).collect();
@@ -483,7 +529,7 @@ fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg
         .iter()
         .map(|&i| {
             let p = frame.positions[i];
-            [p[0], p[1], -frame.displacements[i][2]]
+            [p[0], p[1], hertz_depth(-frame.displacements[i][2], dist2(xy(&p), start.1).sqrt(), sag_radius, cfg)]
         })
         .collect();
     // Below about a pitch, gamma1 and a trade off along a long shallow

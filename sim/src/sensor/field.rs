@@ -51,12 +51,82 @@ pub struct ContactState {
     /// 0 for Hertz): a JKR contact is Hertz's field for its radius plus a
     /// rigid punch's, uniform inside the contact (see [`punch_shape`]).
     pub punch_mm: f64,
+    /// The indenter's and the elastomer's radii, mm (infinite: a paraboloid,
+    /// Hertz's idealisation). Inside the contact the surface follows the
+    /// spheres, which sag below Hertz's paraboloid by [`sphere_excess_mm`];
+    /// outside, that sag at the edge fades as Hertz's field does.
+    pub indenter_radius_mm: f64,
+    pub elastomer_radius_mm: f64,
+    /// The sensor's depth gain (1: exact), which scales the spheres' sag as
+    /// it scales every depth it reports (`gamma1_mm` already carries it).
+    pub depth_gain: f64,
+}
+
+/// How far the surface of a contact of radius `contact_radius_mm` between
+/// spheres of radii `indenter_r_mm` and `elastomer_r_mm` lies below Hertz's
+/// field (whose paraboloids osculate the spheres) at `r_mm` from its centre,
+/// mm: inside, the surface follows the spheres ([`sphere_excess_mm`] of
+/// each); outside, the sag at the edge fades as Hertz's field does
+/// (continuous at the edge; docs/sensing.md, "The spheres inside a wide
+/// contact").
+pub fn spheres_sag_mm(r_mm: f64, contact_radius_mm: f64, indenter_r_mm: f64, elastomer_r_mm: f64) -> f64 {
+    let at = |r: f64| sphere_excess_mm(r, indenter_r_mm) + sphere_excess_mm(r, elastomer_r_mm);
+    let a = contact_radius_mm;
+    if r_mm <= a {
+        at(r_mm)
+    } else if a > 0.0 {
+        at(a) * normal_shape(r_mm / a) / normal_shape(1.0)
+    } else {
+        0.0
+    }
+}
+
+/// How far a sphere of radius `radius_mm` sags below its osculating
+/// paraboloid at `r_mm` from its axis, mm: R − sqrt(R² − r²) − r²/2R (0 for
+/// a flat body, and held at the sphere's equator beyond it).
+pub fn sphere_excess_mm(r_mm: f64, radius_mm: f64) -> f64 {
+    if !(radius_mm.is_finite() && radius_mm > 0.0) {
+        return 0.0;
+    }
+    let q = (r_mm * r_mm).min(radius_mm * radius_mm);
+    // Written without the cancellation: q² / (2R (R + sqrt(R² − q))²).
+    q * q / (2.0 * radius_mm * (radius_mm + (radius_mm * radius_mm - q).sqrt()).powi(2))
 }
 
 impl ContactState {
     /// A contact on an incompressible elastomer (no radial in-plane field).
     pub fn new(center_mm: [f64; 2], gamma1_mm: f64, contact_radius_mm: f64, theta1_rad: f64) -> Self {
-        Self { center_mm, gamma1_mm, contact_radius_mm, theta1_rad, nu1: 0.5, punch_mm: 0.0 }
+        Self {
+            center_mm,
+            gamma1_mm,
+            contact_radius_mm,
+            theta1_rad,
+            nu1: 0.5,
+            punch_mm: 0.0,
+            indenter_radius_mm: f64::INFINITY,
+            elastomer_radius_mm: f64::INFINITY,
+            depth_gain: 1.0,
+        }
+    }
+
+    /// A sensor whose depth readings are scaled by `gain` (see `depth_gain`).
+    pub fn with_depth_gain(mut self, gain: f64) -> Self {
+        self.depth_gain = gain;
+        self
+    }
+
+    /// The contact of an indenter of radius `indenter_r_mm` on an elastomer
+    /// of radius `elastomer_r_mm` (infinite when flat): their spheres' sag
+    /// inside the contact is in the field.
+    pub fn with_spheres(mut self, indenter_r_mm: f64, elastomer_r_mm: f64) -> Self {
+        self.indenter_radius_mm = indenter_r_mm;
+        self.elastomer_radius_mm = elastomer_r_mm;
+        self
+    }
+
+    fn sag_mm(&self, r_mm: f64) -> f64 {
+        self.depth_gain
+            * spheres_sag_mm(r_mm, self.contact_radius_mm, self.indenter_radius_mm, self.elastomer_radius_mm)
     }
 
     /// The same peak depth made of a Hertz field of depth `gamma1_mm - punch_mm`
@@ -82,7 +152,7 @@ impl ContactState {
         let r = dx.hypot(dy);
         let rho = r / a;
         let (hertz, punch) = (self.gamma1_mm - self.punch_mm, self.punch_mm);
-        let w = hertz * normal_shape(rho) + punch * punch_shape(rho);
+        let w = hertz * normal_shape(rho) + punch * punch_shape(rho) - self.sag_mm(r);
         // In-plane: radial and twist components along e_r = (dx, dy)/r and
         // e_phi = (-dy, dx)/r; both vanish at the centre.
         if r == 0.0 {

@@ -220,7 +220,9 @@ impl RigSensor {
                     r.theta1_deg.to_radians(),
                 )
                 .with_nu1(self.pair.elastomer.nu)
-                .with_punch(r.gamma1_punch_mm),
+                .with_punch(r.gamma1_punch_mm)
+                .with_spheres(self.pair.indenter.r_mm, self.pair.elastomer.r_mm)
+                .with_depth_gain(effects.profile().sensor_gain.map_or(1.0, |p| p.g)),
             ),
             Ok(_) => None,
             Err(_) => {
@@ -298,6 +300,7 @@ impl RigSensor {
         let clean = truth.map(|t| {
             ContactState::new(self.cfg.contact_center_mm, t.normal.gamma1_mm, t.normal.contact_radius_mm, t.theta1_rad)
                 .with_nu1(self.pair.elastomer.nu)
+                .with_spheres(self.pair.indenter.r_mm, self.pair.elastomer.r_mm)
         });
         // With effects the history-dependent model answers; it is stepped on
         // every frame (in time order) so backlash, creep and drift see the
@@ -363,7 +366,10 @@ mod tests {
         let centre = f.positions.iter().position(|p| p[0] == -0.5 && p[1] == -0.5).unwrap();
         let state = model.solve(2.0).unwrap();
         let a = state.contact_radius_mm;
-        let expected = -state.gamma1_mm * (1.0 - 0.5 * 0.5 / (a * a));
+        // Hertz's field with the spheres' sag (the marker is 0.71 mm out).
+        let pair = s.config().setup.pair();
+        let sag = crate::sensor::field::spheres_sag_mm(0.5f64.sqrt(), a, pair.indenter.r_mm, pair.elastomer.r_mm);
+        let expected = -state.gamma1_mm * (1.0 - 0.5 * 0.5 / (a * a)) + sag;
         assert!((f.displacements[centre][2] - expected).abs() < 1e-12);
         let t = s.truth(&pose(3.0, 5.0)).unwrap();
         assert!((t.twist_deg - 2.0).abs() < 1e-12);
