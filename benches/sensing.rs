@@ -13,14 +13,16 @@ use sim::sensor::field::{ContactState, MarkerGrid, NoiseConfig, synth_frame};
 fn frames(c: &mut Criterion) {
     let grid = MarkerGrid::tac3d();
     let mut rng = Rng::seed_from(1);
-    let cfg = SensingConfig::default();
+    // A run's settings: the rig's indenter and dome, whose spheres' sag the
+    // fits take out (docs/sensing.md, "The spheres inside a wide contact").
+    let cfg = SensingConfig::for_contact(5.0, 33.0);
     let mut g = c.benchmark_group("measure_400_markers");
     // Torsion-phase contact (a ~ 4.9 mm), 4 um noise, 5 % outliers.
-    let torsion = ContactState::new([0.13, -0.21], 3.9, 4.9, 3f64.to_radians()).with_nu1(0.39);
+    let torsion = ContactState::new([0.13, -0.21], 3.9, 4.9, 3f64.to_radians()).with_nu1(0.39).with_spheres(5.0, 33.0);
     let f = synth_frame(&torsion, &grid, &NoiseConfig::gaussian(0.004).with_outliers(0.05), &mut rng, 0, 0.0);
     g.bench_function("torsion_contact_noisy", |b| b.iter(|| measure(black_box(&f), &cfg)));
     // Early normal sweep (a ~ 1.2 mm): the Hertz-field fit runs.
-    let small = ContactState::new([0.13, -0.21], 0.25, 1.2, 0.0).with_nu1(0.39);
+    let small = ContactState::new([0.13, -0.21], 0.25, 1.2, 0.0).with_nu1(0.39).with_spheres(5.0, 33.0);
     let f = synth_frame(&small, &grid, &NoiseConfig::gaussian(0.004), &mut rng, 1, 0.0);
     g.bench_function("small_contact_hertz_fit", |b| b.iter(|| measure(black_box(&f), &cfg)));
     // What a run does once its estimator has learnt the contact (docs/sensing.md):
@@ -32,7 +34,7 @@ fn frames(c: &mut Criterion) {
         ..SensingConfig::for_contact(5.0, 33.0)
     };
     for (name, a) in [("onset_learnt_contact", 0.5), ("mid_contact_learns_curvature", 1.3)] {
-        let state = ContactState::new([0.0, 0.0], 0.175 * a * a, a, 0.0).with_nu1(0.39);
+        let state = ContactState::new([0.0, 0.0], 0.175 * a * a, a, 0.0).with_nu1(0.39).with_spheres(5.0, 33.0);
         let f = synth_frame(&state, &grid, &NoiseConfig::gaussian(0.004), &mut rng, 2, 0.0);
         g.bench_function(name, |b| b.iter(|| measure(black_box(&f), &learnt)));
     }
