@@ -503,9 +503,11 @@ fn punch_stage(
 fn hertz_stage(frame: &SensorFrame, start: (f64, [f64; 2], f64), pitch: f64, cfg: &SensingConfig) -> Option<Depth> {
     let first = hertz_stage_sagged(frame, start, start.2, pitch, cfg)?;
     // The spheres' sag was taken at the starting radius: once more at the
-    // radius found when that moved (a punch widens the contact its depth implies).
-    let sag_free = !(cfg.indenter_radius_mm.is_finite() || cfg.elastomer_radius_mm.is_finite());
-    if sag_free || (first.radius - start.2).abs() <= 0.02 * start.2 {
+    // radius found when that moved the sag at the edge by more than half a
+    // micrometre, an eighth of a marker's noise (a punch widens the contact
+    // its depth implies).
+    let edge_sag = |a: f64| sim::sensor::field::spheres_sag_mm(a, a, cfg.indenter_radius_mm, cfg.elastomer_radius_mm);
+    if (edge_sag(first.radius) - edge_sag(start.2)).abs() <= 5e-4 {
         return Some(first);
     }
     hertz_stage_sagged(frame, start, first.radius, pitch, cfg).or(Some(first))
