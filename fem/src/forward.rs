@@ -303,6 +303,13 @@ impl Model {
         })
     }
 
+    /// The radius of the contact of `st`, mm
+    /// ([`TwoBodyContact::contact_radius_mm`]): the edge less the lead a
+    /// node-to-node contact has on it.
+    pub fn contact_radius_mm(&self, st: &ContactState) -> f64 {
+        self.contact.contact_radius_mm(st)
+    }
+
     /// The normal contact at platform approach `delta_mm`.
     pub fn normal(&self, delta_mm: f64) -> Result<ContactState, FemError> {
         self.contact.solve(delta_mm)
