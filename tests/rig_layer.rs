@@ -49,8 +49,12 @@ fn a_clean_layered_run_names_nothing_and_recovers_the_gel() {
     let runs = runs(SimProfile::default());
     print("clean", &runs);
     for o in &runs {
-        // Nothing named and nothing unexplained (issue 12's bar for a clean run).
+        // Nothing named and nothing unexplained, and the fit at the noise
+        // (issue 12's bars for a clean run): measured chi²/dof 0.82-1.17 over
+        // seeds 1-8 since small contacts are tied to their depth as the layer
+        // ties them (1.10-1.65 before; docs/sensing.md, "On a layer").
         assert!(["clean", "ambiguous"].contains(&o.verdict) && o.named.is_empty(), "seed {}: {}", o.seed, o.summary);
+        assert!(o.chi2_dof <= 1.3, "seed {}: chi²/dof {:.2}", o.seed, o.chi2_dof);
         assert!(o.full.0.abs() <= 1.0 && o.full.1.abs() <= 2.0, "seed {}: fit {:?}", o.seed, o.full);
         assert!(same(o.corrected, o.full), "seed {}: nothing named, the diagnosis keeps the fit's numbers", o.seed);
     }
@@ -88,19 +92,26 @@ fn rotation_backlash_on_a_layered_rig_is_named_and_corrected() {
 }
 
 #[test]
-fn frame_compliance_on_a_layered_rig_is_ambiguous_not_unexplained() {
+fn frame_compliance_on_a_layered_rig_is_listed_not_named() {
     // On the layer a frame compliance leaves curvature the baseline cannot
     // absorb, which the compliance removes; but E1/nu1 can stand in for it
-    // (variance inflation ~4000), and a sensor gain fits nearly as well: the
-    // diagnosis lists it, names nothing and keeps the calibration's numbers.
+    // (variance inflation ~2500-4300), and a sensor gain fits nearly as well:
+    // the diagnosis lists it, as ambiguous with the gain or as an effect
+    // E1/nu1 can stand in for (seeds 1-6: ambiguous 3 or 4 times, the rest
+    // clean with it listed so), names nothing and keeps the calibration's
+    // numbers.
     let p = frame_compliance::Params { c_mm_per_n: 0.004 };
     let profile = SimProfile { frame_compliance: Some(p), ..Default::default() };
     let runs = vec![run_script(1, profile, layered_script()).0];
     print("frame_compliance", &runs);
     for o in &runs {
         assert!(o.full.1.abs() >= 2.0, "frame compliance biases nu1 only {:+.2} %", o.full.1);
-        assert_eq!(o.verdict, "ambiguous", "seed {}: {}", o.seed, o.summary);
-        assert!(o.named.is_empty() && o.summary.contains("frame_compliance"), "seed {}: {}", o.seed, o.summary);
+        let listed = match o.verdict {
+            "ambiguous" => o.summary.contains("frame_compliance"),
+            "clean" => o.degenerate.iter().any(|e| e == "frame_compliance"),
+            _ => false,
+        };
+        assert!(listed && o.named.is_empty(), "seed {}: {} {:?}", o.seed, o.summary, o.degenerate);
         assert!(same(o.corrected, o.full), "seed {}: nothing named, the calibration's numbers", o.seed);
     }
 }

@@ -229,7 +229,29 @@ pub async fn run_calibration_with(
     req.script.validate()?;
     std::fs::create_dir_all(&req.out_dir).map_err(|source| StartError::OutDir { path: req.out_dir.clone(), source })?;
     // The indenter bounds what a contact under the marker pitch can look like.
-    let sensing = SensingConfig::for_contact(req.script.indenter.r_mm, req.script.sensor.elastomer_r_mm);
+    let mut sensing = SensingConfig::for_contact(req.script.indenter.r_mm, req.script.sensor.elastomer_r_mm);
+    // On a declared bonded layer the tie of a small contact's radius to its
+    // depth follows the layer (docs/sensing.md, "On a layer").
+    if let Ok(Some(layer)) = req.script.sensor.layer()
+        && layer.base == sim::physics::LayerBase::Bonded
+    {
+        let indenter = req.script.indenter;
+        let built =
+            tokio::task::spawn_blocking(move || crate::sensing::TieDrift::bonded_layer(layer.thickness_mm, indenter))
+                .await
+                .map_err(|e| e.to_string())
+                .and_then(|r| r.map_err(|e| e.to_string()));
+        match built {
+            Ok(drift) => sensing.tie_drift = Some(drift),
+            Err(why) => {
+                let message = format!(
+                    "the {} mm layer's tie of contact radius to depth could not be computed ({why}): small contacts are read as on a half-space",
+                    layer.thickness_mm
+                );
+                let _ = events.send(RunEvent::Log { level: LogLevel::Warn, message });
+            }
+        }
+    }
     let devices = open_rig(&req.spec, sensing).await?;
     let recording = req.out_dir.join(RECORDING_FILE);
     let mut meta = req.metadata.clone();

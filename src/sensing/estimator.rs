@@ -9,6 +9,7 @@
 
 use devices::sensor::SensorFrame;
 
+use super::layer::{DRIFT_SD_FRACTION, TieDrift};
 use super::{Measurement, SensingConfig, SensingError, measure};
 use crate::numerics::stats::MAD_TO_SIGMA;
 
@@ -55,15 +56,38 @@ type Estimate = (f64, f64, f64, [f64; 2]);
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CurvatureLearner {
     estimates: Vec<Estimate>,
-    /// (curvature, its standard error, centre) from the estimates so far.
-    learnt: Option<(f64, f64, [f64; 2])>,
+    /// (curvature, its standard error, centre, mean radius) from the
+    /// estimates so far.
+    learnt: Option<(f64, f64, [f64; 2], f64)>,
     /// Every size's estimates, by radius bin (index = radius / [`BIN_MM`]).
     bins: std::collections::BTreeMap<i64, Vec<Estimate>>,
     /// How many estimates the bins hold (they only grow).
     binned: usize,
+    /// On a declared layer, how the curvature changes with the contact's
+    /// radius: a curvature learnt at one size is carried by it to another.
+    drift: Option<TieDrift>,
 }
 
 impl CurvatureLearner {
+    /// A learner on a declared gel layer, whose curvature changes with the
+    /// contact's radius as `drift` says (docs/sensing.md, "On a layer").
+    pub fn with_drift(drift: Option<TieDrift>) -> Self {
+        Self { drift, ..Self::default() }
+    }
+
+    /// A curvature (and its standard error) measured at radius `from_mm`,
+    /// carried to `to_mm` by the layer's drift, the drift's own uncertainty
+    /// added; unchanged on a half-space.
+    fn carried(&self, (c, sd): (f64, f64), from_mm: f64, to_mm: f64) -> (f64, f64) {
+        match self.drift {
+            Some(d) => {
+                let k = d.ratio(from_mm, to_mm);
+                (c * k, (sd * k).hypot(c * (k - 1.0).abs() * DRIFT_SD_FRACTION))
+            }
+            None => (c, sd),
+        }
+    }
+
     /// Take one resolved frame's curvature `per_mm` (standard error
     /// `sd_per_mm`) at contact radius `radius_mm`, centred at `centre_mm`;
     /// non-physical ones are ignored.
@@ -91,7 +115,9 @@ impl CurvatureLearner {
     /// contacts smaller than any resolved).
     pub fn estimate_near(&self, radius_mm: f64) -> Option<(f64, f64)> {
         // Below (above) every resolved size, the curvature at the edge of
-        // what was resolved: a line is not extrapolated.
+        // what was resolved: a line is not extrapolated (on a declared layer
+        // the layer's drift carries it on).
+        let wanted = radius_mm;
         let radius_mm = match self.resolved_span() {
             Some((lo, hi)) => radius_mm.clamp(lo, hi),
             None => radius_mm,
@@ -119,7 +145,10 @@ impl CurvatureLearner {
                 enough.then(|| local_line(&near, radius_mm)).flatten()
             })
             .flatten();
-        local.or_else(|| self.estimate())
+        match local {
+            Some(c) => Some(self.carried(c, radius_mm, wanted)),
+            None => self.learnt.map(|l| self.carried((l.0, l.1), l.3, wanted)),
+        }
     }
 
     /// The curvature and its standard error (see [`learn`]); `None` before
@@ -139,7 +168,7 @@ impl CurvatureLearner {
 /// standard error widened by the Birge ratio when they disagree beyond their
 /// errors (a drift with depth, a model the frames do not follow), and their
 /// mean centre. Frames far from the others' median are left out first.
-fn learn(estimates: &[Estimate]) -> Option<(f64, f64, [f64; 2])> {
+fn learn(estimates: &[Estimate]) -> Option<(f64, f64, [f64; 2], f64)> {
     let mut radii: Vec<f64> = estimates.iter().map(|e| e.0).collect();
     let smallest = quantile(&mut radii, 0.2)?;
     let near: Vec<&Estimate> = estimates.iter().filter(|e| e.0 <= RADIUS_SPAN * smallest).collect();
@@ -175,8 +204,9 @@ fn robust_subset<'e>(near: &[&'e Estimate]) -> Option<Vec<&'e Estimate>> {
 }
 
 /// The inverse-variance weighted curvature of `kept`, its standard error
-/// widened by the Birge ratio, and their mean centre.
-fn weighted(kept: &[&Estimate]) -> Option<(f64, f64, [f64; 2])> {
+/// widened by the Birge ratio, their mean centre and their radius (weighted
+/// as the curvature is).
+fn weighted(kept: &[&Estimate]) -> Option<(f64, f64, [f64; 2], f64)> {
     if kept.len() < 2 {
         return None;
     }
@@ -186,7 +216,8 @@ fn weighted(kept: &[&Estimate]) -> Option<(f64, f64, [f64; 2])> {
     let birge = (chi2 / (kept.len() - 1) as f64).sqrt().max(1.0);
     let n = kept.len() as f64;
     let centre = [kept.iter().map(|e| e.3[0]).sum::<f64>() / n, kept.iter().map(|e| e.3[1]).sum::<f64>() / n];
-    Some((mean, birge / w.sqrt(), centre))
+    let radius = kept.iter().map(|e| e.0 / (e.2 * e.2)).sum::<f64>() / w;
+    Some((mean, birge / w.sqrt(), centre, radius))
 }
 
 impl CurvatureLearner {
@@ -316,7 +347,7 @@ impl FrameEstimator {
     pub fn new(cfg: SensingConfig) -> Self {
         Self {
             cfg,
-            learner: CurvatureLearner::default(),
+            learner: CurvatureLearner::with_drift(cfg.tie_drift),
             normal_noise: NoisePool::default(),
             tangential_noise: NoisePool::default(),
             last_radius_mm: None,
@@ -498,6 +529,33 @@ mod tests {
             few.add(1.6 + 0.01 * k as f64, 0.18 + 0.001 * jitter[k % 6], 0.004, [0.0, 0.0]);
         }
         assert_eq!(few.estimate_near(1.65), few.estimate());
+    }
+
+    /// On a declared layer a curvature learnt on resolved contacts is
+    /// carried to a smaller contact by the layer's drift (gamma1 / a² rises
+    /// as the contact shrinks against the gel's thickness), with the drift's
+    /// own uncertainty; within the resolved sizes nothing changes.
+    #[test]
+    fn on_a_layer_a_small_contact_takes_the_curvature_carried_to_its_size() {
+        let drift = TieDrift::bonded_layer(5.0, sim::physics::Body::new(1.1, 0.39, 5.0)).expect("the layer model");
+        let (mut flat, mut layer) = (CurvatureLearner::default(), CurvatureLearner::with_drift(Some(drift)));
+        for k in 0..150 {
+            let r = 1.6 + 1.0 * k as f64 / 150.0;
+            for l in [&mut flat, &mut layer] {
+                l.add(r, 0.13 * drift.ratio(1.6, r), 0.002, [0.0, 0.0]);
+            }
+        }
+        let (c_flat, sd_flat) = flat.estimate_near(0.5).unwrap();
+        let (c_layer, sd_layer) = layer.estimate_near(0.5).unwrap();
+        let truth = 0.13 * drift.ratio(1.6, 0.5);
+        println!(
+            "at 0.5 mm: half-space tie {c_flat:.4} ± {sd_flat:.4}, layer {c_layer:.4} ± {sd_layer:.4}, truth {truth:.4}"
+        );
+        assert!((c_layer / truth - 1.0).abs() < 0.01, "{c_layer} vs {truth}");
+        assert!(c_flat < 0.92 * truth, "the half-space tie would take {c_flat} for {truth}");
+        assert!(sd_layer > 0.1 * DRIFT_SD_FRACTION * (truth - 0.13), "{sd_layer}");
+        let (inside, inside_layer) = (flat.estimate_near(2.0).unwrap(), layer.estimate_near(2.0).unwrap());
+        assert_eq!(inside, inside_layer);
     }
 
     #[test]

@@ -19,12 +19,14 @@
 
 mod estimator;
 pub mod fit;
+mod layer;
 
 use devices::sensor::SensorFrame;
 use serde::Serialize;
 
 pub use estimator::{CurvatureLearner, FrameEstimator};
 use fit::{Curvature, fit_hertz, fit_quadratic, fit_rotation, paraboloid_errors};
+pub use layer::TieDrift;
 
 use crate::numerics::stats::{MAD_TO_SIGMA, median};
 
@@ -151,6 +153,11 @@ pub struct SensingConfig {
     /// spheres inside a wide contact").
     pub indenter_radius_mm: f64,
     pub elastomer_radius_mm: f64,
+    /// On a declared gel layer, how gamma1 / a² changes with the contact's
+    /// radius ([`TieDrift`]): the curvature learnt on resolved contacts is
+    /// carried by it to the size of the small ones it ties. `None`: a
+    /// half-space, where it does not change.
+    pub tie_drift: Option<TieDrift>,
 }
 
 /// A frame whose own noise estimate exceeds the pooled one by more than this
@@ -202,6 +209,7 @@ impl Default for SensingConfig {
             probe_adhesion: false,
             indenter_radius_mm: f64::INFINITY,
             elastomer_radius_mm: f64::INFINITY,
+            tie_drift: None,
         }
     }
 }

@@ -25,6 +25,9 @@ pub struct Outcome {
     pub verdict: &'static str,
     /// Its first line.
     pub summary: String,
+    /// The effects it says E1/nu1 can stand in for with these sweeps
+    /// ("... cannot be told from E1/nu1 here").
+    pub degenerate: Vec<String>,
     /// The effects it named.
     pub named: Vec<&'static str>,
     /// (E1, nu1): the full fit (the calibration), the paper's method, and the
@@ -85,6 +88,11 @@ pub fn run_script(seed: u64, profile: SimProfile, script: Script) -> (Outcome, R
             chi2_dof: cal.full.chi2_dof.expect("a rig-made recording carries standard errors"),
             verdict: d.verdict.as_str(),
             summary: d.summary.lines().next().unwrap_or("").to_string(),
+            degenerate: d
+                .summary
+                .lines()
+                .filter_map(|l| l.trim().split_once(" cannot be told from E1/nu1").map(|(e, _)| e.to_string()))
+                .collect(),
             named: d.effects.iter().map(|e| e.name).collect(),
             full: (pct(cal.full.e1_mpa, truth.e1_mpa), pct(cal.full.nu1, truth.nu1)),
             paper: (pct(cal.paper.e1_mpa, truth.e1_mpa), pct(cal.paper.nu1, truth.nu1)),
