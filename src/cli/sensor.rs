@@ -53,6 +53,32 @@ pub struct WatchArgs {
     /// Stop after this many frames (default: until Ctrl-C).
     #[arg(long)]
     pub count: Option<u64>,
+    /// Radius of the indenter pressing the sensor, mm (default: the built-in
+    /// script's): inside a wide contact the gel follows its sphere, whose sag
+    /// the depth reading takes out (docs/sensing.md).
+    #[arg(long, value_name = "MM")]
+    pub indenter_r_mm: Option<f64>,
+    /// Effective radius R1 of the sensor's elastomer, mm (`inf` for flat;
+    /// default: the built-in script's).
+    #[arg(long, value_name = "MM")]
+    pub r1_mm: Option<f64>,
+}
+
+impl WatchArgs {
+    /// How frames are read: the contact of the indenter and gel given, or of
+    /// the built-in script's.
+    fn sensing(&self) -> Result<SensingConfig, CliError> {
+        let script = crate::run::Script::default();
+        let indenter = self.indenter_r_mm.unwrap_or(script.indenter.r_mm);
+        let r1 = self.r1_mm.unwrap_or(script.sensor.elastomer_r_mm);
+        if !(indenter.is_finite() && indenter > 0.0) {
+            return Err(CliError::bad_input(format!("--indenter-r-mm must be a positive radius, got {indenter}")));
+        }
+        if r1.is_nan() || r1 <= 0.0 {
+            return Err(CliError::bad_input(format!("--r1-mm must be a positive radius or inf, got {r1}")));
+        }
+        Ok(SensingConfig::for_contact(indenter, r1))
+    }
 }
 
 /// One printed record.
@@ -100,10 +126,13 @@ pub struct WatchSummary {
 
 /// Read frames from `link` and write one record per frame to `out` until
 /// `stop` resolves, `count` frames were shown, or no frame arrives within
-/// `timeout` (an error naming `source`). The link must already be started.
+/// `timeout` (an error naming `source`); each frame read with `cfg`. The
+/// link must already be started.
+#[allow(clippy::too_many_arguments)]
 pub async fn watch_link<L, W>(
     link: &mut L,
     out: &mut W,
+    cfg: &SensingConfig,
     live: bool,
     timeout: Duration,
     count: Option<u64>,
@@ -114,7 +143,6 @@ where
     L: SensorLink + ?Sized,
     W: Write,
 {
-    let cfg = SensingConfig::default();
     let mut frames = 0u64;
     tokio::pin!(stop);
     loop {
@@ -167,7 +195,7 @@ where
             bad: stats.bad_total(),
             error: None,
         };
-        match measure(&frame, &cfg) {
+        match measure(&frame, cfg) {
             Ok(m) => {
                 line.gamma1_mm = Some(m.gamma1_mm);
                 line.theta1_deg = Some(m.theta1_deg);
@@ -252,6 +280,7 @@ fn watch(args: &WatchArgs) -> Result<(), CliError> {
         .enable_all()
         .build()
         .map_err(|e| CliError::other(format!("cannot start the async runtime: {e}")))?;
+    let cfg = args.sensing()?;
     rt.block_on(async {
         let (mut link, source) = open(args).await?;
         link.start().await.map_err(|e| CliError::other(format!("cannot start {source}: {e}")))?;
@@ -266,6 +295,7 @@ fn watch(args: &WatchArgs) -> Result<(), CliError> {
         let result = watch_link(
             link.as_mut(),
             &mut out,
+            &cfg,
             live,
             Duration::from_secs_f64(args.timeout_s),
             args.count,
@@ -320,7 +350,8 @@ mod tests {
     fn frames() -> VecDeque<SensorFrame> {
         let grid = MarkerGrid::tac3d();
         let mut rng = Rng::seed_from(1);
-        let state = ContactState::new([0.2, -0.1], 1.5, 3.5, 2f64.to_radians());
+        // The built-in script's indenter on its domed gel, as `watch` reads it by default.
+        let state = ContactState::new([0.2, -0.1], 1.5, 3.5, 2f64.to_radians()).with_spheres(5.0, 33.0);
         VecDeque::from(vec![
             no_contact_frame(&grid, 100, 0.0),
             synth_frame(&state, &grid, &NoiseConfig::NONE, &mut rng, 101, 0.033),
@@ -331,9 +362,11 @@ mod tests {
     async fn json_lines_per_frame_then_a_clear_error_when_frames_stop() {
         let mut link = Queued { frames: frames(), delivered: 0 };
         let mut out = Vec::new();
+        let cfg = SensingConfig::for_contact(5.0, 33.0);
         let r = watch_link(
             &mut link,
             &mut out,
+            &cfg,
             false,
             Duration::from_millis(50),
             None,
@@ -349,8 +382,15 @@ mod tests {
         assert_eq!(lines[0]["status"], "no_contact");
         assert_eq!(lines[0]["gamma1_mm"], serde_json::Value::Null);
         assert_eq!(lines[1]["status"], "ok");
-        assert!((lines[1]["gamma1_mm"].as_f64().unwrap() - 1.5).abs() < 1e-9);
-        assert!((lines[1]["theta1_deg"].as_f64().unwrap() - 2.0).abs() < 1e-9);
+        // Within 0.1 µm with the spheres' sag taken out; read without it the
+        // same frame reads 9.6 µm deep (a = 3.5 mm on the 5 mm sphere).
+        let g = lines[1]["gamma1_mm"].as_f64().unwrap();
+        let unaware = measure(&frames()[1], &SensingConfig::default()).unwrap().gamma1_mm;
+        println!("gamma1 {g} mm; without the sag {unaware} mm");
+        assert!((g - 1.5).abs() < 1e-4, "{g}");
+        assert!((unaware - 1.5).abs() > 0.005, "{unaware}");
+        let t = lines[1]["theta1_deg"].as_f64().unwrap();
+        assert!((t - 2.0).abs() < 1e-4, "theta1 {t}");
         assert_eq!(lines[1]["dropped"], 2);
         assert_eq!(lines[1]["rate_hz"], 30.0);
     }
@@ -359,19 +399,34 @@ mod tests {
     async fn nothing_arriving_names_the_source_and_count_stops_cleanly() {
         let mut empty = Queued { frames: VecDeque::new(), delivered: 0 };
         let mut out = Vec::new();
-        let err =
-            watch_link(&mut empty, &mut out, false, Duration::from_millis(10), None, "Tac3D on udp port 9988", async {
-                std::future::pending::<()>().await
-            })
-            .await
-            .unwrap_err();
+        let err = watch_link(
+            &mut empty,
+            &mut out,
+            &SensingConfig::default(),
+            false,
+            Duration::from_millis(10),
+            None,
+            "Tac3D on udp port 9988",
+            async { std::future::pending::<()>().await },
+        )
+        .await
+        .unwrap_err();
         assert!(err.message.starts_with("no frame from Tac3D on udp port 9988 within"), "{}", err.message);
 
         let mut link = Queued { frames: frames(), delivered: 0 };
         let mut out = Vec::new();
-        let s = watch_link(&mut link, &mut out, true, Duration::from_millis(10), Some(1), "x", std::future::pending())
-            .await
-            .unwrap();
+        let s = watch_link(
+            &mut link,
+            &mut out,
+            &SensingConfig::default(),
+            true,
+            Duration::from_millis(10),
+            Some(1),
+            "x",
+            std::future::pending(),
+        )
+        .await
+        .unwrap();
         assert_eq!(s, WatchSummary { frames: 1, dropped: 2, bad: 0 });
         let text = String::from_utf8(out).unwrap();
         assert!(text.starts_with("\r#100") && text.contains("no contact") && text.ends_with('\n'), "{text:?}");
