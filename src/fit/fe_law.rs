@@ -182,7 +182,15 @@ struct FeLaw {
     friction: f64,
     table: Option<(&'static fem::hyper::LargeStrainTable, fem::hyper::Groups)>,
     indenter_r_mm: f64,
-    solved: Mutex<HashMap<u64, fem::ContactState>>,
+    solved: Mutex<HashMap<u64, Arc<Solved>>>,
+}
+
+/// One approach of [`FeLaw`], solved once: the state, its contact radius and
+/// what its twists share (prepared on the first twist).
+struct Solved {
+    state: fem::ContactState,
+    radius_mm: f64,
+    twist: std::sync::OnceLock<Option<fem::forward::TwistSetup>>,
 }
 
 impl std::fmt::Debug for FeLaw {
@@ -192,16 +200,18 @@ impl std::fmt::Debug for FeLaw {
 }
 
 impl FeLaw {
-    fn state(&self, delta_mm: f64) -> Result<fem::ContactState, String> {
+    fn state(&self, delta_mm: f64) -> Result<Arc<Solved>, String> {
         let key = delta_mm.to_bits();
         if let Some(st) = self.solved.lock().ok().and_then(|m| m.get(&key).cloned()) {
             return Ok(st);
         }
-        let st = self.model.normal(delta_mm).map_err(|e| e.to_string())?;
+        let state = self.model.normal(delta_mm).map_err(|e| e.to_string())?;
+        let radius_mm = if state.force_n > 0.0 { self.model.contact_radius_mm(&state) } else { 0.0 };
+        let solved = Arc::new(Solved { state, radius_mm, twist: std::sync::OnceLock::new() });
         if let Ok(mut m) = self.solved.lock() {
-            m.insert(key, st.clone());
+            m.insert(key, solved.clone());
         }
-        Ok(st)
+        Ok(solved)
     }
 
     /// The large-strain ratios (gamma1, twist at `twist_deg` under the law's
@@ -217,20 +227,21 @@ impl FeLaw {
 
 impl ContactLaw for FeLaw {
     fn normal(&self, delta_mm: f64) -> Result<LawState, String> {
-        let st = self.state(delta_mm)?;
-        let gamma1_mm = st.gamma1_mm * self.ratios(delta_mm, 0.0).0;
+        let solved = self.state(delta_mm)?;
+        let gamma1_mm = solved.state.gamma1_mm * self.ratios(delta_mm, 0.0).0;
         Ok(LawState {
             gamma1_mm,
             gamma2_mm: delta_mm - gamma1_mm,
-            force_n: st.force_n,
-            contact_radius_mm: if st.force_n > 0.0 { self.model.contact_radius_mm(&st) } else { 0.0 },
+            force_n: solved.state.force_n,
+            contact_radius_mm: solved.radius_mm,
         })
     }
 
     fn theta1_deg(&self, delta_mm: f64, twist_deg: f64) -> Result<f64, String> {
-        let st = self.state(delta_mm)?;
+        let solved = self.state(delta_mm)?;
         let twist = twist_deg.to_radians();
-        let t = self.model.theta1_rad(&st, twist.abs(), self.friction).map_or(0.0, |t| t.to_degrees());
+        let setup = solved.twist.get_or_init(|| self.model.twist_setup(&solved.state, self.friction));
+        let t = setup.as_ref().and_then(|s| self.model.theta1_rad_at(s, twist.abs())).map_or(0.0, |t| t.to_degrees());
         Ok(t * self.ratios(delta_mm, twist_deg).1 * twist.signum())
     }
 }
