@@ -125,17 +125,26 @@ pub struct WatchSummary {
 }
 
 /// Read frames from `link` and write one record per frame to `out` until
-/// `stop` resolves, `count` frames were shown, or no frame arrives within
-/// `timeout` (an error naming `source`); each frame read with `cfg`. The
-/// link must already be started.
-#[allow(clippy::too_many_arguments)]
+/// How a watch reads and shows frames.
+#[derive(Debug, Clone, Copy)]
+pub struct WatchOptions {
+    /// How each frame is read (the indenter's and the dome's radii).
+    pub sensing: SensingConfig,
+    /// One live line on a terminal instead of JSON lines.
+    pub live: bool,
+    /// Longest wait for a frame.
+    pub timeout: Duration,
+    /// Stop after this many frames.
+    pub count: Option<u64>,
+}
+
+/// `stop` resolves, `opts.count` frames were shown, or no frame arrives
+/// within `opts.timeout` (an error naming `source`). The link must already
+/// be started.
 pub async fn watch_link<L, W>(
     link: &mut L,
     out: &mut W,
-    cfg: &SensingConfig,
-    live: bool,
-    timeout: Duration,
-    count: Option<u64>,
+    opts: &WatchOptions,
     source: &str,
     stop: impl Future<Output = ()>,
 ) -> Result<WatchSummary, CliError>
@@ -146,17 +155,17 @@ where
     let mut frames = 0u64;
     tokio::pin!(stop);
     loop {
-        if count.is_some_and(|c| frames >= c) {
+        if opts.count.is_some_and(|c| frames >= c) {
             break;
         }
         let next = tokio::select! {
             _ = &mut stop => break,
-            f = link.next_frame(timeout) => f,
+            f = link.next_frame(opts.timeout) => f,
         };
         let frame = match next {
             Ok(f) => f,
             Err(SensorError::Timeout { waited }) => {
-                if live {
+                if opts.live {
                     let _ = writeln!(out);
                 }
                 let what = if frames == 0 {
@@ -195,7 +204,7 @@ where
             bad: stats.bad_total(),
             error: None,
         };
-        match measure(&frame, cfg) {
+        match measure(&frame, &opts.sensing) {
             Ok(m) => {
                 line.gamma1_mm = Some(m.gamma1_mm);
                 line.theta1_deg = Some(m.theta1_deg);
@@ -208,7 +217,7 @@ where
                 line.error = Some(e.to_string());
             }
         }
-        let written = if live {
+        let written = if opts.live {
             write!(out, "\r{}", line.human()).and_then(|_| out.flush())
         } else {
             serde_json::to_string(&line)
@@ -221,7 +230,7 @@ where
             break;
         }
     }
-    if live {
+    if opts.live {
         let _ = writeln!(out);
     }
     let stats = link.stats();
@@ -280,7 +289,7 @@ fn watch(args: &WatchArgs) -> Result<(), CliError> {
         .enable_all()
         .build()
         .map_err(|e| CliError::other(format!("cannot start the async runtime: {e}")))?;
-    let cfg = args.sensing()?;
+    let sensing = args.sensing()?;
     rt.block_on(async {
         let (mut link, source) = open(args).await?;
         link.start().await.map_err(|e| CliError::other(format!("cannot start {source}: {e}")))?;
@@ -292,17 +301,8 @@ fn watch(args: &WatchArgs) -> Result<(), CliError> {
                 std::future::pending::<()>().await;
             }
         };
-        let result = watch_link(
-            link.as_mut(),
-            &mut out,
-            &cfg,
-            live,
-            Duration::from_secs_f64(args.timeout_s),
-            args.count,
-            &source,
-            stop,
-        )
-        .await;
+        let opts = WatchOptions { sensing, live, timeout: Duration::from_secs_f64(args.timeout_s), count: args.count };
+        let result = watch_link(link.as_mut(), &mut out, &opts, &source, stop).await;
         // Best effort: the device may already be gone.
         let _ = link.stop().await;
         let summary = result?;
@@ -362,18 +362,9 @@ mod tests {
     async fn json_lines_per_frame_then_a_clear_error_when_frames_stop() {
         let mut link = Queued { frames: frames(), delivered: 0 };
         let mut out = Vec::new();
-        let cfg = SensingConfig::for_contact(5.0, 33.0);
-        let r = watch_link(
-            &mut link,
-            &mut out,
-            &cfg,
-            false,
-            Duration::from_millis(50),
-            None,
-            "test link",
-            std::future::pending(),
-        )
-        .await;
+        let sensing = SensingConfig::for_contact(5.0, 33.0);
+        let opts = WatchOptions { sensing, live: false, timeout: Duration::from_millis(50), count: None };
+        let r = watch_link(&mut link, &mut out, &opts, "test link", std::future::pending()).await;
         let err = r.unwrap_err();
         assert!(err.message.contains("stopped") && err.message.contains("after 2 frames"), "{}", err.message);
         let text = String::from_utf8(out).unwrap();
@@ -399,34 +390,23 @@ mod tests {
     async fn nothing_arriving_names_the_source_and_count_stops_cleanly() {
         let mut empty = Queued { frames: VecDeque::new(), delivered: 0 };
         let mut out = Vec::new();
-        let err = watch_link(
-            &mut empty,
-            &mut out,
-            &SensingConfig::default(),
-            false,
-            Duration::from_millis(10),
-            None,
-            "Tac3D on udp port 9988",
-            async { std::future::pending::<()>().await },
-        )
+        let quiet = WatchOptions {
+            sensing: SensingConfig::default(),
+            live: false,
+            timeout: Duration::from_millis(10),
+            count: None,
+        };
+        let err = watch_link(&mut empty, &mut out, &quiet, "Tac3D on udp port 9988", async {
+            std::future::pending::<()>().await
+        })
         .await
         .unwrap_err();
         assert!(err.message.starts_with("no frame from Tac3D on udp port 9988 within"), "{}", err.message);
 
         let mut link = Queued { frames: frames(), delivered: 0 };
         let mut out = Vec::new();
-        let s = watch_link(
-            &mut link,
-            &mut out,
-            &SensingConfig::default(),
-            true,
-            Duration::from_millis(10),
-            Some(1),
-            "x",
-            std::future::pending(),
-        )
-        .await
-        .unwrap();
+        let one_live = WatchOptions { live: true, count: Some(1), ..quiet };
+        let s = watch_link(&mut link, &mut out, &one_live, "x", std::future::pending()).await.unwrap();
         assert_eq!(s, WatchSummary { frames: 1, dropped: 2, bad: 0 });
         let text = String::from_utf8(out).unwrap();
         assert!(text.starts_with("\r#100") && text.contains("no contact") && text.ends_with('\n'), "{text:?}");
