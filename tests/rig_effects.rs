@@ -12,8 +12,10 @@
 //! apart): here the diagnosis must say so, ambiguous with the effect among the
 //! explanations it lists, and name nothing.
 //!
-//! Not here, and why (docs/diagnosis.md, "On the emulated rig"): adhesion is
-//! left unexplained at sizes that bias the calibration by 2 %.
+//! Not here, and why (docs/diagnosis.md, "On the emulated rig"): adhesion at
+//! sizes that bias the calibration by 2 % is named in most seeds but its
+//! correction is weakly determined; what is checked of it is that the rig
+//! reads a tacky gel as its truth (the last test).
 
 #[path = "support/emulated.rs"]
 mod emulated;
@@ -172,4 +174,50 @@ fn the_rig_records_when_each_sample_was_read_and_how_it_got_there() {
         .unwrap();
     println!("longest stage move {:.3} mm in {:.3} s", longest.0, longest.1);
     assert!(longest.0 > 0.5 && longest.1 > longest.0 / 10.0, "{longest:?}");
+}
+
+/// Adhesion stays out of the table above (its correction is weakly
+/// determined: w, eta, E1 and nu1 trade along a valley), but what the rig
+/// reads of a tacky gel must agree with the rig's truth at the errors the
+/// run states, or no diagnosis can explain it. At 500 mJ/m², eta 3, the
+/// recording is run through the truth (E1, nu1, w, eta; the stage zero
+/// scanned) and its chi² per reading printed and bounded. It was 3.4-10.7
+/// (seeds 1-8) while the run took the gel as tacky only 3 s into the
+/// sweep, and while a first contact seen in some frames only claimed a
+/// micrometre's error (docs/sensing.md, "Adhesive contacts"); 1.0-2.2 now.
+#[test]
+fn a_tacky_gel_reads_as_the_rigs_truth_at_the_stated_errors() {
+    use easycalib::diagnosis::model::{Base, Candidate, Model};
+    use easycalib::fit::weights::SampleSd;
+    let truth = sim::setup::SimSetupInput::default().resolve().expect("the default rig").truth();
+    let (w, eta) = (500.0, 3.0);
+    for seed in 1..=3 {
+        let profile =
+            SimProfile { adhesion: Some(sim::effects::adhesion::Params { w_mj_m2: w, eta }), ..Default::default() };
+        let (o, rec) = emulated::run_script(seed, profile, easycalib::run::Script::default());
+        let sd = SampleSd::of(&rec);
+        let model = Model::new(&rec, 1.0, 1.0).with_standard_errors(&sd);
+        let chi2_at = |z0: f64| {
+            let mut x = Base { e1_mpa: truth.e1_mpa, nu1: truth.nu1, contact_offset_mm: z0 }.internal().to_vec();
+            x.extend([w / 100.0, eta]);
+            let readings = model.readings(&model.profile(&[Candidate::Adhesion], &x).expect("in range")).expect("runs");
+            let mut r = Vec::new();
+            model.weighted(&readings, &mut r);
+            r.iter().map(|v| v * v).sum::<f64>()
+        };
+        let (chi2, z0) =
+            (-40..=40).map(|k| (chi2_at(k as f64 * 5e-4), k as f64 * 5e-4)).min_by(|a, b| a.0.total_cmp(&b.0)).unwrap();
+        let per = chi2 / model.n_obs() as f64;
+        println!(
+            "adhesion seed {seed}: chi² at the truth {chi2:.1} over {} readings ({per:.2} each, stage zero {:+.1} µm); \
+             calibration E1 {:+.2} %, nu1 {:+.2} %; diagnosis {} {:?}",
+            model.n_obs(),
+            z0 * 1e3,
+            o.full.0,
+            o.full.1,
+            o.verdict,
+            o.named
+        );
+        assert!(per <= 2.5, "seed {seed}: the rig's readings sit {per:.2} x their stated variance off its truth");
+    }
 }

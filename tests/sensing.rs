@@ -791,3 +791,56 @@ fn a_bonded_gels_own_twist_reads_as_the_model_takes_it() {
         assert!(!held || mean.abs() <= 0.5, "a {:.2} mm: theta1 {mean:+.2} % off the model's", surface.a);
     }
 }
+
+/// A run's approach presses the gel once, to about half a millimetre, before
+/// any frame has taught the contact's curvature, and the probe for a flat
+/// punch needs that curvature. Those frames are kept and probed once it is
+/// known, so a tacky gel is found tacky before the sweep: the sweep's first
+/// contacts (under a pitch) cannot show a punch frame by frame, and read
+/// 5-9 µm low as Hertz (the emulated rig at 500 mJ/m², docs/sensing.md,
+/// "Adhesive contacts"). A clean gel pressed the same way is not.
+#[test]
+fn the_approachs_frames_decide_whether_the_gel_is_tacky() {
+    use easycalib::sensing::FrameEstimator;
+    let grid = MarkerGrid::tac3d();
+    let noise = NoiseConfig::gaussian(0.004);
+    // The default pair's curvature inside the contact, gamma1 / a^2.
+    let c = 0.1744;
+    // The gel's share of JKR's punch on an advancing edge (G = w, 500
+    // mJ/m², sim::effects::adhesion): -sqrt(2 pi w a / E*) with the default
+    // pair's E* = 0.2993 MPa, times the gel's share of the compliance, 0.769.
+    let loading_punch = |a: f64| -0.769 * (2.0 * std::f64::consts::PI * 500e-6 * a / 0.2993).sqrt();
+    for (tacky, seed) in [(true, 31), (true, 32), (false, 33), (false, 34)] {
+        let mut rng = Rng::seed_from(seed);
+        let mut estimator = FrameEstimator::new(SensingConfig::for_contact(5.0, 33.0));
+        let mut index = 0;
+        let mut frame = |a: f64, punch: f64, rng: &mut Rng| {
+            index += 1;
+            let punch = if tacky { punch } else { 0.0 };
+            let state = ContactState::new([0.0, 0.0], c * a * a + punch, a, 0.0)
+                .with_nu1(0.39)
+                .with_punch(punch)
+                .with_spheres(5.0, 33.0);
+            (state.gamma1_mm, synth_frame(&state, &grid, &noise, rng, index, 0.0))
+        };
+        // The approach: a search step into the gel, then the refining press,
+        // as the emulated rig's (8 and 6 frames).
+        for (a, n) in [(1.55, 8), (1.85, 6)] {
+            for _ in 0..n {
+                let (_, f) = frame(a, loading_punch(a), &mut rng);
+                estimator.measure(&f).expect("a resolved contact");
+            }
+        }
+        // The sweep's first contacts, under a pitch.
+        let mut errs = Vec::new();
+        for _ in 0..12 {
+            let (truth, f) = frame(1.05, loading_punch(1.05), &mut rng);
+            let m = estimator.measure(&f).expect("a contact");
+            errs.push((m.gamma1_mm - truth) * 1e3);
+        }
+        let bias = errs.iter().sum::<f64>() / errs.len() as f64;
+        println!("tacky gel {tacky}: taken as tacky {}, a 1.05 mm contact reads {bias:+.2} µm", estimator.is_tacky());
+        assert_eq!(estimator.is_tacky(), tacky, "seed {seed}");
+        assert!(bias.abs() <= 2.0, "seed {seed}: the sweep's first contacts read {bias:+.2} µm off");
+    }
+}

@@ -311,6 +311,10 @@ pub struct FrameEstimator {
     tacky: bool,
     /// Frames measured while probing for adhesion.
     probes: usize,
+    /// The latest frames measured while probing for adhesion but before the
+    /// run knew the contact's curvature (the approach's), at most
+    /// [`ADHESIVE_WINDOW`]: probed once it is known.
+    unprobed: std::collections::VecDeque<SensorFrame>,
 }
 
 /// A curvature computed at a radius bin with so many binned estimates.
@@ -355,6 +359,38 @@ impl FrameEstimator {
             adhesive_recent: std::collections::VecDeque::with_capacity(ADHESIVE_WINDOW),
             tacky: false,
             probes: 0,
+            unprobed: std::collections::VecDeque::new(),
+        }
+    }
+
+    /// Count one measured contact's adhesion evidence towards the decision.
+    fn weigh_adhesion(&mut self, adhesive: bool) {
+        if self.tacky {
+            return;
+        }
+        if self.adhesive_recent.len() == ADHESIVE_WINDOW {
+            self.adhesive_recent.pop_front();
+        }
+        self.adhesive_recent.push_back(adhesive);
+        self.tacky = self.adhesive_recent.iter().filter(|&&a| a).count() >= ADHESIVE_FRAMES;
+    }
+
+    /// Probe the frames kept from before the curvature was known, now that
+    /// it is (`cfg` carries it): a run's approach presses the gel once, to
+    /// about half a millimetre, before its deepest frames teach the
+    /// curvature, and a tacky gel shows its punch there. Probed late, those
+    /// frames decide before the sweep, whose first contacts are too small to
+    /// show it (docs/sensing.md, "Adhesive contacts").
+    fn probe_kept(&mut self, cfg: &SensingConfig) {
+        while let Some(frame) = self.unprobed.pop_front() {
+            if self.tacky || self.probes >= MAX_PROBES {
+                self.unprobed.clear();
+                return;
+            }
+            if let Some(adhesive) = super::shows_punch(&frame, cfg) {
+                self.probes += 1;
+                self.weigh_adhesion(adhesive);
+            }
         }
     }
 
@@ -369,7 +405,9 @@ impl FrameEstimator {
         };
         let (bin, binned) = ((r / BIN_MM).floor() as i64, self.learner.binned);
         match self.near {
-            Some(n) if n.bin == bin && binned < n.binned + NEAR_STALE => n.curvature,
+            // (Not a cached "none": the frame that taught the first curvature
+            // is the last one of its size the cache saw.)
+            Some(n) if n.bin == bin && binned < n.binned + NEAR_STALE && n.curvature.is_some() => n.curvature,
             _ => {
                 let curvature = self.learner.estimate_near(r);
                 self.near = Some(NearCurvature { bin, binned, curvature });
@@ -395,6 +433,12 @@ impl FrameEstimator {
         })
     }
 
+    /// Whether this run's frames have shown the gel tacky (every small
+    /// contact at the known centre is then read with the punch term).
+    pub fn is_tacky(&self) -> bool {
+        self.tacky
+    }
+
     /// Where small contacts are fitted now, if known.
     pub fn centre(&self) -> Option<[f64; 2]> {
         self.cfg.contact_centre_mm.or_else(|| self.learner.centre())
@@ -402,6 +446,17 @@ impl FrameEstimator {
 
     /// Measure one frame, and learn from it when it resolves its contact.
     pub fn measure(&mut self, frame: &SensorFrame) -> Result<Measurement, SensingError> {
+        if !self.unprobed.is_empty() && self.current_curvature().is_some() && self.centre().is_some() {
+            let cfg = SensingConfig {
+                contact_curvature_per_mm: self.current_curvature(),
+                contact_centre_mm: self.centre(),
+                marker_noise_mm: self.marker_noise(),
+                adhesive: false,
+                probe_adhesion: true,
+                ..self.cfg
+            };
+            self.probe_kept(&cfg);
+        }
         let cfg = SensingConfig {
             contact_curvature_per_mm: self.current_curvature(),
             contact_centre_mm: self.centre(),
@@ -418,15 +473,19 @@ impl FrameEstimator {
             }
         };
         self.last_radius_mm = Some(m.contact_radius_mm);
-        if !self.tacky {
-            if self.adhesive_recent.len() == ADHESIVE_WINDOW {
-                self.adhesive_recent.pop_front();
+        // A frame the probe could not read yet (no curvature) is kept for it
+        // rather than counted as showing no adhesion.
+        let unread = cfg.probe_adhesion && (cfg.contact_curvature_per_mm.is_none() || cfg.contact_centre_mm.is_none());
+        if unread {
+            if self.unprobed.len() == ADHESIVE_WINDOW {
+                self.unprobed.pop_front();
             }
-            self.adhesive_recent.push_back(m.adhesive);
-            self.tacky = self.adhesive_recent.iter().filter(|&&a| a).count() >= ADHESIVE_FRAMES;
-        }
-        if cfg.probe_adhesion {
-            self.probes += 1;
+            self.unprobed.push_back(frame.clone());
+        } else {
+            self.weigh_adhesion(m.adhesive);
+            if cfg.probe_adhesion {
+                self.probes += 1;
+            }
         }
         self.normal_noise.add(m.depth_noise_mm, m.depth_dof);
         self.tangential_noise.add(m.rotation_noise_mm, m.rotation_dof);

@@ -58,9 +58,6 @@ fn adhesion_probe(
     radius: f64,
     cfg: &SensingConfig,
 ) -> bool {
-    let Some(noise) = cfg.marker_noise_mm.map(|n| n.0).filter(|n| *n > 0.0) else {
-        return false;
-    };
     let reach = 3.0 * radius;
     let pts: Vec<[f64; 3]> = frame
         .positions
@@ -72,6 +69,13 @@ fn adhesion_probe(
     let Some((p, kept)) = punch_stage(&pts, centre, c, gamma1, cfg) else {
         return false;
     };
+    // The marker noise the run has pooled, or else this fit's own (the
+    // test is then an F-test with the punch fit's degrees of freedom).
+    let m = kept.iter().filter(|&&k| k).count();
+    let own = (m > 2).then(|| (p.sse / (m - 2) as f64).sqrt());
+    let Some(noise) = cfg.marker_noise_mm.map(|n| n.0).or(own).filter(|n| *n > 0.0) else {
+        return false;
+    };
     let a = (gamma1 / c).sqrt();
     let hertz: f64 = pts
         .iter()
@@ -80,6 +84,24 @@ fn adhesion_probe(
         .map(|(q, _)| (q[2] - gamma1 * fit::hertz_shape((q[0] - centre[0]).hypot(q[1] - centre[1]) / a)).powi(2))
         .sum();
     p.punch < 0.0 && (hertz - p.sse) / (noise * noise) > PUNCH_CHI2
+}
+
+/// Whether a frame whose contact its paraboloid resolves shows a flat punch
+/// beyond chance, at the curvature and centre `cfg` knows ([`adhesion_probe`]);
+/// `None` when the frame cannot tell (no contact, no paraboloid, a contact
+/// too wide for the probe, or `cfg` without curvature or centre). Without
+/// the run's marker noise the probe weighs the punch against its own fit's.
+pub(crate) fn shows_punch(frame: &SensorFrame, cfg: &SensingConfig) -> Option<bool> {
+    validate(frame).ok()?;
+    let (c, at) = (cfg.contact_curvature_per_mm?.0, cfg.contact_centre_mm?);
+    let (seed, seed_depth, pitch) = deepest_marker(frame);
+    if !(c > 0.0 && seed_depth >= cfg.min_depth_mm) {
+        return None;
+    }
+    let pitch = if pitch.is_finite() && pitch > 0.0 { pitch } else { 1.0 };
+    let d = quadratic_stage(frame, seed, pitch, cfg).ok()?;
+    (d.radius < PROBE_PITCHES * pitch && d.gamma1 >= cfg.min_depth_mm)
+        .then(|| adhesion_probe(frame, at, c, d.gamma1, d.radius.max(pitch), cfg))
 }
 
 /// Settings of the frame processing.

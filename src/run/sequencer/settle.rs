@@ -215,6 +215,16 @@ pub(super) fn mean(xs: &[GaugeReading]) -> GaugeReading {
         of_mean(|r| r.gamma1_sd_mm.map(|sd| (sd * sd - r.gamma1_common_sd_mm.map_or(0.0, |c| c * c)).max(0.0).sqrt()))
             .map(|independent| independent.hypot(shared))
             .filter(|sd| *sd > 0.0);
+    // Frames that saw the contact beside frames that saw none: the sensor is
+    // at its detection limit here (an adhesive gel's first contact lifts the
+    // markers nearest its centre, docs/sensing.md "Adhesive contacts"), and
+    // the mean is only as good as the frames agree: its error is at least
+    // their spread's.
+    let seen = xs.iter().filter(|r| r.gamma1_mm != 0.0).count();
+    if seen > 0 && seen < xs.len() {
+        let spread = std_dev(xs.iter().map(|r| r.gamma1_mm)) / n.sqrt();
+        m.gamma1_sd_mm = m.gamma1_sd_mm.map(|sd| sd.max(spread));
+    }
     m.theta1_sd_deg = of_mean(|r| r.theta1_sd_deg);
     m.gamma1_common_sd_mm = (shared > 0.0).then_some(shared);
     m

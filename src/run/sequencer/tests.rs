@@ -64,6 +64,24 @@ fn a_dead_band_zero_among_measured_readings_is_as_uncertain_as_they_are() {
 }
 
 #[test]
+fn a_contact_seen_in_some_frames_only_is_as_uncertain_as_its_frames_disagree() {
+    // An adhesive gel's first contact on the emulated rig (500 mJ/m², seed 1):
+    // two frames read 40.5 and 36.8 um, each to 1.5 um, and two read none
+    // (the contact lifts the markers nearest its centre). The mean, 19.3 um,
+    // is no reading of a 40 um contact to 1 um: its error is the frames'
+    // spread over sqrt(4), 11.2 um.
+    let seen = |g: f64| GaugeReading::new(0.0, g, 0.0, 0.75).with_errors(0.0015, 0.05);
+    let zero = GaugeReading::new(0.0, 0.0, 0.0, 0.0);
+    let m = mean(&[seen(0.0405), zero, seen(0.0368), zero]);
+    assert!((m.gamma1_mm - 0.019325).abs() < 1e-12);
+    let sd = m.gamma1_sd_mm.unwrap();
+    assert!((sd - 0.01118).abs() < 1e-5, "{sd}");
+    // Frames that all see it keep their own error.
+    let m = mean(&[seen(0.0405), seen(0.0368)]);
+    assert!((m.gamma1_sd_mm.unwrap() - 0.0015 / 2f64.sqrt()).abs() < 1e-12);
+}
+
+#[test]
 fn loading_steps_finely_where_the_papers_window_is() {
     // The coarse design of examples/fast-script.toml.
     let n = crate::run::script::NormalSection { step_mm: 0.25, window_step_mm: 0.1, ..Default::default() };
