@@ -184,7 +184,7 @@ fn the_rig_records_when_each_sample_was_read_and_how_it_got_there() {
 /// scanned) and its chi² per reading printed and bounded. It was 3.4-10.7
 /// (seeds 1-8) while the run took the gel as tacky only 3 s into the
 /// sweep, and while a first contact seen in some frames only claimed a
-/// micrometre's error (docs/sensing.md, "Adhesive contacts"); 1.0-2.2 now.
+/// micrometre's error (docs/sensing.md, "Adhesive contacts"); 0.9-1.6 now.
 #[test]
 fn a_tacky_gel_reads_as_the_rigs_truth_at_the_stated_errors() {
     use easycalib::diagnosis::model::{Base, Candidate, Model};

@@ -76,13 +76,18 @@ fn adhesion_probe(
     let Some(noise) = cfg.marker_noise_mm.map(|n| n.0).or(own).filter(|n| *n > 0.0) else {
         return false;
     };
-    let a = (gamma1 / c).sqrt();
-    let hertz: f64 = pts
+    // Against the tied Hertz field at its own best depth (the punch adds
+    // one parameter to it): the paraboloid's depth is right for a resolved
+    // contact but not for the approach's smaller ones, and a Hertz field
+    // held at a misread depth would take the misreading for a punch.
+    let on: Vec<(f64, f64)> = pts
         .iter()
         .zip(&kept)
         .filter(|(_, k)| **k)
-        .map(|(q, _)| (q[2] - gamma1 * fit::hertz_shape((q[0] - centre[0]).hypot(q[1] - centre[1]) / a)).powi(2))
-        .sum();
+        .map(|(q, _)| ((q[0] - centre[0]).hypot(q[1] - centre[1]), q[2]))
+        .collect();
+    let hertz = |g: f64| on.iter().map(|&(r, z)| (z - g * fit::hertz_shape(r * (c / g).sqrt())).powi(2)).sum::<f64>();
+    let hertz = crate::numerics::golden_min(hertz, 0.3 * gamma1, 2.0 * gamma1, 1e-4 * gamma1).1.min(hertz(gamma1));
     p.punch < 0.0 && (hertz - p.sse) / (noise * noise) > PUNCH_CHI2
 }
 
