@@ -22,8 +22,7 @@ pub fn human_summary(out: &CalibrationOutput, meta: &sim::recording::Metadata) -
     let f = &out.full;
     let p = &out.paper;
     let mut s = String::new();
-    let r1 =
-        if meta.elastomer_r_mm.is_infinite() { "flat".to_string() } else { format!("R1 {} mm", meta.elastomer_r_mm) };
+    let r1 = crate::report::elastomer_words(meta);
     s += &format!(
         "Recording: {} ({} normal + {} torsion samples); indenter E2 {} MPa, nu2 {}, R2 {} mm; elastomer {}\n\n",
         out.recording.as_deref().unwrap_or("(simulated)"),

@@ -49,8 +49,7 @@ fn write_header(s: &mut String, out: &CalibrationOutput, rec: &Recording) {
         "| indenter | E2 = {} MPa, nu2 = {}, R2 = {} mm |",
         meta.indenter.e_mpa, meta.indenter.nu, meta.indenter.r_mm
     );
-    let r1 = if meta.elastomer_r_mm.is_infinite() { "flat".to_string() } else { format!("{} mm", meta.elastomer_r_mm) };
-    let _ = writeln!(s, "| elastomer radius R1 | {r1} |");
+    let _ = writeln!(s, "| elastomer | {} |", super::elastomer_words(meta));
     if let Some((_, moved)) = meta.extra.iter().find(|(k, _)| k == crate::fit::zero::ZERO_MOVED_KEY) {
         let moved_um =
             moved.trim().parse::<f64>().map(|m| format!("{:+.2} um", m * 1e3)).unwrap_or_else(|_| moved.clone());

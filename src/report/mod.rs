@@ -127,6 +127,24 @@ pub fn write_report_decided(
 }
 
 /// UTC broken down: (year, month, day, hour, minute, second).
+/// The elastomer as the recording declares it, in words: its surface (flat
+/// or R1) and its gel layer (thickness, base, tolerance) or a half-space.
+pub fn elastomer_words(meta: &sim::recording::Metadata) -> String {
+    let surface =
+        if meta.elastomer_r_mm.is_infinite() { "flat".to_string() } else { format!("R1 {} mm", meta.elastomer_r_mm) };
+    match meta.layer {
+        None => format!("{surface}, a half-space (no layer declared)"),
+        Some(l) => {
+            let tol = l.thickness_tol_mm.map(|t| format!(" ± {t}")).unwrap_or_default();
+            let base = match l.base {
+                sim::physics::LayerBase::Bonded => "bonded to its window",
+                sim::physics::LayerBase::Sliding => "sliding on its window",
+            };
+            format!("{surface}, a {}{tol} mm gel layer {base}", l.thickness_mm)
+        }
+    }
+}
+
 pub fn utc_fields(t: SystemTime) -> (i64, u32, u32, u32, u32, u32) {
     let t = time::OffsetDateTime::from(t);
     (
@@ -164,4 +182,28 @@ pub fn default_run_dir(root: &Path, sensor: Option<&str>, now: SystemTime) -> Pa
     let name = name.trim_matches('.');
     let name = if name.is_empty() { "sensor" } else { name };
     root.join(format!("{}-{}", utc_stamp(now), name))
+}
+
+#[cfg(test)]
+mod words {
+    use sim::physics::{Body, Layer, LayerBase};
+    use sim::recording::Metadata;
+
+    #[test]
+    fn the_elastomer_is_described_as_declared() {
+        let mut meta = Metadata {
+            sensor: None,
+            indenter: Body::new(1.1, 0.39, 5.0),
+            elastomer_r_mm: 33.0,
+            layer: None,
+            created: None,
+            extra: Vec::new(),
+        };
+        assert_eq!(super::elastomer_words(&meta), "R1 33 mm, a half-space (no layer declared)");
+        meta.elastomer_r_mm = f64::INFINITY;
+        meta.layer = Some(Layer { thickness_mm: 5.0, base: LayerBase::Bonded, thickness_tol_mm: Some(0.1) });
+        assert_eq!(super::elastomer_words(&meta), "flat, a 5 ± 0.1 mm gel layer bonded to its window");
+        meta.layer = Some(Layer { thickness_mm: 2.5, base: LayerBase::Sliding, thickness_tol_mm: None });
+        assert_eq!(super::elastomer_words(&meta), "flat, a 2.5 mm gel layer sliding on its window");
+    }
 }
