@@ -1,6 +1,7 @@
 //! Numerics shared by the fits of a recording, the diagnosis and the frame
-//! measurement: one least-squares solver ([`lm`]) and the statistics
-//! ([`stats`]; distributions through `statrs`).
+//! measurement: one least-squares solver ([`lm`]), the statistics
+//! ([`stats`]; distributions through `statrs`) and a one-dimensional
+//! minimiser ([`golden_min`]).
 
 pub mod lm;
 pub mod stats;
