@@ -126,7 +126,6 @@ pub fn write_report_decided(
     })
 }
 
-/// UTC broken down: (year, month, day, hour, minute, second).
 /// The elastomer as the recording declares it, in words: its surface (flat
 /// or R1) and its gel layer (thickness, base, tolerance) or a half-space.
 pub fn elastomer_words(meta: &sim::recording::Metadata) -> String {
@@ -145,6 +144,7 @@ pub fn elastomer_words(meta: &sim::recording::Metadata) -> String {
     }
 }
 
+/// UTC broken down: (year, month, day, hour, minute, second).
 pub fn utc_fields(t: SystemTime) -> (i64, u32, u32, u32, u32, u32) {
     let t = time::OffsetDateTime::from(t);
     (
