@@ -6,9 +6,9 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use easycalib::sensing::{SensingConfig, measure};
+use easycalib::sensing::{LayerSurface, SensingConfig, measure};
 use sim::rng::Rng;
-use sim::sensor::field::{ContactState, MarkerGrid, NoiseConfig, synth_frame};
+use sim::sensor::field::{ContactState, MarkerGrid, NoiseConfig, synth_frame, synth_frame_on};
 
 fn frames(c: &mut Criterion) {
     let grid = MarkerGrid::tac3d();
@@ -40,13 +40,28 @@ fn frames(c: &mut Criterion) {
     }
     // A tacky gel's small contact (a 0.9 mm, the loading branch's punch at
     // 500 mJ/m²): the tied fit with the punch term, from four starts.
-    let tacky = SensingConfig { adhesive: true, marker_noise_mm: Some((0.004, 0.004)), ..learnt };
+    let tacky = SensingConfig { adhesive: true, marker_noise_mm: Some((0.004, 0.004)), ..learnt.clone() };
     let jkr = ContactState::new([0.0, 0.0], 0.175 * 0.81 - 0.0747, 0.9, 0.0)
         .with_nu1(0.39)
         .with_punch(-0.0747)
         .with_spheres(5.0, 33.0);
     let f = synth_frame(&jkr, &grid, &NoiseConfig::gaussian(0.004), &mut rng, 3, 0.0);
     g.bench_function("tacky_small_contact_punch_fit", |b| b.iter(|| measure(black_box(&f), &tacky)));
+    // On a declared 5 mm layer (docs/sensing.md, "On a layer"): the same
+    // onset and mid contacts drawn and read with the layer's own field
+    // (the table built once, outside the timing).
+    let surface = LayerSurface::bonded_layer(5.0, sim::physics::Body::new(1.1, 0.39, 5.0)).expect("the layer model");
+    let on_layer = SensingConfig {
+        contact_curvature_per_mm: Some((0.14, 0.0005)),
+        contact_centre_mm: Some([0.0, 0.0]),
+        layer: Some(surface.clone()),
+        ..SensingConfig::for_contact(5.0, f64::INFINITY)
+    };
+    for (name, a) in [("layer_onset_learnt_contact", 0.5), ("layer_mid_contact_learns_curvature", 1.3)] {
+        let state = ContactState::new([0.0, 0.0], 0.14 * a * a, a, 0.0).with_nu1(0.39).with_spheres(5.0, f64::INFINITY);
+        let f = synth_frame_on(&state, Some(&surface.shape), &grid, &NoiseConfig::gaussian(0.004), &mut rng, 4, 0.0);
+        g.bench_function(name, |b| b.iter(|| measure(black_box(&f), &on_layer)));
+    }
     g.finish();
 }
 

@@ -126,7 +126,7 @@ pub struct WatchSummary {
 
 /// Read frames from `link` and write one record per frame to `out` until
 /// How a watch reads and shows frames.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct WatchOptions {
     /// How each frame is read (the indenter's and the dome's radii).
     pub sensing: SensingConfig,

@@ -302,7 +302,8 @@ pub fn frictional_truth(
     }
     let deltas: Vec<f64> = (1..=TRUTH_PATH_STEPS).map(|i| deepest * i as f64 / TRUTH_PATH_STEPS as f64).collect();
     let states = model.normal_path(&deltas, mu, deepest / TRUTH_PATH_STEPS as f64)?;
-    Ok(Arc::new(PathLaw { deltas, states, model, mu }))
+    let gel = (layer, indenter, e1_mpa, nu1);
+    Ok(Arc::new(PathLaw { deltas, states, model, mu, gel, surface: std::sync::OnceLock::new() }))
 }
 
 /// A frictional path's states as a contact law (see [`frictional_truth`]).
@@ -311,6 +312,9 @@ struct PathLaw {
     states: Vec<fem::ContactState>,
     model: fem::forward::Model,
     mu: f64,
+    /// The gel's surface (built when the simulated sensor first asks).
+    gel: (Layer, sim::physics::Body, f64, f64),
+    surface: std::sync::OnceLock<Option<Arc<sim::sensor::shape::SurfaceShape>>>,
 }
 
 impl std::fmt::Debug for PathLaw {
@@ -359,6 +363,19 @@ impl ContactLaw for PathLaw {
         let twist = twist_deg.to_radians();
         let at = |s: &fem::ContactState| self.model.theta1_rad(s, twist.abs(), self.mu).unwrap_or(0.0);
         Ok((lo.map_or(0.0, at) * (1.0 - w) + at(hi) * w).to_degrees() * twist.signum())
+    }
+
+    /// The true gel's own field shape (the same FE layer, frictionless;
+    /// docs/sensing.md, "On a layer"), so the simulated sensor draws what a
+    /// bonded gel shows rather than Hertz's field. `None` (Hertz's) only if
+    /// the layer model cannot give it.
+    fn surface(&self) -> Option<Arc<sim::sensor::shape::SurfaceShape>> {
+        self.surface
+            .get_or_init(|| {
+                let (layer, indenter, e1, nu1) = self.gel;
+                crate::sensing::LayerSurface::of_gel(layer.thickness_mm, indenter, e1, nu1).ok().map(|s| s.shape)
+            })
+            .clone()
     }
 }
 

@@ -236,13 +236,14 @@ pub async fn run_calibration_with(
         && layer.base == sim::physics::LayerBase::Bonded
     {
         let indenter = req.script.indenter;
-        let built =
-            tokio::task::spawn_blocking(move || crate::sensing::TieDrift::bonded_layer(layer.thickness_mm, indenter))
-                .await
-                .map_err(|e| e.to_string())
-                .and_then(|r| r.map_err(|e| e.to_string()));
+        let built = tokio::task::spawn_blocking(move || {
+            crate::sensing::LayerSurface::bonded_layer(layer.thickness_mm, indenter)
+        })
+        .await
+        .map_err(|e| e.to_string())
+        .and_then(|r| r.map_err(|e| e.to_string()));
         match built {
-            Ok(drift) => sensing.tie_drift = Some(drift),
+            Ok(surface) => sensing.layer = Some(surface),
             Err(why) => {
                 let message = format!(
                     "the {} mm layer's tie of contact radius to depth could not be computed ({why}): small contacts are read as on a half-space",

@@ -75,6 +75,12 @@ impl CurvatureLearner {
         Self { drift, ..Self::default() }
     }
 
+    /// Carry the curvatures learnt so far by another drift (the run has
+    /// learnt where its gel lies in the layer's family).
+    fn set_drift(&mut self, drift: Option<TieDrift>) {
+        self.drift = drift;
+    }
+
     /// A curvature (and its standard error) measured at radius `from_mm`,
     /// carried to `to_mm` by the layer's drift, the drift's own uncertainty
     /// added; unchanged on a half-space.
@@ -315,6 +321,11 @@ pub struct FrameEstimator {
     /// run knew the contact's curvature (the approach's), at most
     /// [`ADHESIVE_WINDOW`]: probed once it is known.
     unprobed: std::collections::VecDeque<SensorFrame>,
+    /// On a declared layer of unknown gel, the weights between the family's
+    /// two gels the resolved frames gave ([`super::layer_weight`]), and the
+    /// contacts measured while they were being learnt.
+    layer_weights: Vec<f64>,
+    layer_tries: usize,
 }
 
 /// A curvature computed at a radius bin with so many binned estimates.
@@ -347,11 +358,26 @@ const MAX_PROBES: usize = 600;
 /// New estimates a cached curvature outlives (a few percent of a full window).
 const NEAR_STALE: usize = 8;
 
+/// Resolved frames whose layer weight is learnt (docs/sensing.md, "On a
+/// layer"): their median is taken from [`LAYER_WEIGHT_MIN`] on, and the
+/// weight is settled at [`LAYER_WEIGHT_FRAMES`]. A run's approach gives
+/// about fourteen.
+const LAYER_WEIGHT_FRAMES: usize = 12;
+const LAYER_WEIGHT_MIN: usize = 5;
+
+/// Contacts measured before a layer's weight is taken as settled at the
+/// middle of its family when too few were of a size that shows it.
+const LAYER_WEIGHT_PATIENCE: usize = 60;
+
+/// Contact radii whose field shows where the gel lies in the layer's family,
+/// mm: a pitch or more (markers inside and out) and well inside the grid.
+const LAYER_WEIGHT_RADII_MM: (f64, f64) = (0.9, 3.0);
+
 impl FrameEstimator {
     pub fn new(cfg: SensingConfig) -> Self {
         Self {
+            learner: CurvatureLearner::with_drift(cfg.layer.as_ref().map(|l| l.drift)),
             cfg,
-            learner: CurvatureLearner::with_drift(cfg.tie_drift),
             normal_noise: NoisePool::default(),
             tangential_noise: NoisePool::default(),
             last_radius_mm: None,
@@ -359,6 +385,8 @@ impl FrameEstimator {
             adhesive_recent: std::collections::VecDeque::with_capacity(ADHESIVE_WINDOW),
             tacky: false,
             probes: 0,
+            layer_weights: Vec::new(),
+            layer_tries: 0,
             unprobed: std::collections::VecDeque::new(),
         }
     }
@@ -392,6 +420,50 @@ impl FrameEstimator {
                 self.weigh_adhesion(adhesive);
             }
         }
+    }
+
+    /// Whether the field's shape is settled: a half-space, a layer of known
+    /// gel, or a layer whose weight in its family the run has learnt (or
+    /// given up learning: too few contacts of a size that shows it).
+    fn layer_settled(&self) -> bool {
+        let family = self.cfg.layer.as_ref().and_then(|l| l.family.as_ref());
+        family.is_none() || self.layer_weights.len() >= LAYER_WEIGHT_FRAMES || self.layer_tries >= LAYER_WEIGHT_PATIENCE
+    }
+
+    /// Learn where the gel lies in its layer's family from a resolved frame
+    /// of a size that shows it ([`super::layer_weight`]), and take the
+    /// median weight so far once there are [`LAYER_WEIGHT_MIN`]: the fits'
+    /// field and the tie's drift follow it (docs/sensing.md, "On a layer").
+    fn learn_layer(&mut self, frame: &SensorFrame, m: &Measurement, cfg: &SensingConfig) {
+        let Some(family) = self.cfg.layer.as_ref().and_then(|l| l.family.clone()) else {
+            return;
+        };
+        self.layer_tries += 1;
+        let (lo, hi) = LAYER_WEIGHT_RADII_MM;
+        if !(lo..=hi).contains(&m.contact_radius_mm) || m.gamma1_mm.is_nan() || m.gamma1_mm <= 0.0 {
+            return;
+        }
+        let Some(s) = super::layer_weight(frame, m.contact_centre_mm, m.gamma1_mm, m.contact_radius_mm, &family, cfg)
+        else {
+            return;
+        };
+        self.layer_weights.push(s);
+        if self.layer_weights.len() >= LAYER_WEIGHT_MIN {
+            let mut w = self.layer_weights.clone();
+            let Some(median) = quantile(&mut w, 0.5) else { return };
+            if let Some(surface) = super::LayerSurface::in_family(family, median) {
+                self.learner.set_drift(Some(surface.drift));
+                self.near = None;
+                self.cfg.layer = Some(surface);
+            }
+        }
+    }
+
+    /// The layer weight the run has learnt, when it learns one (0 and 1:
+    /// the two gels of the layer's family, [`super::layer::FAMILY_NU1`]).
+    pub fn layer_weight(&self) -> Option<f64> {
+        let mut w = self.layer_weights.clone();
+        (w.len() >= LAYER_WEIGHT_MIN).then(|| quantile(&mut w, 0.5)).flatten()
     }
 
     /// [`FrameEstimator::curvature`], computed again only when the radius
@@ -446,14 +518,15 @@ impl FrameEstimator {
 
     /// Measure one frame, and learn from it when it resolves its contact.
     pub fn measure(&mut self, frame: &SensorFrame) -> Result<Measurement, SensingError> {
-        if !self.unprobed.is_empty() && self.current_curvature().is_some() && self.centre().is_some() {
+        let settled = self.layer_settled();
+        if settled && !self.unprobed.is_empty() && self.current_curvature().is_some() && self.centre().is_some() {
             let cfg = SensingConfig {
                 contact_curvature_per_mm: self.current_curvature(),
                 contact_centre_mm: self.centre(),
                 marker_noise_mm: self.marker_noise(),
                 adhesive: false,
                 probe_adhesion: true,
-                ..self.cfg
+                ..self.cfg.clone()
             };
             self.probe_kept(&cfg);
         }
@@ -462,8 +535,8 @@ impl FrameEstimator {
             contact_centre_mm: self.centre(),
             marker_noise_mm: self.marker_noise(),
             adhesive: self.cfg.adhesive || self.tacky,
-            probe_adhesion: !self.tacky && self.probes < MAX_PROBES,
-            ..self.cfg
+            probe_adhesion: settled && !self.tacky && self.probes < MAX_PROBES,
+            ..self.cfg.clone()
         };
         let m = match measure(frame, &cfg) {
             Ok(m) => m,
@@ -473,9 +546,12 @@ impl FrameEstimator {
             }
         };
         self.last_radius_mm = Some(m.contact_radius_mm);
-        // A frame the probe could not read yet (no curvature) is kept for it
-        // rather than counted as showing no adhesion.
-        let unread = cfg.probe_adhesion && (cfg.contact_curvature_per_mm.is_none() || cfg.contact_centre_mm.is_none());
+        // A frame the probe could not read yet (no curvature, or a layer's
+        // field not learnt) is kept for it rather than counted as showing no
+        // adhesion.
+        let want_probe = !self.tacky && self.probes < MAX_PROBES;
+        let unread =
+            want_probe && (!settled || cfg.contact_curvature_per_mm.is_none() || cfg.contact_centre_mm.is_none());
         if unread {
             if self.unprobed.len() == ADHESIVE_WINDOW {
                 self.unprobed.pop_front();
@@ -489,6 +565,9 @@ impl FrameEstimator {
         }
         self.normal_noise.add(m.depth_noise_mm, m.depth_dof);
         self.tangential_noise.add(m.rotation_noise_mm, m.rotation_dof);
+        if !settled {
+            self.learn_layer(frame, &m, &cfg);
+        }
         if let Some((c, sd)) = m.contact_curvature_per_mm {
             self.learner.add(m.contact_radius_mm, c, sd, m.contact_centre_mm);
         }

@@ -5,6 +5,8 @@
 
 use nalgebra::{Matrix2, Matrix4, SMatrix, SVector, U4, Vector2, Vector4};
 
+use sim::sensor::shape::SurfaceShape;
+
 use crate::numerics::lm::{self, LmError, LmOptions, NormalEquations, Problem, Strategy};
 use crate::numerics::stats::{MAD_TO_SIGMA, median, rms};
 
@@ -381,6 +383,28 @@ pub fn hertz_slope(rho: f64) -> f64 {
     }
 }
 
+/// The normal field's shape w / gamma1 at `r` from the centre of a contact
+/// of radius `a`: Hertz's ([`hertz_shape`]), plus a declared layer's
+/// departure from it (docs/sensing.md, "On a layer").
+pub fn field_shape(layer: Option<&SurfaceShape>, r: f64, a: f64) -> f64 {
+    hertz_shape(r / a) + layer.map_or(0.0, |l| l.departure(r, a))
+}
+
+/// [`field_shape`] and its derivatives in `r` and in `a` (the layer's part
+/// by central differences over its table).
+fn field_shape_d(layer: Option<&SurfaceShape>, r: f64, a: f64) -> [f64; 3] {
+    let rho = r / a;
+    let (f, fp) = (hertz_shape(rho), hertz_slope(rho));
+    let mut out = [f, fp / a, -fp * rho / a];
+    if let Some(l) = layer {
+        let h = 1e-3 * a;
+        out[0] += l.departure(r, a);
+        out[1] += (l.departure(r + h, a) - l.departure(r - h, a)) / (2.0 * h);
+        out[2] += (l.departure(r, a + h) - l.departure(r, a - h)) / (2.0 * h);
+    }
+    out
+}
+
 /// What the Hertz field fit knows of the field's curvature inside the
 /// contact, gamma1 / a^2 (docs/sensing.md, "Small contacts").
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -430,8 +454,11 @@ pub struct HertzFit {
 /// says what settles that (see [`Curvature`]).
 ///
 /// `fixed_centre`: the centre is known (`start`'s) and held, not fitted.
+/// `layer`: a declared gel layer's field shape ([`field_shape`]).
+#[allow(clippy::too_many_arguments)]
 pub fn fit_hertz(
     pts: &[[f64; 3]],
+    layer: Option<&SurfaceShape>,
     start: (f64, [f64; 2], f64),
     k: f64,
     floor: f64,
@@ -447,23 +474,24 @@ pub fn fit_hertz(
     };
     const ROUNDS: usize = 4;
     for round in 0..ROUNDS {
-        params = lm_hertz(pts, &kept, params, tie, fixed_centre)?;
+        params = lm_hertz(pts, layer, &kept, params, tie, fixed_centre)?;
         if let Curvature::Bounded { max_per_mm, below_mm } = curvature
             && max_per_mm > 0.0
             && params[3] < below_mm
             && params[0] > max_per_mm * params[3] * params[3]
         {
             tie = Some(max_per_mm);
-            params = lm_hertz(pts, &kept, params, tie, fixed_centre)?;
+            params = lm_hertz(pts, layer, &kept, params, tie, fixed_centre)?;
         }
         let [g, cx, cy, a] = params;
-        let resid: Vec<f64> = pts.iter().map(|p| p[2] - g * hertz_shape((p[0] - cx).hypot(p[1] - cy) / a)).collect();
+        let resid: Vec<f64> =
+            pts.iter().map(|p| p[2] - g * field_shape(layer, (p[0] - cx).hypot(p[1] - cy), a)).collect();
         let mut kr: Vec<f64> = (0..n).filter(|&i| kept[i]).map(|i| resid[i].abs()).collect();
         let rms = rms(&kr);
         let limit = (k * MAD_TO_SIGMA * median(&mut kr)).max(floor);
         let next: Vec<bool> = resid.iter().map(|e| e.abs() <= limit).collect();
         if round + 1 == ROUNDS || next == kept || next.iter().filter(|&&b| b).count() < 5 {
-            let cov = hertz_covariance(pts, &kept, params, tie, fixed_centre, rms)?;
+            let cov = hertz_covariance(pts, layer, &kept, params, tie, fixed_centre, rms)?;
             let mut gamma1_sd = cov[(0, 0)].sqrt();
             let mut gamma1_common_sd = 0.0;
             // Untied, the fit measures the curvature g / a^2 itself.
@@ -474,7 +502,7 @@ pub fn fit_hertz(
             if let (Some(_), Curvature::Known { per_mm, sd_per_mm }) = (tie, curvature) {
                 // The curvature's own error, through how far gamma1 moves
                 // when the fit is redone with another c.
-                gamma1_common_sd = tied_gamma1_per_curvature(pts, &kept, params, per_mm) * sd_per_mm;
+                gamma1_common_sd = tied_gamma1_per_curvature(pts, layer, &kept, params, per_mm) * sd_per_mm;
                 gamma1_sd = gamma1_sd.hypot(gamma1_common_sd);
             }
             let m = kept.iter().filter(|&&b| b).count();
@@ -498,20 +526,34 @@ pub fn fit_hertz(
     None
 }
 
+/// The least sum of squares of the field `layer` over the kept markers at a
+/// held centre, with depth and radius free from `start` (gamma1, cx, cy, a):
+/// how well that field's shape fits them (mm²).
+pub fn field_sse(pts: &[[f64; 3]], layer: &SurfaceShape, kept: &[bool], start: [f64; 4]) -> Option<f64> {
+    let p = lm_hertz(pts, Some(layer), kept, start, None, true)?;
+    Some(hertz_cost(pts, Some(layer), kept, p))
+}
+
 /// |d gamma1 / d c| of the tied Hertz fit at `p` (a = sqrt(gamma1 / c)),
 /// mm²: the least-squares shift of gamma1 that takes up a change of the
 /// curvature, -(J_g . J_c) / (J_g . J_g) over the kept markers, with
-/// J_g = f - f' rho / 2 and J_c = gamma1 f' rho / (2 c). Markers inside the
+/// J_g = f + f_a a / 2 and J_c = -gamma1 f_a a / (2 c) (f_a = d f / d a,
+/// -f' rho / a for Hertz's shape). Markers inside the
 /// contact read gamma1 almost directly (small shift); far ones read gamma1 a
 /// (gamma1 goes as c^(1/3) there).
-fn tied_gamma1_per_curvature(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4], c: f64) -> f64 {
+fn tied_gamma1_per_curvature(
+    pts: &[[f64; 3]],
+    layer: Option<&SurfaceShape>,
+    kept: &[bool],
+    p: [f64; 4],
+    c: f64,
+) -> f64 {
     let [g, cx, cy, a] = p;
     let (mut gg, mut gc) = (0.0, 0.0);
     for (q, _) in pts.iter().zip(kept).filter(|(_, k)| **k) {
-        let rho = (q[0] - cx).hypot(q[1] - cy) / a;
-        let (f, fp) = (hertz_shape(rho), hertz_slope(rho));
-        let jg = f - 0.5 * fp * rho;
-        let jc = g * fp * rho / (2.0 * c);
+        let [f, _, fa] = field_shape_d(layer, (q[0] - cx).hypot(q[1] - cy), a);
+        let jg = f + 0.5 * fa * a;
+        let jc = -g * fa * a / (2.0 * c);
         gg += jg * jg;
         gc += jg * jc;
     }
@@ -523,6 +565,7 @@ fn tied_gamma1_per_curvature(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4], c: f6
 /// kept markers (held parameters have a unit diagonal and nothing else).
 fn hertz_covariance(
     pts: &[[f64; 3]],
+    layer: Option<&SurfaceShape>,
     kept: &[bool],
     p: [f64; 4],
     tie: Option<f64>,
@@ -534,18 +577,18 @@ fn hertz_covariance(
     if m <= free {
         return None;
     }
-    let mut field = HertzField { pts, kept, tie, fixed_centre };
+    let mut field = HertzField { pts, layer, kept, tie, fixed_centre };
     let (jtj, _) = field.normal_equations(&Vector4::from(p))?;
     let cov = jtj.try_inverse()? * (rms * rms * m as f64 / (m - free) as f64);
     (cov[(0, 0)].is_finite() && cov[(0, 0)] >= 0.0).then_some(cov)
 }
 
-fn hertz_cost(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4]) -> f64 {
+fn hertz_cost(pts: &[[f64; 3]], layer: Option<&SurfaceShape>, kept: &[bool], p: [f64; 4]) -> f64 {
     let [g, cx, cy, a] = p;
     pts.iter()
         .zip(kept)
         .filter(|(_, k)| **k)
-        .map(|(q, _)| (q[2] - g * hertz_shape((q[0] - cx).hypot(q[1] - cy) / a)).powi(2))
+        .map(|(q, _)| (q[2] - g * field_shape(layer, (q[0] - cx).hypot(q[1] - cy), a)).powi(2))
         .sum()
 }
 
@@ -556,6 +599,7 @@ fn hertz_cost(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4]) -> f64 {
 /// centre is held where it starts.
 struct HertzField<'a> {
     pts: &'a [[f64; 3]],
+    layer: Option<&'a SurfaceShape>,
     kept: &'a [bool],
     tie: Option<f64>,
     fixed_centre: bool,
@@ -563,11 +607,11 @@ struct HertzField<'a> {
 
 impl Problem<U4> for HertzField<'_> {
     fn start(&mut self, x: &Vector4<f64>) -> Result<f64, LmError> {
-        Ok(hertz_cost(self.pts, self.kept, (*x).into()))
+        Ok(hertz_cost(self.pts, self.layer, self.kept, (*x).into()))
     }
 
     fn cost(&mut self, x: &Vector4<f64>) -> Option<f64> {
-        (x[3] > 0.0 && x[0] > 0.0).then(|| hertz_cost(self.pts, self.kept, (*x).into()))
+        (x[3] > 0.0 && x[0] > 0.0).then(|| hertz_cost(self.pts, self.layer, self.kept, (*x).into()))
     }
 
     fn normal_equations(&mut self, x: &Vector4<f64>) -> Option<NormalEquations<U4>> {
@@ -577,14 +621,13 @@ impl Problem<U4> for HertzField<'_> {
         for (q, _) in self.pts.iter().zip(self.kept).filter(|(_, k)| **k) {
             let (dx, dy) = (q[0] - cx, q[1] - cy);
             let r = dx.hypot(dy);
-            let rho = r / a;
-            let f = hertz_shape(rho);
-            let fp = hertz_slope(rho);
-            let (dcx, dcy) = if r > 0.0 { (-g * fp * dx / (r * a), -g * fp * dy / (r * a)) } else { (0.0, 0.0) };
-            // Tied: d(g f(r / a(g)))/dg = f - f' rho / 2, and a is no unknown.
+            let [f, fr, fa] = field_shape_d(self.layer, r, a);
+            let (dcx, dcy) = if r > 0.0 { (-g * fr * dx / r, -g * fr * dy / r) } else { (0.0, 0.0) };
+            // Tied: d(g f(r, a(g)))/dg = f + f_a a / 2 (a = sqrt(g / c)), and
+            // a is no unknown.
             let j = match self.tie {
-                None => Vector4::new(f, dcx, dcy, -g * fp * rho / a),
-                Some(_) => Vector4::new(f - 0.5 * fp * rho, dcx, dcy, 0.0),
+                None => Vector4::new(f, dcx, dcy, g * fa),
+                Some(_) => Vector4::new(f + 0.5 * fa * a, dcx, dcy, 0.0),
             };
             jtj += j * j.transpose();
             jtr += j * (q[2] - g * f);
@@ -617,8 +660,15 @@ const HERTZ_LM: LmOptions =
     LmOptions { max_iterations: 500, cost_tolerance: 1e-16, step_tolerance: 1e-12, fd_step: 0.0 };
 
 /// Levenberg-Marquardt on the Hertz field (see [`HertzField`]) from `p`.
-fn lm_hertz(pts: &[[f64; 3]], kept: &[bool], p: [f64; 4], tie: Option<f64>, fixed_centre: bool) -> Option<[f64; 4]> {
-    let mut field = HertzField { pts, kept, tie, fixed_centre };
+fn lm_hertz(
+    pts: &[[f64; 3]],
+    layer: Option<&SurfaceShape>,
+    kept: &[bool],
+    p: [f64; 4],
+    tie: Option<f64>,
+    fixed_centre: bool,
+) -> Option<[f64; 4]> {
+    let mut field = HertzField { pts, layer, kept, tie, fixed_centre };
     let out = lm::solve(&mut field, Vector4::from(p), &HERTZ_LM, &Strategy::FIELD).ok()?;
     out.x.iter().all(|v| v.is_finite()).then(|| out.x.into())
 }
@@ -700,14 +750,24 @@ pub struct PunchFit {
 /// is the tied Hertz fit. Damped Gauss-Newton from p = 0 and from a punch of
 /// a third of the depth, p held <= 0 (an adhesive edge pulls; it never
 /// pushes). `None` when degenerate.
-pub fn fit_tied_punch(pts: &[[f64; 3]], kept: &[bool], centre: [f64; 2], c: f64, gamma1: f64) -> Option<PunchFit> {
+///
+/// On a declared gel layer (`layer`) the Hertz part has the layer's shape
+/// ([`field_shape`]).
+pub fn fit_tied_punch(
+    pts: &[[f64; 3]],
+    layer: Option<&SurfaceShape>,
+    kept: &[bool],
+    centre: [f64; 2],
+    c: f64,
+    gamma1: f64,
+) -> Option<PunchFit> {
     if !(c > 0.0 && gamma1 > 0.0) {
         return None;
     }
     let model = |g: f64, p: f64, r: f64| {
         let h = g - p;
-        let rho = r * (c / h).sqrt();
-        h * hertz_shape(rho) + p * punch_shape(rho)
+        let a = (h / c).sqrt();
+        h * field_shape(layer, r, a) + p * punch_shape(r / a)
     };
     let radii: Vec<(f64, f64)> = pts
         .iter()

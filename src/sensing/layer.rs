@@ -8,20 +8,36 @@
 //! layer model, so the learnt curvature can be carried to the size it is
 //! used at.
 
+use std::sync::{Arc, Mutex};
+
 use serde::Serialize;
 use sim::physics::Body;
+use sim::sensor::field::{normal_shape, spheres_sag_mm};
+use sim::sensor::shape::SurfaceShape;
 
 /// Radii the ratio is tabulated at: `step_mm`, 2 `step_mm`, ... up to
 /// [`REACH_IN_R2`] of the indenter's radius.
 const POINTS: usize = 32;
 const REACH_IN_R2: f64 = 0.8;
 
-/// The gel's Poisson's ratio the tie is computed with (not known before the
-/// calibration). Over nu1 0.3-0.48 the fall from 0.5 mm to 1.75 mm is 11-15 %
-/// (12.6 % at 0.39); its modulus hardly matters (0.2-1.1 MPa under a 1.1 MPa
-/// indenter: within 0.2 %), and the indenter's modulus over three stands in.
-const NOMINAL_NU1: f64 = 0.4;
+/// The gel's Poisson's ratio is not known before the calibration, and it
+/// matters: over nu1 0.3-0.48 the tie's fall from 0.5 mm to 1.75 mm is
+/// 11-15 % (12.6 % at 0.39), and outside a 1.5 mm contact the field at two
+/// radii departs from Hertz's by 0.134 gamma1 at 0.3 and 0.168 at 0.48. The
+/// layer is therefore tabulated at two Poisson's ratios that bracket real
+/// gels, and a run learns where its gel lies between them
+/// ([`ShapeFamily`]); before it has, it takes the middle. The gel's modulus
+/// hardly matters (0.2-1.1 MPa under a 1.1 MPa indenter: within 0.2 % of the
+/// tie), and the indenter's modulus over three stands in for it.
+pub const FAMILY_NU1: [f64; 2] = [0.35, 0.49];
 const NOMINAL_STIFFNESS_RATIO: f64 = 3.0;
+
+/// Where between [`FAMILY_NU1`] a run starts: the middle (nu1 0.42).
+pub const NOMINAL_WEIGHT: f64 = 0.5;
+
+/// Spacing of the surface radii the field's shape is tabulated at, mm (a
+/// third of the FE mesh's finest elements).
+const SHAPE_STEP_MM: f64 = 0.02;
 
 /// What is not known of the drift (the gel's Poisson's ratio above): this
 /// fraction of it, one standard deviation.
@@ -37,41 +53,9 @@ pub struct TieDrift {
 
 impl TieDrift {
     /// The drift of a gel layer `thickness_mm` thick bonded to its window
-    /// under `indenter` (frictionless, from the FE layer model the fit uses:
-    /// docs/physics.md, "Finite-element reference"). It builds (or reuses)
-    /// the layer model's tables: seconds the first time in a process.
+    /// under `indenter`, at the nominal gel ([`LayerSurface::bonded_layer`]).
     pub fn bonded_layer(thickness_mm: f64, indenter: Body) -> Result<Self, fem::FemError> {
-        let forward = fem::forward::Forward::cached(thickness_mm, indenter.e_mpa, indenter.nu, indenter.r_mm)?;
-        let model = forward.model(indenter.e_mpa / NOMINAL_STIFFNESS_RATIO, NOMINAL_NU1);
-        let step_mm = REACH_IN_R2 * indenter.r_mm / POINTS as f64;
-        let radius = |delta: f64| -> Result<(f64, f64), fem::FemError> {
-            let st = model.normal(delta)?;
-            Ok((model.contact_radius_mm(&st), st.gamma1_mm))
-        };
-        let mut per_mm = [0.0; POINTS];
-        for (k, v) in per_mm.iter_mut().enumerate() {
-            let a = (k + 1) as f64 * step_mm;
-            // A layer's contact is at least as wide as Hertz's at the same
-            // approach (a² >= R2 delta), so a² / R2 reaches it.
-            let (mut lo, mut hi) = (0.0, a * a / indenter.r_mm);
-            while radius(hi)?.0 < a {
-                (lo, hi) = (hi, 1.5 * hi);
-            }
-            for _ in 0..40 {
-                let mid = 0.5 * (lo + hi);
-                if radius(mid)?.0 < a {
-                    lo = mid;
-                } else {
-                    hi = mid;
-                }
-            }
-            let (r, gamma1) = radius(hi)?;
-            *v = gamma1 / (r * r);
-            if !(v.is_finite() && *v > 0.0) {
-                return Err(fem::FemError::Invalid(format!("the layer's contact at a = {a:.3} mm")));
-            }
-        }
-        Ok(Self { step_mm, per_mm })
+        Ok(LayerSurface::bonded_layer(thickness_mm, indenter)?.drift)
     }
 
     /// gamma1 / a² at `radius_mm`, linear between the tabulated radii and
@@ -91,6 +75,149 @@ impl TieDrift {
         }
         self.at(to_mm) / self.at(from_mm)
     }
+}
+
+/// What the sensor sees of a declared gel layer bonded to its window: how
+/// gamma1 / a² drifts with the contact's radius ([`TieDrift`]) and how the
+/// normal field departs from Hertz's ([`SurfaceShape`]), both from the
+/// project's FE layer model (frictionless; docs/sensing.md, "On a layer").
+#[derive(Debug, Clone, PartialEq)]
+pub struct LayerSurface {
+    pub drift: TieDrift,
+    pub shape: Arc<SurfaceShape>,
+    /// The two gels the run learns between, when the gel is not known
+    /// (`drift` and `shape` are then the family's at some weight).
+    pub family: Option<Arc<ShapeFamily>>,
+}
+
+/// A layer's tie and field at two Poisson's ratios ([`FAMILY_NU1`]), mixed
+/// by a weight s (0: the first, 1: the second; the field and the tie are
+/// close to linear in nu1 between them, and s stands for where the gel
+/// lies).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShapeFamily {
+    ends: [(TieDrift, SurfaceShape); 2],
+}
+
+impl ShapeFamily {
+    /// The tie and the field at weight `s` (`None` for a non-finite weight).
+    pub fn at(&self, s: f64) -> Option<(TieDrift, SurfaceShape)> {
+        let [(d0, s0), (d1, s1)] = &self.ends;
+        let shape = s0.mix(s1, s)?;
+        let mut per_mm = d0.per_mm;
+        for (v, w) in per_mm.iter_mut().zip(&d1.per_mm) {
+            *v += s * (w - *v);
+        }
+        Some((TieDrift { step_mm: d0.step_mm, per_mm }, shape))
+    }
+}
+
+impl LayerSurface {
+    /// The layer as a run sees it before the calibration: the family of gels
+    /// at [`FAMILY_NU1`] with a third of the indenter's modulus, taken at
+    /// [`NOMINAL_WEIGHT`] until the run learns its own.
+    pub fn bonded_layer(thickness_mm: f64, indenter: Body) -> Result<Self, fem::FemError> {
+        let e1 = indenter.e_mpa / NOMINAL_STIFFNESS_RATIO;
+        let [lo, hi] = FAMILY_NU1.map(|nu1| Self::of_gel(thickness_mm, indenter, e1, nu1));
+        let (lo, hi) = (lo?, hi?);
+        let family = Arc::new(ShapeFamily { ends: [(lo.drift, (*lo.shape).clone()), (hi.drift, (*hi.shape).clone())] });
+        Self::in_family(family, NOMINAL_WEIGHT)
+            .ok_or_else(|| fem::FemError::Invalid("the layer's two tables do not match".into()))
+    }
+
+    /// The family's surface at weight `s`.
+    pub fn in_family(family: Arc<ShapeFamily>, s: f64) -> Option<Self> {
+        let (drift, shape) = family.at(s)?;
+        Some(Self { drift, shape: Arc::new(shape), family: Some(family) })
+    }
+
+    /// The layer of a gel of modulus `e1_mpa` and Poisson's ratio `nu1`
+    /// (the emulated rig draws its true gel's). It builds (or reuses) the
+    /// layer model's tables: seconds the first time in a process; the same
+    /// surface is kept for the process.
+    pub fn of_gel(thickness_mm: f64, indenter: Body, e1_mpa: f64, nu1: f64) -> Result<Self, fem::FemError> {
+        type Cache = Mutex<Vec<([u64; 6], LayerSurface)>>;
+        static CACHE: Cache = Mutex::new(Vec::new());
+        let key = [thickness_mm, indenter.e_mpa, indenter.nu, indenter.r_mm, e1_mpa, nu1].map(f64::to_bits);
+        if let Some(hit) = CACHE.lock().ok().and_then(|c| c.iter().find(|(k, _)| *k == key).map(|(_, s)| s.clone())) {
+            return Ok(hit);
+        }
+        let built = Self::build(thickness_mm, indenter, e1_mpa, nu1)?;
+        if let Ok(mut c) = CACHE.lock() {
+            c.push((key, built.clone()));
+        }
+        Ok(built)
+    }
+
+    fn build(thickness_mm: f64, indenter: Body, e1_mpa: f64, nu1: f64) -> Result<Self, fem::FemError> {
+        let forward = fem::forward::Forward::cached(thickness_mm, indenter.e_mpa, indenter.nu, indenter.r_mm)?;
+        let model = forward.model(e1_mpa, nu1);
+        // The gel's surface response everywhere (the model keeps only the
+        // nodes an indenter can touch) to the contact's nodal forces.
+        let mesh = fem::forward::gel_mesh(thickness_mm)?;
+        let surface_r = mesh.surface_radii();
+        let press = fem::Body::new(mesh, fem::Material { e_mpa: e1_mpa, nu: nu1 })?.surface_compliance_rz(usize::MAX);
+        let step_mm = REACH_IN_R2 * indenter.r_mm / POINTS as f64;
+        let radius = |delta: f64| -> Result<(f64, fem::ContactState), fem::FemError> {
+            let st = model.normal(delta)?;
+            Ok((model.contact_radius_mm(&st), st))
+        };
+        let rim = surface_r.last().copied().unwrap_or(0.0);
+        let samples = (rim / SHAPE_STEP_MM).floor() as usize + 1;
+        let mut per_mm = [0.0; POINTS];
+        let (mut radii, mut rows) = (Vec::with_capacity(POINTS), Vec::with_capacity(POINTS));
+        for (k, v) in per_mm.iter_mut().enumerate() {
+            let a = (k + 1) as f64 * step_mm;
+            // A layer's contact is at least as wide as Hertz's at the same
+            // approach (a² >= R2 delta), so a² / R2 reaches it.
+            let (mut lo, mut hi) = (0.0, a * a / indenter.r_mm);
+            while radius(hi)?.0 < a {
+                (lo, hi) = (hi, 1.5 * hi);
+            }
+            for _ in 0..40 {
+                let mid = 0.5 * (lo + hi);
+                if radius(mid)?.0 < a {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            let (r, st) = radius(hi)?;
+            *v = st.gamma1_mm / (r * r);
+            if !(v.is_finite() && *v > 0.0) {
+                return Err(fem::FemError::Invalid(format!("the layer's contact at a = {a:.3} mm")));
+            }
+            // The surface: w_i = sum_j C_zz[j][i] F_j over the nodes in contact.
+            let mut w = vec![0.0; surface_r.len()];
+            for (j, &f) in st.nodal_force.iter().enumerate().filter(|(_, f)| **f != 0.0) {
+                for (wi, c) in w.iter_mut().zip(&press.zz[j]) {
+                    *wi += c * f;
+                }
+            }
+            let g = w[0];
+            if g.is_nan() || g <= 0.0 {
+                return Err(fem::FemError::Invalid(format!("the layer's surface at a = {a:.3} mm")));
+            }
+            let row = (0..samples)
+                .map(|j| {
+                    let x = j as f64 * SHAPE_STEP_MM;
+                    (linear_at(&surface_r, &w, x) + spheres_sag_mm(x, r, indenter.r_mm, f64::INFINITY)) / g
+                        - normal_shape(x / r)
+                })
+                .collect();
+            radii.push(a);
+            rows.push(row);
+        }
+        let shape = SurfaceShape::new(radii, SHAPE_STEP_MM, rows).map_err(fem::FemError::Invalid)?;
+        Ok(Self { drift: TieDrift { step_mm, per_mm }, shape: Arc::new(shape), family: None })
+    }
+}
+
+/// `v` (at increasing radii `xs`) at `x`: linear between them, held at the ends.
+fn linear_at(xs: &[f64], v: &[f64], x: f64) -> f64 {
+    let k = xs.partition_point(|&r| r <= x).clamp(1, xs.len() - 1);
+    let t = ((x - xs[k - 1]) / (xs[k] - xs[k - 1])).clamp(0.0, 1.0);
+    v[k - 1] + t * (v[k] - v[k - 1])
 }
 
 #[cfg(test)]

@@ -26,7 +26,7 @@ use serde::Serialize;
 
 pub use estimator::{CurvatureLearner, FrameEstimator};
 use fit::{Curvature, fit_hertz, fit_quadratic, fit_rotation, paraboloid_errors};
-pub use layer::TieDrift;
+pub use layer::{LayerSurface, TieDrift};
 
 use crate::numerics::stats::{MAD_TO_SIGMA, median};
 
@@ -86,7 +86,9 @@ fn adhesion_probe(
         .filter(|(_, k)| **k)
         .map(|(q, _)| ((q[0] - centre[0]).hypot(q[1] - centre[1]), q[2]))
         .collect();
-    let hertz = |g: f64| on.iter().map(|&(r, z)| (z - g * fit::hertz_shape(r * (c / g).sqrt())).powi(2)).sum::<f64>();
+    let layer = cfg.layer_shape();
+    let hertz =
+        |g: f64| on.iter().map(|&(r, z)| (z - g * fit::field_shape(layer, r, (g / c).sqrt())).powi(2)).sum::<f64>();
     let hertz = crate::numerics::golden_min(hertz, 0.3 * gamma1, 2.0 * gamma1, 1e-4 * gamma1).1.min(hertz(gamma1));
     p.punch < 0.0 && (hertz - p.sse) / (noise * noise) > PUNCH_CHI2
 }
@@ -109,8 +111,44 @@ pub(crate) fn shows_punch(frame: &SensorFrame, cfg: &SensingConfig) -> Option<bo
         .then(|| adhesion_probe(frame, at, c, d.gamma1, d.radius.max(pitch), cfg))
 }
 
+/// The range a run's layer weight is learnt over (docs/sensing.md, "On a
+/// layer"): a little beyond the family's two gels each way.
+const LAYER_WEIGHT_RANGE: (f64, f64) = (-0.75, 1.25);
+
+/// Where between its family's two gels ([`layer::ShapeFamily`]) a resolved
+/// contact's field lies: the weight whose field, with its own depth and
+/// radius at the held `centre`, fits the markers within three radii best
+/// (the outliers those of the middle gel's fit). `None` when the fit fails.
+pub(crate) fn layer_weight(
+    frame: &SensorFrame,
+    centre: [f64; 2],
+    gamma1: f64,
+    radius: f64,
+    family: &layer::ShapeFamily,
+    cfg: &SensingConfig,
+) -> Option<f64> {
+    let reach = 3.0 * radius;
+    let pts: Vec<[f64; 3]> = frame
+        .positions
+        .iter()
+        .zip(&frame.displacements)
+        .filter(|(p, _)| dist2(xy(p), centre) <= reach * reach)
+        .map(|(p, d)| [p[0], p[1], hertz_depth(-d[2], dist2(xy(p), centre).sqrt(), radius, cfg)])
+        .collect();
+    let (_, middle) = family.at(0.5)?;
+    let (k, floor) = (cfg.outlier_sigmas, cfg.outlier_floor_mm);
+    let first = fit_hertz(&pts, Some(&middle), (gamma1, centre, radius), k, floor, Curvature::Free, true)?;
+    let start = [first.gamma1, centre[0], centre[1], first.radius];
+    let sse = |s: f64| {
+        family.at(s).and_then(|(_, shape)| fit::field_sse(&pts, &shape, &first.kept, start)).unwrap_or(f64::INFINITY)
+    };
+    let (lo, hi) = LAYER_WEIGHT_RANGE;
+    let (s, best) = crate::numerics::golden_min(sse, lo, hi, 1e-3);
+    best.is_finite().then_some(s)
+}
+
 /// Settings of the frame processing.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SensingConfig {
     /// A frame is "no contact" unless the elastomer is pressed at least this
     /// deep around its deepest marker, mm.
@@ -180,11 +218,14 @@ pub struct SensingConfig {
     /// spheres inside a wide contact").
     pub indenter_radius_mm: f64,
     pub elastomer_radius_mm: f64,
-    /// On a declared gel layer, how gamma1 / a² changes with the contact's
-    /// radius ([`TieDrift`]): the curvature learnt on resolved contacts is
-    /// carried by it to the size of the small ones it ties. `None`: a
-    /// half-space, where it does not change.
-    pub tie_drift: Option<TieDrift>,
+    /// On a declared gel layer, what the sensor sees of it
+    /// ([`LayerSurface`]): how gamma1 / a² changes with the contact's radius
+    /// (the curvature learnt on resolved contacts is carried by it to the
+    /// size of the small ones it ties) and how the normal field departs from
+    /// Hertz's (the field fits take the layer's shape). `None`: a
+    /// half-space, where neither applies. Not serialised (a table).
+    #[serde(skip)]
+    pub layer: Option<LayerSurface>,
 }
 
 /// A frame whose own noise estimate exceeds the pooled one by more than this
@@ -203,6 +244,11 @@ fn noise_for_errors(own: f64, pooled: Option<f64>) -> f64 {
 }
 
 impl SensingConfig {
+    /// The declared layer's field shape, if any.
+    pub fn layer_shape(&self) -> Option<&sim::sensor::shape::SurfaceShape> {
+        self.layer.as_ref().map(|l| &*l.shape)
+    }
+
     /// The defaults, for an indenter of radius `indenter_r_mm` on an elastomer
     /// of radius `elastomer_r_mm` (infinite when flat).
     pub fn for_contact(indenter_r_mm: f64, elastomer_r_mm: f64) -> Self {
@@ -236,7 +282,7 @@ impl Default for SensingConfig {
             probe_adhesion: false,
             indenter_radius_mm: f64::INFINITY,
             elastomer_radius_mm: f64::INFINITY,
-            tie_drift: None,
+            layer: None,
         }
     }
 }
@@ -426,6 +472,37 @@ struct Depth {
     adhesive: bool,
 }
 
+/// What a paraboloid of peak `peak` and curvature `curvature` (1/mm), fitted
+/// within `window` of the centre, says of a contact on a layer of field
+/// `layer`: gamma1, the contact radius and the paraboloid's curvature over
+/// gamma1 / a² there, found together (the last two depend on the radius) from
+/// Hertz's reading `hertz_radius`. `None` when they do not settle.
+fn through_layer(
+    layer: &sim::sensor::shape::SurfaceShape,
+    peak: f64,
+    curvature: f64,
+    hertz_radius: f64,
+    window: f64,
+) -> Option<(f64, f64, f64)> {
+    if !(peak > 0.0 && curvature > 0.0 && hertz_radius > 0.0) {
+        return None;
+    }
+    let mut a = hertz_radius;
+    for _ in 0..20 {
+        let (p, ratio) = layer.inside_paraboloid(a, window)?;
+        let g = peak / p;
+        let next = (g * ratio / curvature).sqrt();
+        if !(next.is_finite() && next > 0.0 && p > 0.0 && ratio > 0.0) {
+            return None;
+        }
+        if (next - a).abs() <= 1e-9 * a {
+            return Some((g, next, ratio));
+        }
+        a = next;
+    }
+    None
+}
+
 /// Quadratic fit, re-centred on its own peak with a window shrunk or grown
 /// to lie inside the contact, until the window's markers stop changing.
 fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingConfig) -> Result<Depth, SensingError> {
@@ -477,9 +554,20 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
         let m_kept = qf.kept.iter().filter(|&&b| b).count();
         let qf_dof = m_kept.saturating_sub(4);
         let qf_noise = if qf_dof > 0 { qf.rms * (m_kept as f64 / qf_dof as f64).sqrt() } else { f64::NAN };
-        let gamma1_sd = errors.map_or(f64::NAN, |e| e.0);
+        let mut gamma1_sd = errors.map_or(f64::NAN, |e| e.0);
         // Only a window inside the contact sees the contact's own curvature.
-        let curvature = errors.filter(|_| used_window <= radius).map(|e| (-qf.surface.mean_curvature(), e.1));
+        let mut curvature = errors.filter(|_| used_window <= radius).map(|e| (-qf.surface.mean_curvature(), e.1));
+        let (mut gamma1, mut radius) = (gamma1, radius);
+        // On a layer the paraboloid inside is not Hertz's: read through the
+        // layer's own field, its peak and curvature give gamma1 and gamma1 /
+        // a² (docs/sensing.md, "On a layer").
+        if let Some(layer) = cfg.layer_shape()
+            && let Some((g, a, ratio)) = through_layer(layer, gamma1, -qf.surface.mean_curvature(), radius, used_window)
+        {
+            gamma1_sd *= g / gamma1;
+            (gamma1, radius) = (g, a);
+            curvature = curvature.map(|(c, sd)| (c / ratio, sd / ratio));
+        }
         best = Some(Depth {
             gamma1,
             centre,
@@ -511,15 +599,15 @@ fn punch_stage(
     cfg: &SensingConfig,
 ) -> Option<(fit::PunchFit, Vec<bool>)> {
     let mut kept = vec![true; pts.len()];
-    let mut fit = fit::fit_tied_punch(pts, &kept, centre, c, gamma1)?;
+    let mut fit = fit::fit_tied_punch(pts, cfg.layer_shape(), &kept, centre, c, gamma1)?;
     for _ in 0..3 {
         let resid: Vec<f64> = pts
             .iter()
             .map(|q| {
                 let r = (q[0] - centre[0]).hypot(q[1] - centre[1]);
-                let rho = r / fit.radius;
                 let h = fit.gamma1 - fit.punch;
-                (q[2] - h * fit::hertz_shape(rho) - fit.punch * fit::punch_shape(rho)).abs()
+                let field = fit::field_shape(cfg.layer_shape(), r, fit.radius);
+                (q[2] - h * field - fit.punch * fit::punch_shape(r / fit.radius)).abs()
             })
             .collect();
         let mut kr: Vec<f64> = resid.iter().zip(&kept).filter(|(_, k)| **k).map(|(e, _)| *e).collect();
@@ -529,7 +617,7 @@ fn punch_stage(
             break;
         }
         kept = next;
-        fit = fit::fit_tied_punch(pts, &kept, centre, c, fit.gamma1)?;
+        fit = fit::fit_tied_punch(pts, cfg.layer_shape(), &kept, centre, c, fit.gamma1)?;
     }
     Some((fit, kept))
 }
@@ -587,7 +675,7 @@ fn hertz_stage_sagged(
         .map(|&a0| if start.2 > 0.0 || fixed_centre { a0 } else { a0 * pitch })
         .filter_map(|a0| {
             let (k, floor) = (cfg.outlier_sigmas, cfg.outlier_floor_mm);
-            fit_hertz(&pts, (start.0, start.1, a0), k, floor, curvature, fixed_centre)
+            fit_hertz(&pts, cfg.layer_shape(), (start.0, start.1, a0), k, floor, curvature, fixed_centre)
         })
         .min_by(|x, y| {
             let score = |h: &fit::HertzFit| h.rms * (pts.len() as f64 / h.kept.iter().filter(|&&b| b).count() as f64);
@@ -623,7 +711,7 @@ fn hertz_stage_sagged(
                     .filter(|(_, k)| **k)
                     .map(|(q, _)| {
                         let r = (q[0] - hf.centre[0]).hypot(q[1] - hf.centre[1]);
-                        (q[2] - hf.gamma1 * fit::hertz_shape(r / hf.radius)).powi(2)
+                        (q[2] - hf.gamma1 * fit::field_shape(cfg.layer_shape(), r, hf.radius)).powi(2)
                     })
                     .sum();
                 // On a gel known to be tacky the punch is the model: kept
@@ -666,7 +754,7 @@ fn hertz_stage_sagged(
     // curvature fitted to another field is not the contact's.
     let curvature = if fixed_centre && !poor && hf.radius >= MID_CONTACT_PITCHES * pitch {
         let (k, floor) = (cfg.outlier_sigmas, cfg.outlier_floor_mm);
-        fit_hertz(&pts, (hf.gamma1, hf.centre, hf.radius), k, floor, Curvature::Free, true)
+        fit_hertz(&pts, cfg.layer_shape(), (hf.gamma1, hf.centre, hf.radius), k, floor, Curvature::Free, true)
             .filter(|f| (0.7..=1.4).contains(&(f.radius / hf.radius)))
             .and_then(|f| {
                 f.curvature_sd.filter(|sd| sd.is_finite() && *sd > 0.0).map(|sd| (f.gamma1 / (f.radius * f.radius), sd))

@@ -43,6 +43,11 @@ pub trait ContactLaw: Send + Sync + std::fmt::Debug {
     /// `twist_deg`) when the platform, at approach `delta_mm`, has turned by
     /// `twist_deg` from where the twist began.
     fn theta1_deg(&self, delta_mm: f64, twist_deg: f64) -> Result<f64, String>;
+    /// How the contact's normal surface field departs from Hertz's, for the
+    /// simulated sensor to draw (`None`: it does not, or the law cannot say).
+    fn surface(&self) -> Option<std::sync::Arc<crate::sensor::shape::SurfaceShape>> {
+        None
+    }
 }
 
 /// The effects of a profile that change the contact itself, which a

@@ -28,7 +28,11 @@
 //! tilts the local normal by at most ~17 degrees at the grid corners, where
 //! the field is already small.
 
+use std::sync::Arc;
+
 use devices::sensor::SensorFrame;
+
+use super::shape::SurfaceShape;
 
 use crate::rng::Rng;
 
@@ -143,6 +147,13 @@ impl ContactState {
 
     /// Displacement `[dx, dy, dz]` (mm) of the surface point at `(x, y)`.
     pub fn displacement_at(&self, x: f64, y: f64) -> [f64; 3] {
+        self.displacement_on(x, y, None)
+    }
+
+    /// [`ContactState::displacement_at`] on a declared gel layer whose
+    /// normal field departs from Hertz's as `layer` says (its Hertz part
+    /// takes the departure; docs/sensing.md, "On a layer").
+    pub fn displacement_on(&self, x: f64, y: f64, layer: Option<&SurfaceShape>) -> [f64; 3] {
         let a = self.contact_radius_mm;
         if a.is_nan() || a <= 0.0 {
             return [0.0; 3];
@@ -152,7 +163,8 @@ impl ContactState {
         let r = dx.hypot(dy);
         let rho = r / a;
         let (hertz, punch) = (self.gamma1_mm - self.punch_mm, self.punch_mm);
-        let w = hertz * normal_shape(rho) + punch * punch_shape(rho) - self.sag_mm(r);
+        let departure = layer.map_or(0.0, |l| l.departure(r, a));
+        let w = hertz * (normal_shape(rho) + departure) + punch * punch_shape(rho) - self.sag_mm(r);
         // In-plane: radial and twist components along e_r = (dx, dy)/r and
         // e_phi = (-dy, dx)/r; both vanish at the centre.
         if r == 0.0 {
@@ -351,11 +363,25 @@ pub fn synth_frame(
     index: u64,
     t_s: f64,
 ) -> SensorFrame {
+    synth_frame_on(state, None, grid, noise, rng, index, t_s)
+}
+
+/// [`synth_frame`] on a declared gel layer whose normal field departs from
+/// Hertz's as `layer` says ([`ContactState::displacement_on`]).
+pub fn synth_frame_on(
+    state: &ContactState,
+    layer: Option<&SurfaceShape>,
+    grid: &MarkerGrid,
+    noise: &NoiseConfig,
+    rng: &mut Rng,
+    index: u64,
+    t_s: f64,
+) -> SensorFrame {
     let mut displacements: Vec<[f64; 3]> = grid
         .positions
         .iter()
         .map(|p| {
-            let mut d = state.displacement_at(p[0], p[1]);
+            let mut d = state.displacement_on(p[0], p[1], layer);
             if noise.sigma_xy_mm > 0.0 {
                 d[0] += noise.sigma_xy_mm * rng.normal();
                 d[1] += noise.sigma_xy_mm * rng.normal();
@@ -421,6 +447,8 @@ pub struct SimulatedSensor {
     pub noise: NoiseConfig,
     pub rng: Rng,
     pub contact: ContactFn,
+    /// A declared gel layer's field shape (`None`: a half-space's, Hertz's).
+    pub layer: Option<Arc<SurfaceShape>>,
     /// Index the next delivered frame gets unless frames are lost before it.
     next_index: u64,
     dropped: u64,
@@ -439,7 +467,14 @@ impl std::fmt::Debug for SimulatedSensor {
 
 impl SimulatedSensor {
     pub fn new(grid: MarkerGrid, noise: NoiseConfig, seed: u64, contact: ContactFn) -> Self {
-        Self { grid, noise, rng: Rng::seed_from(seed), contact, next_index: 0, dropped: 0 }
+        Self { grid, noise, rng: Rng::seed_from(seed), contact, layer: None, next_index: 0, dropped: 0 }
+    }
+
+    /// The sensor on a declared gel layer whose normal field departs from
+    /// Hertz's as `layer` says.
+    pub fn with_layer(mut self, layer: Option<Arc<SurfaceShape>>) -> Self {
+        self.layer = layer;
+        self
     }
 
     /// A real Tac3D's frame counter counts from its own start, not from 0.
@@ -473,7 +508,9 @@ impl SimulatedSensor {
         let index = self.next_index + lost;
         self.next_index = index + 1;
         match state {
-            Some(state) => synth_frame(&state, &self.grid, &self.noise, &mut self.rng, index, t_s),
+            Some(state) => {
+                synth_frame_on(&state, self.layer.as_deref(), &self.grid, &self.noise, &mut self.rng, index, t_s)
+            }
             None => no_contact_frame(&self.grid, index, t_s),
         }
     }

@@ -3,4 +3,5 @@
 
 pub mod field;
 pub mod rig;
+pub mod shape;
 pub mod stream;

@@ -127,7 +127,8 @@ impl RigSensor {
             (None, false) => Some(TrueRig::new(*setup.pair(), setup.effects())?),
         };
         let sensor = SimulatedSensor::new(cfg.grid.clone(), *setup.noise(), setup.seed(), Box::new(|_| None))
-            .with_first_index(cfg.first_index);
+            .with_first_index(cfg.first_index)
+            .with_layer(setup.layer().and_then(|l| l.law.surface()));
         let pair = *setup.pair();
         Ok(Self {
             rig,
