@@ -374,6 +374,15 @@ pub fn hertz_shape(rho: f64) -> f64 {
     }
 }
 
+/// [`hertz_shape`] and [`hertz_slope`] at `rho` together (one arcsine).
+fn hertz_shape_and_slope(rho: f64) -> (f64, f64) {
+    if rho <= 1.0 {
+        return (1.0 - 0.5 * rho * rho, -rho);
+    }
+    let (s, root) = ((1.0 / rho).asin(), (rho * rho - 1.0).sqrt());
+    (((2.0 - rho * rho) * s + root) / std::f64::consts::PI, std::f64::consts::FRAC_2_PI * (root / rho - rho * s))
+}
+
 /// d hertz_shape / d rho.
 pub fn hertz_slope(rho: f64) -> f64 {
     if rho <= 1.0 {
@@ -386,15 +395,17 @@ pub fn hertz_slope(rho: f64) -> f64 {
 /// The normal field's shape w / gamma1 at `r` from the centre of a contact
 /// of radius `a`: Hertz's ([`hertz_shape`]), plus a declared layer's
 /// departure from it (docs/sensing.md, "On a layer").
+#[inline]
 pub fn field_shape(layer: Option<&SurfaceShape>, r: f64, a: f64) -> f64 {
     hertz_shape(r / a) + layer.map_or(0.0, |l| l.departure(r, a))
 }
 
 /// [`field_shape`] and its derivatives in `r` and in `a` (the layer's part
 /// by central differences over its table).
+#[inline]
 fn field_shape_d(layer: Option<&SurfaceShape>, r: f64, a: f64) -> [f64; 3] {
     let rho = r / a;
-    let (f, fp) = (hertz_shape(rho), hertz_slope(rho));
+    let (f, fp) = hertz_shape_and_slope(rho);
     let mut out = [f, fp / a, -fp * rho / a];
     if let Some(l) = layer {
         let h = 1e-3 * a;
@@ -699,6 +710,14 @@ mod tests {
     }
 
     #[test]
+    fn the_shapes_taken_together_are_the_shapes() {
+        for rho in [0.0, 0.5, 1.0, 1.0 + 1e-9, 1.7, 12.0] {
+            assert_eq!(hertz_and_punch_shapes(rho), (hertz_shape(rho), punch_shape(rho)), "rho {rho}");
+            assert_eq!(hertz_shape_and_slope(rho), (hertz_shape(rho), hertz_slope(rho)), "rho {rho}");
+        }
+    }
+
+    #[test]
     fn procrustes_recovers_a_finite_rotation_and_drops_an_outlier() {
         let centre = [0.4, -0.3];
         let theta = 5f64.to_radians();
@@ -718,6 +737,16 @@ mod tests {
         assert!((fit.theta - theta).abs() < 1e-12, "{}", fit.theta);
         assert!(!fit.kept[3] && fit.kept.iter().filter(|&&k| !k).count() == 1);
     }
+}
+
+/// [`hertz_shape`] and [`punch_shape`] at `rho` together (one arcsine: the
+/// punch fit evaluates both at every marker several hundred times a frame).
+fn hertz_and_punch_shapes(rho: f64) -> (f64, f64) {
+    if rho <= 1.0 {
+        return (1.0 - 0.5 * rho * rho, 1.0);
+    }
+    let s = (1.0 / rho).asin();
+    (((2.0 - rho * rho) * s + (rho * rho - 1.0).sqrt()) / std::f64::consts::PI, std::f64::consts::FRAC_2_PI * s)
 }
 
 /// Normalised flat-punch normal field w(r) / w(0) at rho = r / a: 1 inside,
@@ -764,11 +793,32 @@ pub fn fit_tied_punch(
     if !(c > 0.0 && gamma1 > 0.0) {
         return None;
     }
-    let model = |g: f64, p: f64, r: f64| {
-        let h = g - p;
-        let a = (h / c).sqrt();
-        h * field_shape(layer, r, a) + p * punch_shape(r / a)
-    };
+    // The model at (gamma1, punch, r), one monomorphised fit per field: the
+    // half-space's is the hot path of a tacky gel's frames.
+    match layer {
+        None => tied_punch_with(pts, kept, centre, c, gamma1, |g: f64, p: f64, r: f64| {
+            let h = g - p;
+            let (hertz, punch) = hertz_and_punch_shapes(r * (c / h).sqrt());
+            h * hertz + p * punch
+        }),
+        Some(l) => tied_punch_with(pts, kept, centre, c, gamma1, |g: f64, p: f64, r: f64| {
+            let h = g - p;
+            let a = (h / c).sqrt();
+            let (hertz, punch) = hertz_and_punch_shapes(r / a);
+            h * (hertz + l.departure(r, a)) + p * punch
+        }),
+    }
+}
+
+/// [`fit_tied_punch`] with its field `model(gamma1, punch, r)`.
+fn tied_punch_with(
+    pts: &[[f64; 3]],
+    kept: &[bool],
+    centre: [f64; 2],
+    c: f64,
+    gamma1: f64,
+    model: impl Fn(f64, f64, f64) -> f64,
+) -> Option<PunchFit> {
     let radii: Vec<(f64, f64)> = pts
         .iter()
         .zip(kept)
