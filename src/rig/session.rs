@@ -230,8 +230,9 @@ pub async fn run_calibration_with(
     std::fs::create_dir_all(&req.out_dir).map_err(|source| StartError::OutDir { path: req.out_dir.clone(), source })?;
     // The indenter bounds what a contact under the marker pitch can look like.
     let mut sensing = SensingConfig::for_contact(req.script.indenter.r_mm, req.script.sensor.elastomer_r_mm);
-    // On a declared bonded layer the tie of a small contact's radius to its
-    // depth follows the layer (docs/sensing.md, "On a layer").
+    // On a declared bonded layer the fits take the layer's own field and
+    // the tie of a small contact's radius to its depth follows the layer
+    // (docs/sensing.md, "On a layer"; a domed layer takes the flat one's).
     if let Ok(Some(layer)) = req.script.sensor.layer()
         && layer.base == sim::physics::LayerBase::Bonded
     {
@@ -246,7 +247,7 @@ pub async fn run_calibration_with(
             Ok(surface) => sensing.layer = Some(surface),
             Err(why) => {
                 let message = format!(
-                    "the {} mm layer's tie of contact radius to depth could not be computed ({why}): small contacts are read as on a half-space",
+                    "the {} mm layer's field could not be computed ({why}): its frames are read as on a half-space",
                     layer.thickness_mm
                 );
                 let _ = events.send(RunEvent::Log { level: LogLevel::Warn, message });
