@@ -46,6 +46,25 @@ const PUNCH_CHI2: f64 = 16.0;
 /// does not weigh).
 const PROBE_PITCHES: f64 = 2.5;
 
+/// The markers within `reach` of `centre` as (x, y, depth), each depth with
+/// the spheres' sag of a contact of radius `sag_radius` taken out
+/// ([`hertz_depth`]).
+fn markers_within(
+    frame: &SensorFrame,
+    centre: [f64; 2],
+    reach: f64,
+    sag_radius: f64,
+    cfg: &SensingConfig,
+) -> Vec<[f64; 3]> {
+    frame
+        .positions
+        .iter()
+        .zip(&frame.displacements)
+        .filter(|(p, _)| dist2(xy(p), centre) <= reach * reach)
+        .map(|(p, d)| [p[0], p[1], hertz_depth(-d[2], dist2(xy(p), centre).sqrt(), sag_radius, cfg)])
+        .collect()
+}
+
 /// Whether a resolved contact of depth `gamma1` (read by its paraboloid,
 /// right whatever the punch) at `centre` shows a punch beyond chance: the
 /// tied punch field fits the markers within three radii better than Hertz's
@@ -58,14 +77,7 @@ fn adhesion_probe(
     radius: f64,
     cfg: &SensingConfig,
 ) -> bool {
-    let reach = 3.0 * radius;
-    let pts: Vec<[f64; 3]> = frame
-        .positions
-        .iter()
-        .zip(&frame.displacements)
-        .filter(|(p, _)| dist2(xy(p), centre) <= reach * reach)
-        .map(|(p, d)| [p[0], p[1], hertz_depth(-d[2], dist2(xy(p), centre).sqrt(), (gamma1 / c).sqrt(), cfg)])
-        .collect();
+    let pts = markers_within(frame, centre, 3.0 * radius, (gamma1 / c).sqrt(), cfg);
     let Some((p, kept)) = punch_stage(&pts, centre, c, gamma1, cfg) else {
         return false;
     };
@@ -127,14 +139,7 @@ pub(crate) fn layer_weight(
     family: &layer::ShapeFamily,
     cfg: &SensingConfig,
 ) -> Option<f64> {
-    let reach = 3.0 * radius;
-    let pts: Vec<[f64; 3]> = frame
-        .positions
-        .iter()
-        .zip(&frame.displacements)
-        .filter(|(p, _)| dist2(xy(p), centre) <= reach * reach)
-        .map(|(p, d)| [p[0], p[1], hertz_depth(-d[2], dist2(xy(p), centre).sqrt(), radius, cfg)])
-        .collect();
+    let pts = markers_within(frame, centre, 3.0 * radius, radius, cfg);
     let (_, middle) = family.at(0.5)?;
     let (k, floor) = (cfg.outlier_sigmas, cfg.outlier_floor_mm);
     let first = fit_hertz(&pts, Some(&middle), (gamma1, centre, radius), k, floor, Curvature::Free, true)?;
