@@ -367,8 +367,9 @@ impl ContactLaw for PathLaw {
 
     /// The true gel's own field shape (the same FE layer, frictionless;
     /// docs/sensing.md, "On a layer"), so the simulated sensor draws what a
-    /// bonded gel shows rather than Hertz's field. `None` (Hertz's) only if
-    /// the layer model cannot give it.
+    /// bonded gel shows rather than Hertz's field. `None` only if the layer
+    /// model cannot give it (`rig::emulated::on_declared_layer` then refuses
+    /// the layer).
     fn surface(&self) -> Option<Arc<sim::sensor::shape::SurfaceShape>> {
         self.surface
             .get_or_init(|| {

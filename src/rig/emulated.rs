@@ -146,6 +146,12 @@ pub fn on_declared_layer(setup: SimSetup, layer: sim::physics::Layer) -> Result<
     }
     let law = crate::fit::fe_law::frictional_truth(layer, indenter, gel.e_mpa, gel.nu, sim::defaults::GEL_FRICTION)
         .map_err(|e| format!("cannot simulate it: {e}"))?;
+    // The simulated sensor draws the layer's own field (docs/sensing.md, "On
+    // a layer"): built now, so a layer it cannot draw is refused here rather
+    // than drawn as Hertz's.
+    if law.surface().is_none() {
+        return Err("cannot simulate it: the layer's surface field could not be computed".into());
+    }
     setup.on_layer(layer, law).map_err(|e| e.to_string())
 }
 
