@@ -34,7 +34,14 @@ fn lcg(seed: &mut u64) -> f64 {
     (*seed >> 11) as f64 / (1u64 << 53) as f64
 }
 
-fn one_trial(signal: libc::c_int, after: Duration, out: &Path) -> (Option<i32>, serde_json::Value, usize) {
+/// One run (`easycalib run` with `extra` arguments) given `signal` (0: a
+/// panic inside it) `after` its start.
+fn one_trial(
+    signal: libc::c_int,
+    after: Duration,
+    out: &Path,
+    extra: &[&str],
+) -> (Option<i32>, serde_json::Value, usize) {
     let mut cmd = easycalib();
     // Signal 0 stands for the fourth kind of fault: a panic inside the run.
     if signal == 0 {
@@ -43,6 +50,7 @@ fn one_trial(signal: libc::c_int, after: Duration, out: &Path) -> (Option<i32>, 
     }
     let mut child = cmd
         .args(["run", "--speedup", SPEEDUP, "--json", "--out", out.to_str().unwrap()])
+        .args(extra)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
@@ -80,7 +88,10 @@ fn signals_at_random_points_all_end_in_the_safe_path() {
         // A whole run takes ~1 s of wall time at this speed-up: fault inside it.
         let after = Duration::from_secs_f64(0.15 + 0.7 * lcg(&mut seed));
         let out = tmp.path().join(format!("t{trial}"));
-        let (code, report, rows) = one_trial(sig, after, &out);
+        // The half-space gel: its set-up takes milliseconds, so the faults
+        // land in the moving run (the layered default's set-up has its own
+        // test below).
+        let (code, report, rows) = one_trial(sig, after, &out, &["--thickness-mm", "inf"]);
         if code == Some(0) && sig != 0 {
             // The signal came after the run had finished: nothing to check but the files.
             finished += 1;
@@ -102,6 +113,24 @@ fn signals_at_random_points_all_end_in_the_safe_path() {
     }
     println!("{aborted} aborted, {finished} finished before the signal, {:.1?}", t0.elapsed());
     assert!(aborted >= 18, "most faults must land inside the run ({aborted} of 24)");
+}
+
+/// A signal while the emulated rig is still being set up (the default gel
+/// layer's model is built first, about a second) is not the default action's
+/// kill: the run aborts as soon as it starts, before anything has moved, with
+/// the same report and exit code.
+#[test]
+fn a_signal_during_the_set_up_aborts_before_anything_moves() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (sig, name) in [(libc::SIGINT, "SIGINT"), (libc::SIGTERM, "SIGTERM")] {
+        let out = tmp.path().join(name);
+        let (code, report, rows) = one_trial(sig, Duration::from_millis(60), &out, &[]);
+        assert_eq!(code, Some(EXIT_ABORTED), "{name}: exit {code:?}");
+        let a = &report["aborted"];
+        assert_eq!(a["culprit"], "operator", "{name}: {report}");
+        assert_eq!(a["backoff"]["not_homed"], true, "{name}: {report}");
+        assert_eq!(rows, 0, "{name}: nothing was sampled");
+    }
 }
 
 #[test]

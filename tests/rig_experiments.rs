@@ -600,7 +600,13 @@ fn slow_and_speed_run(truth: &str, profile: SimProfile) {
     let took = |s: &sim::recording::Sample| s.timing.move_s.map(|(a, b)| b - a).expect("timed move");
     let moves: Vec<(f64, f64)> = fast.windows(2).map(|w| (w[1].stage_mm - w[0].stage_mm, took(w[1]))).collect();
     println!("{truth}: approach at 0.1 mm/s, out in {} s, load moves (mm, s) {moves:?}", took(fast[0]));
-    assert!(took(fast[0]) < 2.0, "out at the usual speed: {} s", took(fast[0]));
+    // Out by half the travel (2.5-2.9 mm here): 1.7-1.8 s at the stage's own
+    // speed, 25 s or more at the experiment's. The emulated clock is wall
+    // time sped up 40 times, so a loaded machine stretches it (2.0 s seen);
+    // a third of the slow move's time still tells the two apart.
+    let i0 = rec.samples.iter().position(|s| s.experiment == Some(Experiment::ApproachSpeed)).expect("its samples");
+    let out_mm = (rec.samples[i0].stage_mm - rec.samples[i0 - 1].stage_mm).abs();
+    assert!(took(fast[0]) < out_mm / 0.1 / 3.0, "out by {out_mm} mm at the usual speed: {} s", took(fast[0]));
     for w in fast.windows(2) {
         let travel = w[1].stage_mm - w[0].stage_mm;
         let expect = travel / 0.1;

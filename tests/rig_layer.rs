@@ -6,8 +6,10 @@
 //! layer in the generator and the emulated rig"). What a real rig is: both
 //! the independent finite-element world of a thin gel and the sensing chain.
 //!
-//! Seeds 1-3 of each case; the closing figures of ten seeds each are in
-//! docs/diagnosis.md ("On a declared layer, on the emulated rig").
+//! The clean case is the default `easycalib run`'s gel (the reference
+//! sensor's, `sim::defaults::ELASTOMER_THICKNESS_MM`), held to issue 12's bars
+//! over 20 seeds; each effect on seeds 1-3 (the closing figures of ten seeds
+//! each are in docs/diagnosis.md, "On a declared layer, on the emulated rig").
 
 #[path = "support/emulated.rs"]
 mod emulated;
@@ -18,11 +20,12 @@ use sim::effects::{SimProfile, frame_compliance, rotation_backlash, stage_backla
 
 const SEEDS: u64 = 3;
 
-/// The default script on a flat 5 mm bonded gel.
+/// The default script on the emulated rig's default gel, a flat layer
+/// bonded to its window, as `easycalib run` declares it.
 fn layered_script() -> Script {
     let mut s = Script::default();
     s.sensor.elastomer_r_mm = f64::INFINITY;
-    s.sensor.elastomer_thickness_mm = Some(5.0);
+    s.sensor.elastomer_thickness_mm = Some(sim::defaults::ELASTOMER_THICKNESS_MM);
     s
 }
 
@@ -44,19 +47,23 @@ fn print(case: &str, runs: &[Outcome]) {
     }
 }
 
+/// The default run's gel, clean, on 20 seeds: issue 12's bars for a clean
+/// run (chi²/dof <= 1.3, nothing named and nothing unexplained, each in 19 of
+/// 20), and the full fit within 1 % / 2 % of the truth in every run.
 #[test]
-fn a_clean_layered_run_names_nothing_and_recovers_the_gel() {
-    let runs = runs(SimProfile::default());
+fn clean_runs_on_the_default_layered_gel_fit_at_their_noise_and_name_nothing() {
+    let runs: Vec<Outcome> = (1..=20).map(|seed| run_script(seed, SimProfile::default(), layered_script()).0).collect();
     print("clean", &runs);
+    let quiet = runs.iter().filter(|o| ["clean", "ambiguous"].contains(&o.verdict) && o.named.is_empty()).count();
+    let fitted = runs.iter().filter(|o| o.chi2_dof <= 1.3).count();
+    println!("nothing named, not unexplained: {quiet} of 20; chi2/dof <= 1.3: {fitted} of 20");
+    assert!(quiet >= 19, "{quiet} of 20 clean layered runs name nothing and leave nothing unexplained");
+    assert!(fitted >= 19, "{fitted} of 20 clean layered runs fit to chi2/dof <= 1.3");
     for o in &runs {
-        // Nothing named and nothing unexplained, and the fit at the noise
-        // (issue 12's bars for a clean run): measured chi²/dof 0.82-1.17 over
-        // seeds 1-8 since small contacts are tied to their depth as the layer
-        // ties them (1.10-1.65 before; docs/sensing.md, "On a layer").
-        assert!(["clean", "ambiguous"].contains(&o.verdict) && o.named.is_empty(), "seed {}: {}", o.seed, o.summary);
-        assert!(o.chi2_dof <= 1.3, "seed {}: chi²/dof {:.2}", o.seed, o.chi2_dof);
         assert!(o.full.0.abs() <= 1.0 && o.full.1.abs() <= 2.0, "seed {}: fit {:?}", o.seed, o.full);
-        assert!(same(o.corrected, o.full), "seed {}: nothing named, the diagnosis keeps the fit's numbers", o.seed);
+        if o.named.is_empty() {
+            assert!(same(o.corrected, o.full), "seed {}: nothing named, the diagnosis keeps the fit's numbers", o.seed);
+        }
     }
 }
 

@@ -12,6 +12,12 @@ pub const ELASTOMER_E_MPA: f64 = 0.33;
 pub const ELASTOMER_NU: f64 = 0.39;
 /// Effective dome radius R1 of the default sensor, mm.
 pub const ELASTOMER_R_MM: f64 = 33.0;
+/// Thickness of the emulated rig's default gel, mm: the EasyCalib reference
+/// sensor's flat 5 mm layer bonded to its window (30 mm across, the geometry
+/// of the project's finite-element test data). `easycalib run` simulates it
+/// and declares it unless told otherwise (docs/run.md, "The simulated gel");
+/// the generator's default stays the paper's half-space.
+pub const ELASTOMER_THICKNESS_MM: f64 = 5.0;
 /// The paper's calibration indenter: E2 (MPa), nu2, R2 (mm).
 pub const INDENTER_E_MPA: f64 = 1.1;
 pub const INDENTER_NU: f64 = 0.39;

@@ -256,6 +256,12 @@ pub struct RunArgs {
     pub no_operator: bool,
     #[command(flatten)]
     pub db: history::DbArg,
+    /// Emulated rig: thickness of the simulated gel, a flat layer bonded to its
+    /// window, mm; `inf` simulates a half-space (with --r1-mm for its dome).
+    /// The recording declares it. A script declares its own ([sensor]
+    /// elastomer_thickness_mm) [default: the reference sensor's 5 mm gel]
+    #[arg(long, value_name = "MM", conflicts_with_all = ["rig", "script"])]
+    pub thickness_mm: Option<f64>,
     /// The simulated elastomer and indenter (emulated rig only).
     #[command(flatten)]
     pub elastomer: ElastomerArgs,

@@ -96,24 +96,34 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
         let spec = cfg.to_spec().map_err(|e| CliError::bad_input(e.to_string()))?;
         return Ok(RigChoice { spec, truth: None, script: given_script.unwrap_or_default(), emulated: None });
     }
+    // The gel: the script's declaration, else the flags' (by default the
+    // reference sensor's flat layer, whose R1 is then inf).
+    let layer = match &given_script {
+        Some(s) => s.sensor.layer().map_err(|e| CliError::bad_input(e.to_string()))?,
+        None => emulated_layer(args)?,
+    };
+    let mut elastomer = args.elastomer.clone();
+    if given_script.is_none() && layer.is_some() {
+        elastomer.elastomer_r_mm.get_or_insert(f64::INFINITY);
+    }
     let setup = sim_setup(SimSetupArgs {
-        elastomer: &args.elastomer,
+        elastomer: &elastomer,
         script: script_path.as_deref().zip(given_script.as_ref()),
         profile: args.profile.as_deref(),
         speedup: if args.realtime { 1.0 } else { args.speedup.unwrap_or(sim::defaults::SPEEDUP) },
     })?;
-    // A script that declares the gel's layer: the emulated rig simulates that
-    // layer (docs/physics.md, "The layer in the generator and the emulated rig").
-    let layer =
-        given_script.as_ref().map(|s| s.sensor.layer()).transpose().map_err(|e| CliError::bad_input(e.to_string()))?;
-    let setup = match layer.flatten() {
+    // A declared layer: the emulated rig simulates that layer (docs/physics.md,
+    // "The layer in the generator and the emulated rig").
+    let from_script = given_script.is_some();
+    let setup = match layer {
         None => setup,
-        Some(layer) => layered_setup(setup, layer)?,
+        Some(layer) => layered_setup(setup, layer, from_script)?,
     };
-    // Without a script, the built-in one on the simulated indenter and R1.
+    // Without a script, the built-in one on the simulated indenter, R1 and layer.
     let script = given_script.unwrap_or_else(|| {
         let mut s = Script { indenter: setup.pair().indenter, ..Script::default() };
         s.sensor.elastomer_r_mm = setup.pair().elastomer.r_mm;
+        s.sensor.elastomer_thickness_mm = layer.map(|l| l.thickness_mm);
         s
     });
     let rig = EmulatedRig::start(setup, ServeOptions { grbl: args.grbl, ..ServeOptions::default() })
@@ -122,18 +132,55 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
     Ok(RigChoice { spec: rig.spec(), truth: Some(rig.truth()), script, emulated: Some(rig) })
 }
 
-/// The emulated rig on the script's declared gel layer
-/// ([`crate::rig::emulated::on_declared_layer`]); a refusal names the key.
-fn layered_setup(setup: sim::setup::SimSetup, layer: sim::physics::Layer) -> Result<sim::setup::SimSetup, CliError> {
+/// The emulated gel's layer without a script: `--thickness-mm` (`inf`: a
+/// half-space), by default the reference sensor's
+/// ([`sim::defaults::ELASTOMER_THICKNESS_MM`]), bonded to its window. A dome
+/// (`--r1-mm` finite) is a half-space's: with the default layer it is refused,
+/// naming the flag that makes it one.
+fn emulated_layer(args: &RunArgs) -> Result<Option<sim::physics::Layer>, CliError> {
+    let h = args.thickness_mm.unwrap_or(sim::defaults::ELASTOMER_THICKNESS_MM);
+    if h == f64::INFINITY {
+        return Ok(None);
+    }
+    if !(h.is_finite() && h > 0.0) {
+        return Err(CliError::bad_input(format!("--thickness-mm must be a positive thickness or `inf`, got {h}")));
+    }
+    if let Some(r1) = args.elastomer.elastomer_r_mm.filter(|r| r.is_finite()) {
+        return Err(CliError::bad_input(format!(
+            "--r1-mm {r1}: the emulated gel is a flat {h} mm layer{}; a domed gel is simulated as a half-space: \
+             add --thickness-mm inf",
+            if args.thickness_mm.is_some() { "" } else { " by default" }
+        )));
+    }
+    Ok(Some(sim::physics::Layer { thickness_mm: h, base: sim::physics::LayerBase::Bonded, thickness_tol_mm: None }))
+}
+
+/// The emulated rig on the declared gel layer
+/// ([`crate::rig::emulated::on_declared_layer`]); a refusal names where the
+/// layer was declared and how to simulate a half-space instead.
+fn layered_setup(
+    setup: sim::setup::SimSetup,
+    layer: sim::physics::Layer,
+    from_script: bool,
+) -> Result<sim::setup::SimSetup, CliError> {
     crate::rig::emulated::on_declared_layer(setup, layer).map_err(|why| {
-        CliError::bad_input(format!(
-            "the script declares a {} mm gel layer ([sensor] elastomer_thickness_mm): {why}",
-            layer.thickness_mm
-        ))
+        let h = layer.thickness_mm;
+        CliError::bad_input(if from_script {
+            format!("the script declares a {h} mm gel layer ([sensor] elastomer_thickness_mm): {why}")
+        } else {
+            format!(
+                "the emulated gel is a {h} mm layer (--thickness-mm): {why}; --thickness-mm inf simulates a half-space"
+            )
+        })
     })
 }
 
 async fn run_async(args: &RunArgs) -> Result<(), CliError> {
+    // Signals are caught from the start: one that comes while the rig is being
+    // set up (building a simulated layer takes a second) aborts the run as
+    // soon as it starts, before anything has moved.
+    let (ctl_tx, ctl_rx) = unbounded_channel();
+    let ctrl_c = tokio::spawn(abort_on_signals(signal_streams(), ctl_tx.clone()));
     let RigChoice { spec, truth, mut script, emulated } = choose_rig(args).await?;
     if args.adaptive {
         script.adaptive.enabled = true;
@@ -162,7 +209,6 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
 
     // The run, the display and Ctrl-C, concurrently.
     let (ev_tx, ev_rx) = unbounded_channel();
-    let (ctl_tx, ctl_rx) = unbounded_channel();
     let display = {
         let ctl = ctl_tx.clone();
         let json = args.json;
@@ -176,7 +222,6 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
             }
         })
     };
-    let ctrl_c = tokio::spawn(abort_on_signals(ctl_tx.clone()));
     let rig_note = match (&args.rig, &emulated) {
         (Some(p), _) => format!("rig file {}", p.display()),
         (None, Some(rig)) => format!(
@@ -264,14 +309,23 @@ fn write_abort_report(o: &crate::run::RunOutcome, info: &crate::run::AbortInfo) 
 /// The abort report's file name, beside the recording.
 pub const ABORT_REPORT_FILE: &str = "aborted.json";
 
-/// Every terminating signal (INT, TERM, HUP) asks the sequencer to abort: stop,
-/// back off to the approach position, flush and report (docs/run.md). Further
-/// signals while it backs off ask again; the back-off is not skipped.
-async fn abort_on_signals(ctl: tokio::sync::mpsc::UnboundedSender<RunControl>) {
+/// The terminating signals (INT, TERM, HUP), caught from the moment this
+/// returns; `None` if a handler cannot be installed.
+fn signal_streams() -> Option<[tokio::signal::unix::Signal; 3]> {
     use tokio::signal::unix::{SignalKind, signal};
-    let (Ok(mut int), Ok(mut term), Ok(mut hup)) =
-        (signal(SignalKind::interrupt()), signal(SignalKind::terminate()), signal(SignalKind::hangup()))
-    else {
+    let kinds = [SignalKind::interrupt(), SignalKind::terminate(), SignalKind::hangup()];
+    let [int, term, hup] = kinds.map(signal);
+    Some([int.ok()?, term.ok()?, hup.ok()?])
+}
+
+/// Every terminating signal asks the sequencer to abort: stop, back off to
+/// the approach position, flush and report (docs/run.md). Further signals
+/// while it backs off ask again; the back-off is not skipped.
+async fn abort_on_signals(
+    signals: Option<[tokio::signal::unix::Signal; 3]>,
+    ctl: tokio::sync::mpsc::UnboundedSender<RunControl>,
+) {
+    let Some([mut int, mut term, mut hup]) = signals else {
         // Without handlers the default action stands; the run cannot catch signals.
         eprintln!("warning: cannot install signal handlers; a signal ends the run without a back-off");
         return;
