@@ -421,6 +421,36 @@ mod tests {
         }
     }
 
+    /// The emulated gel from the flags: by default the reference sensor's
+    /// flat 5 mm layer bonded to its window; `inf` the half-space (domed or
+    /// not); a dome on the default layer, a thickness that is none, or a
+    /// thickness beside a script or a rig file are refused, each naming the
+    /// flag that settles it.
+    #[test]
+    fn the_emulated_gel_is_the_reference_layer_unless_the_flags_say_otherwise() {
+        use clap::Parser;
+        let parse = |flags: &[&str]| super::super::Cli::try_parse_from(["easycalib", "run"].iter().chain(flags));
+        let layer = |flags: &[&str]| match parse(flags).expect("valid flags").command {
+            super::super::Command::Run(a) => emulated_layer(&a),
+            _ => unreachable!("a run"),
+        };
+        let default = layer(&[]).expect("the default gel").expect("a layer");
+        assert_eq!((default.thickness_mm, default.base), (5.0, sim::physics::LayerBase::Bonded));
+        assert_eq!(layer(&["--thickness-mm", "3.5"]).expect("a layer").map(|l| l.thickness_mm), Some(3.5));
+        assert_eq!(layer(&["--thickness-mm", "inf"]).expect("a half-space"), None);
+        assert_eq!(layer(&["--thickness-mm", "inf", "--r1-mm", "33"]).expect("a domed half-space"), None);
+        let dome = layer(&["--r1-mm", "33"]).expect_err("a domed layer");
+        assert!(dome.message.contains("--thickness-mm inf"), "{}", dome.message);
+        for bad in ["--thickness-mm=0", "--thickness-mm=-2", "--thickness-mm=nan"] {
+            let err = layer(&[bad]).expect_err("no thickness");
+            assert!(err.message.starts_with("--thickness-mm must be"), "{bad}: {}", err.message);
+        }
+        for other in [["--script", "s.toml"], ["--rig", "r.toml"]] {
+            let err = parse(&[&other[..], &["--thickness-mm", "5"]].concat()).err().expect("refused by clap");
+            assert!(err.to_string().contains("--thickness-mm"), "{other:?}: {err}");
+        }
+    }
+
     #[test]
     fn a_verdict_that_is_not_clean_goes_to_the_history_as_a_warning() {
         assert_eq!(diagnosis_note(&diagnosis(VerdictClass::Clean, "CLEAN: nothing named.\n")), None);
