@@ -446,7 +446,7 @@ mod tests {
             assert!(err.message.starts_with("--thickness-mm must be"), "{bad}: {}", err.message);
         }
         for other in [["--script", "s.toml"], ["--rig", "r.toml"]] {
-            let err = parse(&[&other[..], &["--thickness-mm", "5"]].concat()).err().expect("refused by clap");
+            let err = parse(&[&other[..], &["--thickness-mm", "5"]].concat()).expect_err("refused by clap");
             assert!(err.to_string().contains("--thickness-mm"), "{other:?}: {err}");
         }
     }
