@@ -144,9 +144,54 @@ impl LayeredNormal {
 
     /// As [`Self::at_contact_radius`] with `n` Nyström nodes (for convergence checks).
     pub fn at_contact_radius_with(&self, a_mm: f64, n: usize) -> NormalState {
+        self.pressure_at(a_mm, n).map_or(NormalState::NONE, |p| p.state)
+    }
+
+    /// The gel surface's deflection (mm, towards the base) on the axis and at
+    /// each radius of `r_mm` outside a contact of radius `a_mm` (inside, the
+    /// surface follows the indenter): the layer's response to the contact
+    /// pressure, without Tatara's correction of the axis value,
+    ///   w(r) = (2/E1*) [∫_0^a g(t) / sqrt(r² - t²) dt - ∫_0^a g(t) M(r, t) dt],
+    /// M(r, t) = ∫ (1 - K(ξh)) cos(ξt) J0(ξr) dξ = (2/π) ∫_0^{π/2} L(t, r sin φ) dφ
+    /// (J0 by Poisson's integral): the half-space's Boussinesq field less the
+    /// layer's deficit. A radius inside the contact gives NaN; `None` without
+    /// contact. The layer's table reaches (a + r)/h = 2 `a_max_mm`/h: further
+    /// out the deficit is held at its last tabulated value (build the model
+    /// with `a_max_mm` at least half the largest a + r).
+    pub fn surface_deflection_mm(&self, a_mm: f64, r_mm: &[f64]) -> Option<(f64, Vec<f64>)> {
+        let p = self.pressure_at(a_mm, nodes_for(a_mm / self.h_mm))?;
+        let (phi, wphi) = gauss_legendre_on(48, 0.0, PI / 2.0);
+        let at = r_mm
+            .iter()
+            .map(|&r| {
+                if r < p.a_mm * (1.0 - 1e-12) || !r.is_finite() {
+                    return f64::NAN;
+                }
+                let boussinesq: f64 =
+                    p.nodes.iter().zip(&p.weights).zip(&p.g).map(|((t, w), g)| w * g / (r * r - t * t).sqrt()).sum();
+                let deficit: f64 = p
+                    .nodes
+                    .iter()
+                    .zip(&p.weights)
+                    .zip(&p.g)
+                    .map(|((&t, w), g)| {
+                        let m: f64 =
+                            phi.iter().zip(&wphi).map(|(f, wf)| wf * self.l(t, r * f.sin())).sum::<f64>() * 2.0 / PI;
+                        w * g * m
+                    })
+                    .sum();
+                2.0 / self.e1s * (boussinesq - deficit)
+            })
+            .collect();
+        Some((p.axis_mm, at))
+    }
+
+    /// The Nyström solution at contact radius `a_mm` with `n` nodes: g on
+    /// the nodes and every quantity of the state; `None` without contact.
+    fn pressure_at(&self, a_mm: f64, n: usize) -> Option<Pressure> {
         let a = a_mm.clamp(0.0, self.a_max_mm);
         if a <= 0.0 || n == 0 {
-            return NormalState::NONE;
+            return None;
         }
         let (s, w) = gauss_legendre_on(n, 0.0, a);
         let lam = 2.0 / PI * self.es / self.e1s;
@@ -163,9 +208,7 @@ impl LayeredNormal {
         }
         // g = (E*/π)(δ g_c + g_q): unit constant and -t²/R* right-hand sides.
         let rhs = DMatrix::from_fn(n, 2, |i, k| if k == 0 { 1.0 } else { -self.gap(s[i]) });
-        let Some(sol) = m.lu().solve(&rhs) else {
-            return NormalState::NONE;
-        };
+        let sol = m.lu().solve(&rhs)?;
         // Nyström interpolation of both solutions at t = a and t = 0.
         let row_a: Vec<f64> = (0..n).map(|j| lam * w[j] * self.l(s[j], a)).collect();
         let row_0: Vec<f64> = (0..n).map(|j| lam * w[j] * self.l(s[j], 0.0)).collect();
@@ -177,15 +220,17 @@ impl LayeredNormal {
         let g0 = scale * (delta_h * at(&row_0, 0, 1.0) + at(&row_0, 1, 0.0));
         let force = 2.0 * PI * (0..n).map(|j| w[j] * g[j]).sum::<f64>();
         let layer_part: f64 = (0..n).map(|j| w[j] * g[j] * self.c.eval(s[j] / self.h_mm) / self.h_mm).sum();
-        let gamma1 = PI * g0 / self.e1s - 2.0 / self.e1s * layer_part - self.b1 * force;
+        let axis_mm = PI * g0 / self.e1s - 2.0 / self.e1s * layer_part;
+        let gamma1 = axis_mm - self.b1 * force;
         let gamma2 = YOFFE * PI * g0 / self.e2s - self.b2 * force;
-        NormalState {
+        let state = NormalState {
             delta_mm: gamma1 + gamma2,
             gamma1_mm: gamma1,
             gamma2_mm: gamma2,
             force_n: force,
             contact_radius_mm: a,
-        }
+        };
+        Some(Pressure { a_mm: a, nodes: s, weights: w, g: g.iter().copied().collect(), axis_mm, state })
     }
 
     /// The state at stage approach `delta_mm` (gamma1 + gamma2), by bisection-guarded
@@ -250,6 +295,18 @@ impl LayeredNormal {
         }
         Ok(best)
     }
+}
+
+/// A contact's pressure as the layer solver represents it: g on the
+/// Gauss–Legendre nodes of [0, a] (with their weights), and the state.
+struct Pressure {
+    a_mm: f64,
+    nodes: Vec<f64>,
+    weights: Vec<f64>,
+    g: Vec<f64>,
+    /// The gel's deflection on the axis without Tatara's correction, mm.
+    axis_mm: f64,
+    state: NormalState,
 }
 
 /// Torsion of a bonded patch on a layer bonded to its base.

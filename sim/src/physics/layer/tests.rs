@@ -185,3 +185,60 @@ fn exact_sphere_profile_is_segedins_solution_on_a_half_space() {
     let p = LayeredNormal::new(&pair, &Layer::bonded(1e7), 5.0).unwrap();
     assert!(rel(m.at_contact_radius(0.05).force_n, p.at_contact_radius(0.05).force_n) < 1e-3);
 }
+
+/// Hertz's surface outside the contact, w(r) / w(0) at rho = r / a (Johnson
+/// 1985, Eq. 3.42): what a half-space's Boussinesq field of the Hertz
+/// pressure gives.
+fn hertz_outside(rho: f64) -> f64 {
+    ((2.0 - rho * rho) * (1.0 / rho).asin() + (rho * rho - 1.0).sqrt()) / PI
+}
+
+#[test]
+fn the_surface_outside_the_contact_is_hertzs_on_a_half_space() {
+    let pair = tac3d_pair();
+    let layer = LayeredNormal::new(&pair, &Layer::bonded(1e7), 8.0).unwrap();
+    for a in [0.3, 1.0, 2.5] {
+        let rho = [1.001, 1.05, 1.3, 2.0, 3.0];
+        let r: Vec<f64> = rho.iter().map(|x| x * a).collect();
+        let (axis, w) = layer.surface_deflection_mm(a, &r).expect("in contact");
+        // The elastomer's share of Hertz's approach a²/R*.
+        let share = a * a / pair.composite_radius_mm() * layer.es / layer.e1s;
+        assert!(rel(axis, share) < 1e-6, "a {a}: axis {axis} vs {share}");
+        for (x, w) in rho.iter().zip(&w) {
+            let want = hertz_outside(*x);
+            // Gauss–Legendre on [0, a] meets a square-root edge at r = a
+            // (2.7e-5 there, 1e-7 from r = 1.05 a on).
+            let tol = if *x < 1.01 { 5e-5 } else { 1e-6 };
+            assert!((w / axis - want).abs() < tol, "a {a}, r/a {x}: {} vs {want}", w / axis);
+        }
+        // Inside the contact it is not this field's to say.
+        assert!(layer.surface_deflection_mm(a, &[0.5 * a]).unwrap().1[0].is_nan());
+    }
+}
+
+/// On a 5 mm gel bonded to its window the surface outside the contact is
+/// held by the window: it falls below Hertz's, and further out the gel that
+/// the contact pushed aside rises above its rest (a bonded layer cannot
+/// spread sideways at its base), the more the less compressible it is.
+#[test]
+fn a_bonded_layers_surface_falls_below_hertzs_and_rises_beside_the_contact() {
+    let far = [0.3, 0.49].map(|nu| {
+        let pair = ContactPair { elastomer: Body::new(0.37, nu, f64::INFINITY), indenter: Body::new(1.1, 0.39, 5.0) };
+        let layer = LayeredNormal::new(&pair, &Layer::bonded(5.0), 8.0).unwrap();
+        let a = 2.0;
+        let rho = [1.2, 2.0, 4.0];
+        let r: Vec<f64> = rho.iter().map(|x| x * a).collect();
+        let (axis, w) = layer.surface_deflection_mm(a, &r).unwrap();
+        for (x, w) in rho.iter().zip(&w) {
+            assert!(
+                w / axis < hertz_outside(*x) - 0.01,
+                "nu {nu}, r/a {x}: {} vs Hertz {}",
+                w / axis,
+                hertz_outside(*x)
+            );
+        }
+        w[2] / axis
+    });
+    // Measured: -0.003 (nu 0.3) and -0.020 (nu 0.49) of the axis deflection at r = 4a.
+    assert!(far[0] < 0.0 && far[1] < 2.0 * far[0], "{far:?}");
+}
