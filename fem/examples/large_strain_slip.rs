@@ -32,15 +32,20 @@ fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
     let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * R2).collect();
     let hemi_mesh = fem::Mesh::hemisphere(R2, &rs, 30).unwrap();
     let (gm, im) = (Material { e_mpa: 1.0, nu: nu1 }, Material { e_mpa: e_ratio, nu: nu2 });
-    let mut large = LargeStrainContact::new(gel_mesh, gm, hemi_mesh, im, R2).unwrap();
-    let forward = Forward::new(H, e_ratio, nu2, R2).unwrap();
+    let integration = cases::integration();
+    let mut large = LargeStrainContact::with_integration(gel_mesh, gm, hemi_mesh, im, R2, integration).unwrap();
+    let forward = Forward::with_integration(H, e_ratio, nu2, R2, integration).unwrap();
     let linear = forward.model(1.0, nu1);
     let twists: Vec<f64> = TWIST_OVER_MU_DEG.iter().map(|d| d.to_radians()).collect();
     let mut out = Vec::new();
     for k in 1..=120 {
         let delta = k as f64 * STEP_MM;
         let Some(nl) = large.solve_path(&[delta], STEP_MM).ok().and_then(|mut v| v.pop()) else { break };
-        if nl.gamma2_mm > 0.3 * R2 || nl.contact_radius_mm > 0.95 * R2 {
+        // The selective table stops once gamma2 passes 0.3 R2, past any
+        // sweep's beta = 0.2; its continuation goes on to the flank, so that
+        // a query between moduli reaches as deep as the stiff cases do.
+        let deep_enough = integration == fem::Integration::Selective && nl.gamma2_mm > 0.3 * R2;
+        if deep_enough || nl.contact_radius_mm > 0.95 * R2 {
             break;
         }
         if k % 4 != 0 {
@@ -71,6 +76,9 @@ fn main() {
     println!(
         "# slip fraction, large strain over linear (fem/examples/large_strain_slip.rs; docs/physics.md, \"The twist at large strain\")"
     );
+    if cases::integration() == fem::Integration::Full {
+        println!("# fully integrated elements (INTEGRATION=full): the depth extension of the selective table");
+    }
     println!("e2_over_e1,nu1,nu2,h_over_r2,delta_over_r2,twist_over_mu_deg,slip_ratio");
     for rows in results {
         for r in rows {

@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use crate::FemError;
 use crate::contact::{ContactState, FrictionalContact, TwoBodyContact};
 use crate::dense::{self, PrefixCholesky};
-use crate::elastic::{Body, Material, SurfaceCompliance, combine_block};
+use crate::elastic::{Body, Integration, Material, SurfaceCompliance, combine_block};
 use crate::mesh::Mesh;
 use crate::torsion::TorsionBody;
 
@@ -56,7 +56,7 @@ pub fn gel_mesh(h: f64) -> Result<Mesh, FemError> {
 impl GelTables {
     /// The tables on the first `nodes` surface nodes; the nine Poisson's ratios
     /// are factored and solved on threads of their own.
-    fn build(h: f64, nodes: usize) -> Result<Self, FemError> {
+    fn build(h: f64, nodes: usize, integration: Integration) -> Result<Self, FemError> {
         let mesh = gel_mesh(h)?;
         let nodes = nodes.min(mesh.surface.len());
         let r = mesh.surface_radii()[..nodes].to_vec();
@@ -67,7 +67,7 @@ impl GelTables {
                 .map(|&v| {
                     let mesh = mesh.clone();
                     scope.spawn(move || {
-                        Body::new(mesh, Material { e_mpa: 1.0, nu: v.min(0.4999) })
+                        Body::with_integration(mesh, Material { e_mpa: 1.0, nu: v.min(0.4999) }, integration)
                             .map(|b| b.surface_compliance_rz(nodes))
                     })
                 })
@@ -84,9 +84,9 @@ impl GelTables {
 
     /// Shared per thickness and node count: the tables take seconds and every
     /// fit of a gel reuses them.
-    fn cached(h: f64, nodes: usize) -> Result<Arc<Self>, FemError> {
-        static CACHE: BuildOnce<(u64, usize), GelTables> = BuildOnce::new();
-        CACHE.get((h.to_bits(), nodes), || Self::build(h, nodes))
+    fn cached(h: f64, nodes: usize, integration: Integration) -> Result<Arc<Self>, FemError> {
+        static CACHE: BuildOnce<(u64, usize, Integration), GelTables> = BuildOnce::new();
+        CACHE.get((h.to_bits(), nodes, integration), || Self::build(h, nodes, integration))
     }
 }
 
@@ -199,13 +199,26 @@ impl Forward {
     }
 
     pub fn new(thickness_mm: f64, indenter_e_mpa: f64, indenter_nu: f64, indenter_r_mm: f64) -> Result<Self, FemError> {
+        Self::with_integration(thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm, Integration::Selective)
+    }
+
+    /// [`Self::new`] on elements that integrate their volumetric part as
+    /// `integration` says (the large-strain tables' examples build the linear
+    /// side of their ratios on the neo-Hookean reference's own element).
+    pub fn with_integration(
+        thickness_mm: f64,
+        indenter_e_mpa: f64,
+        indenter_nu: f64,
+        indenter_r_mm: f64,
+        integration: Integration,
+    ) -> Result<Self, FemError> {
         if !(thickness_mm > 0.0 && thickness_mm.is_finite() && indenter_r_mm > 0.0 && indenter_r_mm < 100.0) {
             return Err(FemError::Invalid(format!("layer {thickness_mm} mm, indenter radius {indenter_r_mm} mm")));
         }
         // Only the gel's nodes under the indenter can touch it: tabulate those.
         let rs: Vec<f64> =
             gel_mesh(thickness_mm)?.surface_radii().into_iter().filter(|&r| r < 0.97 * indenter_r_mm).collect();
-        let gel = GelTables::cached(thickness_mm, rs.len())?;
+        let gel = GelTables::cached(thickness_mm, rs.len(), integration)?;
         let hemi = Mesh::hemisphere(indenter_r_mm, &rs, 30)?;
         let g2 = indenter_e_mpa / (2.0 * (1.0 + indenter_nu));
         let ind_torsion = TorsionBody::new(&hemi)?
@@ -214,7 +227,8 @@ impl Forward {
             .map(|c| c.into_iter().map(|v| v / g2).collect())
             .collect();
         let ind_normal = Arc::new(
-            Body::new(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu })?.surface_compliance_rz(usize::MAX),
+            Body::with_integration(hemi, Material { e_mpa: indenter_e_mpa, nu: indenter_nu }, integration)?
+                .surface_compliance_rz(usize::MAX),
         );
         Ok(Self {
             gel,

@@ -24,7 +24,7 @@ mod quad;
 pub mod torsion;
 
 pub use contact::{ContactState, TwoBodyContact};
-pub use elastic::{Body, Material};
+pub use elastic::{Body, Integration, Material};
 pub use mesh::Mesh;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

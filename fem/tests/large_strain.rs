@@ -128,3 +128,35 @@ fn the_dev_sets_nonlinear_recordings_are_reproduced_at_their_truth() {
         assert!(rms(&res_t) < 0.1, "{}: torsion rms {}", f[0], rms(&res_t));
     }
 }
+
+/// The fully integrated element (the depth continuation of the large-strain
+/// table, docs/physics.md, "Large strain") is the linear one with the same
+/// integration at small depth, and it follows a stiff press (E2/E1 4, nu1
+/// 0.48) past delta/R2 = 0.56, where the selective element's iteration stops
+/// settling, to 0.65 (contact radius 4.6 mm of R2 = 5).
+#[test]
+fn the_fully_integrated_element_follows_a_stiff_press_deeper() {
+    let r2 = 5.0;
+    let gel_mesh = fem::forward::gel_mesh(5.0).unwrap();
+    let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * r2).collect();
+    let hemi_mesh = Mesh::hemisphere(r2, &rs, 30).unwrap();
+    let (gel_m, ind_m) = (Material { e_mpa: 1.0, nu: 0.48 }, Material { e_mpa: 4.0, nu: 0.4 });
+    let full = fem::Integration::Full;
+    let lin = TwoBodyContact::new(
+        &Body::with_integration(gel_mesh.clone(), gel_m, full).unwrap(),
+        Some(&Body::with_integration(hemi_mesh.clone(), ind_m, full).unwrap()),
+        r2,
+    )
+    .unwrap();
+    let mut large = LargeStrainContact::with_integration(gel_mesh, gel_m, hemi_mesh, ind_m, r2, full).unwrap();
+    let shallow = large.solve_path(&[0.005], 0.005).unwrap().remove(0);
+    let err = shallow.gamma1_mm / lin.solve(0.005).unwrap().gamma1_mm - 1.0;
+    println!("delta 0.005 mm: large / linear gamma1 - 1 = {err:+.2e}");
+    assert!(err.abs() < 1e-3, "{err}");
+    let deep = large.solve_path(&[0.65 * r2], 0.05).unwrap().remove(0);
+    println!(
+        "delta/R2 0.65: gamma1 {:.4} mm, gamma2 {:.4} mm, contact radius {:.3} mm",
+        deep.gamma1_mm, deep.gamma2_mm, deep.contact_radius_mm
+    );
+    assert!(deep.gamma2_mm > 0.7 && deep.contact_radius_mm > 4.4 && deep.contact_radius_mm < 0.95 * r2);
+}

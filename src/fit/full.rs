@@ -571,7 +571,11 @@ fn covariance(
     let mut np = jac.ncols();
     if np == 4 {
         let norm = |j: usize| jac.column(j).norm();
-        if norm(3) * params.contact_friction.unwrap_or(1.0) < 1e-6 * norm(0) * params.e1_mpa {
+        // A fit that ran to full stick (friction infinite) has no finite
+        // column for it at all.
+        let mu = params.contact_friction.unwrap_or(1.0);
+        let stuck = !mu.is_finite() || !norm(3).is_finite();
+        if stuck || norm(3) * mu < 1e-6 * norm(0) * params.e1_mpa {
             np = 3;
             warnings.push(Warning::new(
                 "friction_undetermined",

@@ -55,3 +55,13 @@ pub fn run_all(cases: &[(f64, f64, f64)], run: impl Fn(f64, f64, f64) -> Vec<Str
     });
     results.into_inner().unwrap_or_default()
 }
+
+/// The element the tables are built on: `INTEGRATION=full` for the extension
+/// tables (fem/data/large_strain_full*.csv, the fully integrated element that
+/// follows the press to the indenter's flank), the selective one otherwise.
+pub fn integration() -> fem::Integration {
+    match std::env::var("INTEGRATION").as_deref() {
+        Ok("full") => fem::Integration::Full,
+        _ => fem::Integration::Selective,
+    }
+}

@@ -4,7 +4,7 @@
 
 use crate::FemError;
 use crate::banded::{Banded, Factor};
-use crate::elastic::Material;
+use crate::elastic::{Integration, Material};
 use crate::mesh::Mesh;
 use crate::quad::{self, QuadPoint};
 
@@ -65,7 +65,13 @@ fn stress_tangent(f: &[f64; 5], mu: f64, bulk: f64, volumetric: bool, safe: bool
 
 /// Internal force (8) and tangent stiffness (8x8) per radian of one quad with
 /// reference corners `p` and displacements `u`; `None` if the element inverts.
-fn element(p: [[f64; 2]; 4], u: [[f64; 2]; 4], m: &Material, safe: bool) -> Option<([f64; 8], [[f64; 8]; 8])> {
+fn element(
+    p: [[f64; 2]; 4],
+    u: [[f64; 2]; 4],
+    m: &Material,
+    integration: Integration,
+    safe: bool,
+) -> Option<([f64; 8], [[f64; 8]; 8])> {
     let mu = m.e_mpa / (2.0 * (1.0 + m.nu));
     let bulk = m.e_mpa / (3.0 * (1.0 - 2.0 * m.nu));
     let mut fe = [0.0; 8];
@@ -108,8 +114,13 @@ fn element(p: [[f64; 2]; 4], u: [[f64; 2]; 4], m: &Material, safe: bool) -> Opti
     };
     for (xi, eta) in quad::gauss_2x2() {
         add(xi, eta, 1.0, false)?;
+        if integration == Integration::Full {
+            add(xi, eta, 1.0, true)?;
+        }
     }
-    add(0.0, 0.0, 4.0, true)?;
+    if integration == Integration::Selective {
+        add(0.0, 0.0, 4.0, true)?;
+    }
     Some((fe, ke))
 }
 
@@ -163,6 +174,8 @@ pub struct HyperBody {
     pub(super) dof: Vec<[Option<usize>; 2]>,
     pub(super) free: usize,
     bw: usize,
+    /// Where the elements integrate their volumetric part.
+    pub integration: Integration,
 }
 
 impl HyperBody {
@@ -230,7 +243,7 @@ impl HyperBody {
             .map(|o| numbering(o))
             .min_by_key(|x| x.0)
             .ok_or_else(|| FemError::Invalid("an empty mesh".into()))?;
-        Ok(Self { u: vec![[0.0; 2]; nn], mesh, material, dof, free, bw })
+        Ok(Self { u: vec![[0.0; 2]; nn], mesh, material, dof, free, bw, integration: Integration::Selective })
     }
 
     /// Current position of node `n`.
@@ -245,7 +258,8 @@ impl HyperBody {
         for q in &self.mesh.quads {
             let p = q.map(|n| self.mesh.xy[n]);
             let u = q.map(|n| self.u[n]);
-            let (fe, ke) = element(p, u, &self.material, safe).ok_or(FemError::Inverted(self.material.e_mpa))?;
+            let (fe, ke) =
+                element(p, u, &self.material, self.integration, safe).ok_or(FemError::Inverted(self.material.e_mpa))?;
             for (x, &nx) in q.iter().enumerate() {
                 for cx in 0..2 {
                     let Some(dx) = self.dof[nx][cx] else { continue };

@@ -11,6 +11,14 @@
 //! The sum is the neo-Hookean energy above, and at small strain each element is
 //! exactly the linear one (`elastic.rs`), so the two models differ only by the
 //! large-strain physics.
+//!
+//! Under the large compression beneath a stiff indenter's tip that element's
+//! hourglass modes give way (negative pivots in the gel's tangent, then an
+//! iteration that no longer settles), well short of the physics' limit.
+//! `Integration::Full` puts the volumetric part at the 2x2 points too: it
+//! locks slightly but follows the press to the indenter's flank, and the
+//! large-strain table uses its ratios' increments to continue the selective
+//! ones in depth (docs/physics.md, "Large strain").
 
 use std::f64::consts::PI;
 
@@ -26,7 +34,7 @@ pub use table::{AtGroups, Groups, LargeStrainTable, Lookup};
 use crate::FemError;
 use crate::banded::Factor;
 use crate::dense;
-use crate::elastic::Material;
+use crate::elastic::{Integration, Material};
 use crate::mesh::Mesh;
 
 /// Newton stops when no displacement moves by more than this, mm.
@@ -103,6 +111,23 @@ pub struct LargeStrainContact {
 }
 
 impl LargeStrainContact {
+    /// [`Self::new`] on elements that integrate their volumetric part as
+    /// `integration` says (`Full`: stable under the large compression that
+    /// stops the selective element; the table's extension in depth).
+    pub fn with_integration(
+        gel_mesh: Mesh,
+        gel: Material,
+        hemisphere: Mesh,
+        indenter: Material,
+        indenter_radius_mm: f64,
+        integration: Integration,
+    ) -> Result<Self, FemError> {
+        let mut c = Self::new(gel_mesh, gel, hemisphere, indenter, indenter_radius_mm)?;
+        c.gel.integration = integration;
+        c.indenter.integration = integration;
+        Ok(c)
+    }
+
     /// `gel_mesh` with its surface on z = 0, the hemisphere of radius
     /// `indenter_radius_mm` with its tip at z = 0 (both as `Mesh` builds them).
     pub fn new(
