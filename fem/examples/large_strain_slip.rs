@@ -28,9 +28,9 @@ const TWIST_OVER_MU_DEG: [f64; 14] = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 12.5, 
 const STUCK_RAD: f64 = 1e-4;
 
 fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
-    let gel_mesh = fem::forward::gel_mesh(H).unwrap();
+    let (gel_mesh, segments) = cases::gel_mesh(H, fem::forward::FINE_MM);
     let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * R2).collect();
-    let hemi_mesh = fem::Mesh::hemisphere(R2, &rs, 30).unwrap();
+    let hemi_mesh = fem::Mesh::hemisphere(R2, &rs, segments).unwrap();
     let (gm, im) = (Material { e_mpa: 1.0, nu: nu1 }, Material { e_mpa: e_ratio, nu: nu2 });
     let integration = cases::integration();
     let mut large = LargeStrainContact::with_integration(gel_mesh, gm, hemi_mesh, im, R2, integration).unwrap();

@@ -7,7 +7,8 @@
 //!
 //! `cargo run --release -p fem --example large_strain_table > fem/data/large_strain.csv`
 //! (`CASE=2,0.48,0.4` runs one case, `E_RATIO=2` one modulus ratio; `THREADS`
-//! sets the workers, default 2).
+//! sets the workers, default 2; `FINE_MM` the element size at the contact,
+//! default `fem::hyper::TABLE_FINE_MM`, 0.06 mm with `INTEGRATION=full`).
 #[path = "support/cases.rs"]
 mod cases;
 
@@ -20,13 +21,14 @@ const H: f64 = 5.0;
 const STEP_MM: f64 = 0.05;
 
 fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
-    // The linear layer model's own gel mesh (0.06 mm at the contact), so that
-    // the ratio corrects the very model the fit runs.
-    let gel_mesh = fem::forward::gel_mesh(H).unwrap();
-    let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * R2).collect();
-    let hemi_mesh = Mesh::hemisphere(R2, &rs, 30).unwrap();
-    let (gm, im) = (Material { e_mpa: 1.0, nu: nu1 }, Material { e_mpa: e_ratio, nu: nu2 });
+    // The layer model's gel layout; the selective table on a finer mesh at
+    // the contact (its deep presses are not converged on the layer model's
+    // 0.06 mm), the fully integrated one, whose increments continue it, on 0.06 mm.
     let integration = cases::integration();
+    let (gel_mesh, segments) = cases::gel_mesh(H, default_fine_mm());
+    let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * R2).collect();
+    let hemi_mesh = Mesh::hemisphere(R2, &rs, segments).unwrap();
+    let (gm, im) = (Material { e_mpa: 1.0, nu: nu1 }, Material { e_mpa: e_ratio, nu: nu2 });
     let lin = TwoBodyContact::new(
         &Body::with_integration(gel_mesh.clone(), gm, integration).unwrap(),
         Some(&Body::with_integration(hemi_mesh.clone(), im, integration).unwrap()),
@@ -75,12 +77,20 @@ fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
     out
 }
 
+fn default_fine_mm() -> f64 {
+    match cases::integration() {
+        fem::Integration::Selective => fem::hyper::TABLE_FINE_MM,
+        fem::Integration::Full => fem::forward::FINE_MM,
+    }
+}
+
 fn main() {
     let results = cases::run_all(&cases::selected(), run);
     println!("# large-strain / linear ratios (fem/examples/large_strain_table.rs; docs/physics.md, \"Large strain\")");
     if cases::integration() == fem::Integration::Full {
         println!("# fully integrated elements (INTEGRATION=full): the depth extension of the selective table");
     }
+    println!("# gel mesh {} mm at the contact (FINE_MM)", cases::fine_mm(default_fine_mm()));
     println!("e2_over_e1,nu1,nu2,h_over_r2,delta_over_r2,gamma1_ratio,gamma2_over_r2,twist_ratio");
     for rows in results {
         for r in rows {

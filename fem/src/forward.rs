@@ -20,7 +20,7 @@ use crate::torsion::TorsionBody;
 /// 0.8 a 40 mm wide 5 mm gel reads gamma1 0.3 % under a 30 mm one, several µm
 /// at depth. Three thicknesses is the EasyCalib reference sensor's gel (30 mm
 /// across, 5 mm thick; docs/physics.md, "Finite-element reference").
-const FINE_MM: f64 = 0.06;
+pub const FINE_MM: f64 = 0.06;
 const GEL_RADIUS_IN_H: f64 = 3.0;
 /// Poisson's ratios at which the gel is tabulated (Chebyshev points on [0, 0.5]).
 const NU_NODES: usize = 9;
@@ -50,7 +50,21 @@ struct GelTables {
 
 /// The gel's mesh for a layer of thickness `h` (both references use it).
 pub fn gel_mesh(h: f64) -> Result<Mesh, FemError> {
-    Mesh::gel((GEL_RADIUS_IN_H * h).max(12.0), h, FINE_MM, 6.0, 1.5)
+    gel_mesh_at(h, FINE_MM)
+}
+
+/// [`gel_mesh`]'s layout with elements of `fine_mm` at the contact (the
+/// large-strain table's reference runs use a finer one than the layer
+/// model: docs/physics.md, "Large strain").
+pub fn gel_mesh_at(h: f64, fine_mm: f64) -> Result<Mesh, FemError> {
+    Mesh::gel((GEL_RADIUS_IN_H * h).max(12.0), h, fine_mm, 6.0, 1.5)
+}
+
+/// Radial segments of the hemisphere's mesh against a gel with elements of
+/// `fine_mm` at the contact (30 at the layer model's 0.06 mm; fewer at a
+/// finer gel mesh invert an element under a deep press).
+pub fn hemisphere_segments(fine_mm: f64) -> usize {
+    (30.0 * FINE_MM / fine_mm).round().max(1.0) as usize
 }
 
 impl GelTables {

@@ -65,3 +65,15 @@ pub fn integration() -> fem::Integration {
         _ => fem::Integration::Selective,
     }
 }
+
+/// The element size at the contact a table is built with: `FINE_MM`, else `default_mm`.
+pub fn fine_mm(default_mm: f64) -> f64 {
+    std::env::var("FINE_MM").ok().and_then(|v| v.parse::<f64>().ok()).unwrap_or(default_mm)
+}
+
+/// The gel's mesh a table is built on (the layer model's layout with
+/// [`fine_mm`] elements at the contact) and the hemisphere's radial segments to match.
+pub fn gel_mesh(h: f64, default_fine_mm: f64) -> (fem::Mesh, usize) {
+    let fine = fine_mm(default_fine_mm);
+    (fem::forward::gel_mesh_at(h, fine).unwrap(), fem::forward::hemisphere_segments(fine))
+}

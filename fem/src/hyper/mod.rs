@@ -29,7 +29,7 @@ mod twist;
 
 pub use body::HyperBody;
 pub use sweep::{Sweep, SweepPlan, calibration_sweep};
-pub use table::{AtGroups, Groups, LargeStrainTable, Lookup};
+pub use table::{AtGroups, Groups, LargeStrainTable, Lookup, TABLE_FINE_MM};
 
 use crate::FemError;
 use crate::banded::Factor;

@@ -27,6 +27,12 @@ struct Case {
     selective_to: f64,
 }
 
+/// Element size at the contact (mm) of the meshes the selective tables'
+/// two references (`fem/data/large_strain.csv`) are built on: finer than the
+/// layer model's 0.06 mm, where the neo-Hookean reference's deep presses are
+/// not mesh-converged (docs/physics.md, "Large strain").
+pub const TABLE_FINE_MM: f64 = 0.04;
+
 /// Where a query falls against the table.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Lookup {
@@ -304,11 +310,14 @@ impl AtGroups<'_> {
         let x = twist_over_mu_deg.abs();
         let mut clamped = self.clamped;
         let mut ratio = 0.0;
+        // Flagged as gamma1 is (see `lookup`): by the weighted shortfall of
+        // the series read, each case counting the larger of its (at most two).
+        let mut beyond = 0.0;
         for &(w, case) in &self.cases {
+            let mut short = 0.0f64;
             let mut at = |series: &[(f64, f64)]| {
-                let (r, out) = along_held(series, delta_over_r2, SLIP_HOLD_BEYOND);
-                clamped |= out;
-                r
+                short = short.max(past_last(series, delta_over_r2));
+                along_held(series, delta_over_r2, SLIP_HOLD_BEYOND).0
             };
             // The tabulated twists / mu around x: 1 at zero below the first.
             let k = case.slip.partition_point(|(xk, _)| *xk < x);
@@ -324,40 +333,44 @@ impl AtGroups<'_> {
             };
             clamped |= past_last;
             ratio += w * r;
+            beyond += w.abs() * short;
         }
-        Lookup { ratio, clamped }
+        Lookup { ratio, clamped: clamped || beyond > SLIP_HOLD_BEYOND }
     }
 
-    /// How deep the cases this query interpolates between were followed
-    /// (delta/R2): the shallowest last tabulated approach among them. Past
-    /// it the ratios are the extension of [`along`], not the reference's.
-    pub fn tabulated_to(&self) -> f64 {
-        self.cases
-            .iter()
-            .filter(|(w, _)| w.abs() > 1e-9)
-            .filter_map(|(_, case)| case.gamma1.last().map(|p| p.0))
-            .fold(f64::INFINITY, f64::min)
-    }
-
-    /// How deep the selective element's reference itself was followed for
-    /// the cases this query interpolates between (the shallowest): past it
-    /// the ratios are the fully integrated element's continuation.
-    pub fn selective_to(&self) -> f64 {
-        self.cases
-            .iter()
-            .filter(|(w, _)| w.abs() > 1e-9)
-            .map(|(_, case)| case.selective_to)
-            .fold(f64::INFINITY, f64::min)
+    /// How far approach `delta_over_r2` lies past the reach of the cases
+    /// this query interpolates between, each case's shortfall weighted by
+    /// the magnitude of its interpolation weight (delta/R2): `[continued,
+    /// extended]`, the depth within the fully integrated element's
+    /// continuation (past where the selective element's reference stopped)
+    /// and past the continuation too (where the ratios follow a straight
+    /// line). The interpolated ratio's error is the weighted sum of its
+    /// cases' errors, each growing with its own shortfall, so a case of
+    /// small weight that stops early adds little; on a grid node these are
+    /// the node's own shortfalls. docs/physics.md, "Past the table's depth".
+    pub fn depths_past(&self, delta_over_r2: f64) -> [f64; 2] {
+        let d = delta_over_r2;
+        self.cases.iter().fold([0.0; 2], |[continued, extended], (w, case)| {
+            let reach = case.gamma1.last().map_or(0.0, |p| p.0);
+            [
+                continued + w.abs() * (d.min(reach) - case.selective_to).max(0.0),
+                extended + w.abs() * (d - reach).max(0.0),
+            ]
+        })
     }
 
     fn lookup(&self, d: f64, pick: impl Fn(&Case) -> &Vec<(f64, f64)>) -> Lookup {
         let mut clamped = self.clamped;
         let mut ratio = 0.0;
+        // Flagged when the weighted shortfall (see [`Self::depths_past`]) is
+        // past the hold margin: on a node, when its own series is.
+        let mut beyond = 0.0;
         for &(w, case) in &self.cases {
-            let (r, out) = along(pick(case), d);
-            clamped |= out;
-            ratio += w * r;
+            let series = pick(case);
+            ratio += w * along(series, d).0;
+            beyond += w.abs() * past_last(series, d);
         }
+        clamped |= beyond > HOLD_BEYOND;
         Lookup { ratio, clamped }
     }
 }
@@ -450,6 +463,12 @@ fn splice(own: &mut Vec<(f64, f64)>, ext: &[(f64, f64)]) {
     own.extend(ext.iter().filter(|p| p.0 > d0 + 1e-9).map(|&(d, r)| (d, r0 * r / e0)));
 }
 
+/// How far `d` lies past a series' last tabulated approach (0 inside; an
+/// empty series is past everywhere).
+fn past_last(points: &[(f64, f64)], d: f64) -> f64 {
+    points.last().map_or(f64::INFINITY, |p| (d - p.0).max(0.0))
+}
+
 /// Linear interpolation along the approach; 1 at zero approach (linear
 /// elasticity is the limit). Beyond the table the ratio follows the straight
 /// line fitted through its last few points (the ratios are smooth in the
@@ -511,25 +530,42 @@ mod tests {
         assert!(t.gamma1_ratio(&Groups { h_over_r2: 0.4, ..g }).clamped);
     }
 
-    /// The reach of a query is the last tabulated approach of its case on a
-    /// grid node, and no deeper than any case it interpolates between off it.
+    /// On a grid node a query's shortfall in depth is its own case's, past
+    /// the selective reach and past the continuation; between nodes each
+    /// case counts by the magnitude of its interpolation weight, so a soft
+    /// case that stops early but weighs little (E2/E1 1 in a query at 3,
+    /// weight -0.06) neither flags the lookup nor sets the whole depth.
     #[test]
-    fn a_query_reaches_as_deep_as_its_shallowest_case() {
+    fn a_querys_shortfall_in_depth_weights_each_case_by_its_interpolation_weight() {
         let t = LargeStrainTable::builtin().unwrap();
-        let on = |e: f64, nu1: f64, nu2: f64| {
-            let g = Groups { e2_over_e1: e, nu1, nu2, h_over_r2: 1.0, delta_over_r2: 0.3 };
-            let at = t.at_groups(&g);
-            let case = t.cases.iter().find(|c| c.key == [e.ln(), nu1, nu2]).unwrap();
-            (at.tabulated_to(), case.gamma1.last().unwrap().0)
-        };
+        let g = |e: f64, nu1: f64, nu2: f64| Groups { e2_over_e1: e, nu1, nu2, h_over_r2: 1.0, delta_over_r2: 0.3 };
+        let case = |e: f64, nu1: f64, nu2: f64| t.cases.iter().find(|c| c.key == [f64::ln(e), nu1, nu2]).unwrap();
         for (e, nu1, nu2) in [(2.0, 0.48, 0.4), (4.0, 0.3, 0.33), (8.0, 0.4, 0.47)] {
-            let (reach, last) = on(e, nu1, nu2);
-            assert!((reach - last).abs() < 1e-12 && reach > 0.3, "{e} {nu1} {nu2}: {reach} {last}");
+            let (at, c) = (t.at_groups(&g(e, nu1, nu2)), case(e, nu1, nu2));
+            let reach = c.gamma1.last().unwrap().0;
+            assert!(reach > c.selective_to + 0.02, "{e} {nu1} {nu2}: the continuation adds depth");
+            for d in [0.3, c.selective_to + 0.01, reach + 0.05] {
+                let want = [(d.min(reach) - c.selective_to).max(0.0), (d - reach).max(0.0)];
+                let got = at.depths_past(d);
+                assert!((got[0] - want[0]).abs() < 1e-12 && (got[1] - want[1]).abs() < 1e-12, "{d}: {got:?}");
+            }
+            // Flagged past the hold margin, as the case itself is.
+            assert!(!at.gamma1_ratio(reach + 0.8 * HOLD_BEYOND).clamped);
+            assert!(at.gamma1_ratio(reach + 1.2 * HOLD_BEYOND).clamped);
         }
-        let between =
-            t.at_groups(&Groups { e2_over_e1: 3.0, nu1: 0.45, nu2: 0.38, h_over_r2: 1.0, delta_over_r2: 0.3 });
-        let neighbours = [on(2.0, 0.48, 0.4).1, on(4.0, 0.48, 0.4).1, on(2.0, 0.4, 0.33).1, on(4.0, 0.4, 0.47).1];
-        assert!(neighbours.iter().all(|&d| between.tabulated_to() <= d + 1e-12), "{}", between.tabulated_to());
+        // Between moduli: the soft node stops first.
+        let at = t.at_groups(&g(3.0, 0.48, 0.4));
+        let soft = case(1.0, 0.48, 0.4).gamma1.last().unwrap().0;
+        let stiff = [2.0, 4.0].map(|e| case(e, 0.48, 0.4).gamma1.last().unwrap().0);
+        let d = soft + 1.1 * HOLD_BEYOND;
+        assert!(d < stiff[0].min(stiff[1]), "{soft} {stiff:?}");
+        let [continued, extended] = at.depths_past(d);
+        let by_hand: f64 = at.cases.iter().map(|(w, c)| w.abs() * (d - c.gamma1.last().unwrap().0).max(0.0)).sum();
+        assert!((extended - by_hand).abs() < 1e-12 && extended < 0.1 * (d - soft), "{extended}");
+        assert!(continued > 0.0 && continued < d, "{continued}");
+        // The soft case alone is past its hold margin there.
+        assert!(along(&case(1.0, 0.48, 0.4).gamma1, d).1);
+        assert!(!at.gamma1_ratio(d).clamped && !at.twist_ratio(d).clamped);
     }
 
     /// Where the selective element's reference stopped, a case goes on along
@@ -543,8 +579,11 @@ mod tests {
         own.parse_slip(include_str!("../../data/large_strain_slip.csv")).unwrap();
         let g = Groups { e2_over_e1: 4.0, nu1: 0.48, nu2: 0.4, h_over_r2: 1.0, delta_over_r2: 0.3 };
         let (at, at_own) = (t.at_groups(&g), own.at_groups(&g));
-        let (sel, reach) = (at.selective_to(), at.tabulated_to());
-        assert!((sel - at_own.tabulated_to()).abs() < 1e-12 && reach > sel + 0.1, "{sel} {reach}");
+        let key = [g.e2_over_e1.ln(), g.nu1, g.nu2];
+        let last = |t: &LargeStrainTable| t.cases.iter().find(|c| c.key == key).unwrap().gamma1.last().unwrap().0;
+        let (sel, reach) = (last(&own), last(t));
+        assert!(reach > sel + 0.1, "{sel} {reach}");
+        assert_eq!(at.depths_past(reach), [reach - sel, 0.0]);
         for d in [0.1, 0.3, sel - 0.01] {
             assert_eq!(at.gamma1_ratio(d), at_own.gamma1_ratio(d));
             assert_eq!(at.twist_ratio(d), at_own.twist_ratio(d));
