@@ -152,11 +152,11 @@ fn diagnose_starts_from_the_layer_model_and_agrees_with_fit() {
 /// A recording of the project's own large-strain reference on the correction
 /// table's grid (E2/E1 1, nu1 0.48, nu2 0.4; `easycalib simulate --fidelity fe
 /// --thickness-mm 5 --r1-mm inf --e1-mpa 1 --nu1 0.48 --indenter-e-mpa 1
-/// --indenter-nu 0.4 --seed 4`). Not an independent check: it guards the choice
-/// between the two strain models. The large-strain fit ended near nu1 = 0.5
-/// here when its twist kept the linear model's slip (0.494, E1 -2.9 %); with
-/// the slip-aware twist it gives nu1 0.489, E1 -1.8 % (docs/physics.md, "The
-/// twist at large strain"), while the linear fit leaves chi² 361 against its
+/// --indenter-nu 0.4 --seed 4`, on the reference's 0.06 mm mesh). Not an
+/// independent check: it guards the choice between the two strain models. The
+/// large-strain fit ended near nu1 = 0.5 here when its twist kept the linear
+/// model's slip (0.494, E1 -2.9 %); with the slip-aware twist it gives nu1
+/// 0.492, E1 -1.8 % (docs/physics.md, "The twist at large strain"), while the linear fit leaves chi² 361 against its
 /// 45 at their common noise (1.81 µm; 48 degrees of freedom). The misfit
 /// decides, not the bound.
 #[test]
@@ -407,13 +407,15 @@ fn noiseless_recordings_pick_the_model_that_made_them() {
 
 /// Noiseless recordings of the project's own large-strain reference on two
 /// nodes of the correction table (E2/E1 2 and 1, nu1 0.48, nu2 0.4, mu 0.4;
-/// `fem::hyper::calibration_sweep` to beta 0.2, twists 0-10 degrees). Not an
-/// independent check (the tables are built from this reference): it guards
-/// the slip-aware twist (docs/physics.md, "The twist at large strain"). With
-/// the linear model's slip under the stuck ratio the model's twist fell short
-/// of the reference's by 0.095 and 0.072 degrees at 10 degrees and the fits
-/// ended at E1 -0.77 and -1.49 %; measured now: within 0.019 degrees at every
-/// twist, E1 +0.32 and -0.16 %, nu1 -0.33 and +0.16 %.
+/// `fem/examples/own_noiseless.rs`: the calibration sweep to beta 0.2 and
+/// twists 0-10 degrees, gamma1 extrapolated to zero element size from the
+/// table's two meshes as the table is). Not an independent check (the tables
+/// are built from this reference): it guards the slip-aware twist
+/// (docs/physics.md, "The twist at large strain"). With the linear model's
+/// slip under the stuck ratio the model's twist fell short of the
+/// reference's by 0.095 and 0.072 degrees at 10 degrees and the fits ended at
+/// E1 -0.77 and -1.49 %; measured now: within 0.004 and 0.014 degrees at
+/// every twist, E1 -0.27 and -0.45 %, nu1 -0.33 and -0.04 %.
 #[test]
 fn the_large_strain_twist_follows_its_reference_under_friction() {
     use easycalib::fit::{FullOptions, ModelParams, fit_full, predict};

@@ -15,9 +15,9 @@ fn main() {
         }
         let ind = rec.meta.indenter;
         let t = std::time::Instant::now();
-        let gel_mesh = Mesh::gel(15.0, 5.0, fine, 5.0, 1.5).unwrap();
+        let gel_mesh = fem::forward::gel_mesh_at(5.0, fine).unwrap();
         let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * ind.r_mm).collect();
-        let hemi = Mesh::hemisphere(ind.r_mm, &rs, 30).unwrap();
+        let hemi = Mesh::hemisphere(ind.r_mm, &rs, fem::forward::hemisphere_segments(fine)).unwrap();
         let mut c = LargeStrainContact::new(
             gel_mesh,
             Material { e_mpa: e1, nu: nu1 },

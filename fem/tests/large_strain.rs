@@ -70,13 +70,15 @@ fn dev_dir() -> PathBuf {
 }
 
 /// Our own neo-Hookean reference at the dev set's truth reproduces its nonlinear
-/// recordings (an independent code: P2 elements, penalty contact) to within
-/// twice their noise, where the linear reference misses by over ten times
-/// more. The mesh is the large-strain table's (0.04 mm at the contact, the
-/// layer model's 15 mm wide gel; about 80 s a recording): the deep presses
-/// converge slowly with the mesh (tableI_2: 4.96, 3.45 and 2.78 µm rms at
-/// 0.06, 0.04 and 0.03 mm, the deepest residual 12.3, 8.3 and 6.1 µm;
-/// docs/physics.md, "Large strain").
+/// recordings (an independent code: P2 elements, penalty contact) within
+/// their noise once extrapolated to zero element size, where the linear
+/// reference misses by over ten times more. The deep presses converge to
+/// first order in the element size (tableI_2: 4.96, 3.45, 2.78 and 2.27 µm
+/// rms at 0.06, 0.04, 0.03 and 0.02 mm, the deepest residual 12.3, 8.3, 6.1
+/// and 4.1 µm; docs/physics.md, "Mesh convergence"), so the reference is run
+/// on the large-strain table's two meshes (0.04 and 0.06 mm at the contact,
+/// about 80 and 25 s a recording) and its gamma1 extrapolated from them, as
+/// the table's ratios are.
 #[test]
 fn the_dev_sets_nonlinear_recordings_are_reproduced_at_their_truth() {
     let truth = std::fs::read_to_string(dev_dir().join("truth.csv")).unwrap();
@@ -86,7 +88,7 @@ fn the_dev_sets_nonlinear_recordings_are_reproduced_at_their_truth() {
         let (e1, nu1): (f64, f64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
         let ind = rec.meta.indenter;
         let (gel_m, ind_m) = (Material { e_mpa: e1, nu: nu1 }, Material { e_mpa: ind.e_mpa, nu: ind.nu });
-        let fine = fem::hyper::TABLE_FINE_MM;
+        let (fine, coarse) = (fem::hyper::TABLE_FINE_MM, fem::hyper::TABLE_COARSE_MM);
         let gel_mesh = fem::forward::gel_mesh_at(5.0, fine).unwrap();
         let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * ind.r_mm).collect();
         let hemi_mesh = Mesh::hemisphere(ind.r_mm, &rs, fem::forward::hemisphere_segments(fine)).unwrap();
@@ -100,30 +102,58 @@ fn the_dev_sets_nonlinear_recordings_are_reproduced_at_their_truth() {
         let normal: Vec<_> = rec.samples.iter().filter(|s| s.phase == Phase::Normal && s.stage_mm > 0.0).collect();
         let stages: Vec<f64> = normal.iter().map(|s| s.stage_mm).collect();
         let path = large.solve_path(&stages, 0.05).unwrap();
+        let coarse_path = LargeStrainContact::for_layer_at(5.0, gel_m, ind_m, ind.r_mm, coarse)
+            .unwrap()
+            .solve_path(&stages, 0.05)
+            .unwrap();
         let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
         let res_nl: Vec<f64> = normal.iter().zip(&path).map(|(s, st)| (s.gamma1_mm - st.gamma1_mm) * 1e3).collect();
+        let res_lim: Vec<f64> = normal
+            .iter()
+            .zip(path.iter().zip(&coarse_path))
+            .map(|(s, (f, c))| {
+                (s.gamma1_mm - fem::hyper::mesh_extrapolated(f.gamma1_mm, c.gamma1_mm, fine, coarse)) * 1e3
+            })
+            .collect();
         let res_lin: Vec<f64> =
             normal.iter().map(|s| (s.gamma1_mm - lin.solve(s.stage_mm).unwrap().gamma1_mm) * 1e3).collect();
+        // The recordings' stated noise (their README: gamma1 sigma 2 µm), and
+        // the 99 % point of chi² on as many samples (Wilson–Hilferty).
+        let noise = 2.0;
+        let n = res_lim.len() as f64;
+        let chi2_99 = n * (1.0 - 2.0 / (9.0 * n) + 2.326 * (2.0 / (9.0 * n)).sqrt()).powi(3);
+        let chi2 = |v: &[f64]| v.iter().map(|x| (x / noise).powi(2)).sum::<f64>();
         let tors: Vec<_> = rec.samples.iter().filter(|s| s.phase == Phase::Torsion && s.rot_deg > 0.0).collect();
         let twists: Vec<f64> = tors.iter().map(|s| s.rot_deg.to_radians()).collect();
         let last = path.last().unwrap();
         let theta = large.theta1_rad(last, &twists, 0.4).unwrap();
         let res_t: Vec<f64> = tors.iter().zip(&theta).map(|(s, t)| s.theta1_deg - t.to_degrees()).collect();
         println!(
-            "{:32} gamma1 - FE: large strain rms {:.2} µm (deepest {:+.2}), linear rms {:.2} µm (deepest {:+.2}); \
-             theta1 - FE rms {:.3}° (noise 2 µm, 0.02°)",
+            "{:32} gamma1 - FE: large strain at zero element size rms {:.2} µm (deepest {:+.2}), on the {fine} mm \
+             mesh {:.2} µm (deepest {:+.2}), linear {:.2} µm (deepest {:+.2}); chi² at the 2 µm noise {:.1} \
+             (99 % point {chi2_99:.1} for {n} samples); theta1 - FE rms {:.3}° (noise 0.02°)",
             f[0],
+            rms(&res_lim),
+            res_lim[res_lim.len() - 1],
             rms(&res_nl),
             res_nl[res_nl.len() - 1],
             rms(&res_lin),
             res_lin[res_lin.len() - 1],
+            chi2(&res_lim),
             rms(&res_t)
         );
+        for ((s, a), b) in normal.iter().zip(&res_lim).zip(&res_nl).step_by(5) {
+            println!(
+                "    stage {:.3} mm: gamma1 - FE {a:+.2} µm at zero element size, {b:+.2} µm on {fine} mm",
+                s.stage_mm
+            );
+        }
         for (s, r) in tors.iter().zip(&res_t) {
             println!("    rot {:5.2}°: theta1 recorded {:.4}°, FE {:+.4}°", s.rot_deg, s.theta1_deg, -r);
         }
-        // Measured: 3.45 µm on tableI_2, most of it at the deepest samples.
-        assert!(rms(&res_nl) < 4.5, "{}: normal rms {}", f[0], rms(&res_nl));
+        // Within the recording's noise: chi² under its 99 % point (on the
+        // 0.04 mm mesh alone it is not: 89 on tableI_2).
+        assert!(chi2(&res_lim) < chi2_99, "{}: chi² {} at rms {} µm", f[0], chi2(&res_lim), rms(&res_lim));
         assert!(rms(&res_nl) < 0.5 * rms(&res_lin), "{}: large strain must explain the linear misfit", f[0]);
         assert!(rms(&res_t) < 0.1, "{}: torsion rms {}", f[0], rms(&res_t));
     }

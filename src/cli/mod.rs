@@ -182,7 +182,8 @@ pub struct SimulateArgs {
     /// Which physics makes the recording: `analytic` (the paper's model, a
     /// half-space; with --thickness-mm the linear FE layer model of a bonded
     /// gel, with friction) or `fe` (the project's large-strain finite-element
-    /// reference of a bonded gel layer: needs --thickness-mm; about a minute).
+    /// reference of a bonded gel layer, taken to zero element size from two
+    /// meshes: needs --thickness-mm; a few minutes).
     #[arg(long, value_enum, default_value_t = Fidelity::Analytic)]
     pub fidelity: Fidelity,
     #[command(flatten)]

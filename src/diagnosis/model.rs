@@ -43,7 +43,11 @@ pub enum Candidate {
 /// ([`Model::n_base`]).
 pub const BASE: usize = 3;
 
-/// Friction coefficients a layered refit may take (internal: its logarithm).
+/// Friction coefficients a layered refit may take (internal: its
+/// logarithm). Below the range a refit is refused; above it the friction is
+/// held at its top, where the twist sticks as it does at any larger one (a
+/// flat cost, so a fit that found the twist stuck starts on the top and
+/// moves its other parameters freely).
 const FRICTION_RANGE: [f64; 2] = [1e-3, 1e3];
 
 impl Candidate {
@@ -503,9 +507,13 @@ impl<'a> Model<'a> {
     /// friction where it is one of them).
     pub fn start(&self, b: &Base) -> Vec<f64> {
         let mut x = b.internal().to_vec();
-        // A fit that found the twist stuck ends at a friction of any size: the
-        // range's end sticks as well.
+        // A fit that found the twist stuck ends at a friction of any size,
+        // where the cost is flat: a refit starts from the fit's own first
+        // guess instead, so that an effect that explains the stiff twist can
+        // bring the friction back (a drifting frame took a neo-Hookean fit of
+        // a gel with friction 0.4 to full stick).
         let friction = self.layer.as_ref().and_then(|l| l.friction()).filter(|_| self.n_base() > BASE);
+        let friction = friction.map(|m| if m >= FRICTION_RANGE[1] { crate::fit::full::FRICTION_START } else { m });
         x.extend(friction.map(|m| m.clamp(FRICTION_RANGE[0], FRICTION_RANGE[1]).ln()));
         x
     }
@@ -514,7 +522,7 @@ impl<'a> Model<'a> {
     /// fit's when `x` has none), `None` when the twist sticks.
     pub fn friction(&self, x: &[f64]) -> Option<f64> {
         let fitted = self.layer.as_ref()?.friction()?;
-        Some(x.get(BASE).filter(|_| self.n_base() > BASE).map_or(fitted, |y| y.exp()))
+        Some(x.get(BASE).filter(|_| self.n_base() > BASE).map_or(fitted, |y| y.exp().min(FRICTION_RANGE[1])))
     }
 
     /// Weigh each reading by its recorded standard error (the channels `sd`
@@ -592,7 +600,7 @@ impl<'a> Model<'a> {
         if !cands.is_empty() && x.len() < self.n_base() {
             return None;
         }
-        if self.n_base() > BASE && x.len() > BASE && !(FRICTION_RANGE[0]..=FRICTION_RANGE[1]).contains(&x[BASE].exp()) {
+        if self.n_base() > BASE && x.len() > BASE && (x[BASE].is_nan() || x[BASE].exp() < FRICTION_RANGE[0]) {
             return None;
         }
         let mut off = self.n_base();
@@ -697,7 +705,12 @@ impl<'a> Model<'a> {
         max_iterations: usize,
         cost_tolerance: f64,
     ) -> Option<Fitted> {
-        let opts = LmOptions { max_iterations, cost_tolerance, step_tolerance: 1e-6, fd_step: 1e-6 };
+        // On the FE layer model a search ends within a hundredth of a standard
+        // error of its optimum (the fit's rule, `fit::full`): the contact's
+        // nodes ripple the model in its last digits, and the cost tolerance
+        // alone spends refused trials there.
+        let within_se = self.layer.as_ref().map(|_| crate::fit::full::FIT_WITHIN_SE);
+        let opts = LmOptions { max_iterations, cost_tolerance, step_tolerance: 1e-6, fd_step: 1e-6, within_se };
         let out = lm::minimize(|x, r| self.eval(cands, x, r), x0, opts).ok()?;
         let profile = self.profile(cands, &out.x)?;
         let readings = self.readings_with(&profile, self.friction(&out.x))?;

@@ -441,6 +441,10 @@ fn sample_counts(rec: &Recording) -> Result<(usize, usize), FitError> {
     Ok((n_normal_live, n_torsion))
 }
 
+/// The friction between indenter and gel a layer fit starts from, when it
+/// is given none.
+pub const FRICTION_START: f64 = 0.5;
+
 /// `start` with an unusable E1 or nu1 replaced by a typical elastomer's; with
 /// the FE layer model, torsion carries Coulomb friction as a nuisance parameter.
 fn usable_start(rec: &Recording, mut start: ModelParams) -> ModelParams {
@@ -451,7 +455,8 @@ fn usable_start(rec: &Recording, mut start: ModelParams) -> ModelParams {
     if !(start.nu1 > 0.01 && start.nu1 < 0.49) {
         start.nu1 = typical.nu1;
     }
-    start.contact_friction = fe_layer(rec).map(|_| start.contact_friction.filter(|m| *m > 0.0).unwrap_or(0.5));
+    start.contact_friction =
+        fe_layer(rec).map(|_| start.contact_friction.filter(|m| *m > 0.0).unwrap_or(FRICTION_START));
     start
 }
 
@@ -464,6 +469,14 @@ struct Passes {
     /// The FE model's friction correction the last pass iterated on, if any.
     correction: Option<Correction>,
 }
+
+/// How close to its optimum, in standard errors, a search on the FE layer
+/// model ends ([`LmOptions::within_se`]): a hundredth of the estimate's
+/// spread moves neither the estimate nor its interval in any digit that
+/// matters, and the model's contact nodes ripple its last digits, where the
+/// search would otherwise spend dozens of refused trials (the half-space
+/// model is smooth and keeps the tolerances alone).
+pub const FIT_WITHIN_SE: f64 = 0.01;
 
 /// Pass 1 with nominal noise, pass 2 re-weighted by the noise floor the data
 /// show; with the FE layer model, more passes while the friction correction
@@ -482,7 +495,7 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result
         let out = lm::minimize(
             |x, r| weighted_residuals(rec, &from_internal(x, &start), correction.as_ref(), &sigma, r),
             &x0,
-            LmOptions::default(),
+            LmOptions { within_se: fe_layer(rec).map(|_| FIT_WITHIN_SE), ..LmOptions::default() },
         )?;
         let before = params;
         params = from_internal(&out.x, &start);

@@ -668,7 +668,7 @@ impl Problem<U4> for HertzField<'_> {
 /// Stopping rule of the Hertz field fit (parameters in mm, costs in mm²: the
 /// tolerances are absolute below 1).
 const HERTZ_LM: LmOptions =
-    LmOptions { max_iterations: 500, cost_tolerance: 1e-16, step_tolerance: 1e-12, fd_step: 0.0 };
+    LmOptions { max_iterations: 500, cost_tolerance: 1e-16, step_tolerance: 1e-12, fd_step: 0.0, within_se: None };
 
 /// Levenberg-Marquardt on the Hertz field (see [`HertzField`]) from `p`.
 fn lm_hertz(

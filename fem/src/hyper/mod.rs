@@ -28,8 +28,8 @@ mod table;
 mod twist;
 
 pub use body::HyperBody;
-pub use sweep::{Sweep, SweepPlan, calibration_sweep};
-pub use table::{AtGroups, Groups, LargeStrainTable, Lookup, TABLE_FINE_MM};
+pub use sweep::{Sweep, SweepPlan, calibration_sweep, converged_layer_sweep};
+pub use table::{AtGroups, Groups, LargeStrainTable, Lookup, TABLE_COARSE_MM, TABLE_FINE_MM, mesh_extrapolated};
 
 use crate::FemError;
 use crate::banded::Factor;

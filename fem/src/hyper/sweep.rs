@@ -46,9 +46,21 @@ impl LargeStrainContact {
         indenter: Material,
         indenter_radius_mm: f64,
     ) -> Result<Self, FemError> {
-        let gel_mesh = crate::forward::gel_mesh(thickness_mm)?;
+        Self::for_layer_at(thickness_mm, gel, indenter, indenter_radius_mm, crate::forward::FINE_MM)
+    }
+
+    /// [`Self::for_layer`] with elements of `fine_mm` at the contact (the
+    /// hemisphere's segments matched to them).
+    pub fn for_layer_at(
+        thickness_mm: f64,
+        gel: Material,
+        indenter: Material,
+        indenter_radius_mm: f64,
+        fine_mm: f64,
+    ) -> Result<Self, FemError> {
+        let gel_mesh = crate::forward::gel_mesh_at(thickness_mm, fine_mm)?;
         let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * indenter_radius_mm).collect();
-        let hemi = Mesh::hemisphere(indenter_radius_mm, &rs, 30)?;
+        let hemi = Mesh::hemisphere(indenter_radius_mm, &rs, crate::forward::hemisphere_segments(fine_mm))?;
         Self::new(gel_mesh, gel, hemi, indenter, indenter_radius_mm)
     }
 }
@@ -104,6 +116,47 @@ pub fn calibration_sweep(
     let theta = sweep.theta1_rad(deepest, &twists, plan.friction)?;
     let torsion_deg = plan.twists_deg.iter().zip(&theta).map(|(&d, t)| (d, t.to_degrees())).collect();
     let beta_reached = deepest.gamma2_mm / indenter_radius_mm;
+    Ok(Sweep { normal, torsion_deg, beta_reached })
+}
+
+/// [`calibration_sweep`] on a gel layer of `thickness_mm` bonded to its
+/// window, taken to zero element size as the large-strain table is
+/// (docs/physics.md, "Mesh convergence"): the sweep on the table's coarse
+/// mesh ([`super::TABLE_COARSE_MM`]) sets the stage positions, the table's
+/// fine mesh ([`super::TABLE_FINE_MM`]) presses to the same ones, and each
+/// state's gamma1 and gamma2 are the first-order limit of the two
+/// ([`super::mesh_extrapolated`]); the rest of a state and the twists are the
+/// fine mesh's. Where the fine mesh stops settling first, the sweep ends
+/// there. About four times the coarse sweep's time.
+pub fn converged_layer_sweep(
+    thickness_mm: f64,
+    gel: Material,
+    indenter: Material,
+    indenter_radius_mm: f64,
+    plan: &SweepPlan,
+) -> Result<Sweep, FemError> {
+    use super::{TABLE_COARSE_MM, TABLE_FINE_MM, mesh_extrapolated};
+    let at = |fine_mm: f64| LargeStrainContact::for_layer_at(thickness_mm, gel, indenter, indenter_radius_mm, fine_mm);
+    let coarse = calibration_sweep(|| at(TABLE_COARSE_MM), indenter_radius_mm, plan)?;
+    let mut fine = at(TABLE_FINE_MM)?;
+    let mut normal = Vec::with_capacity(coarse.normal.len());
+    for c in &coarse.normal {
+        let f = match fine.solve_path(&[c.delta_mm], SEARCH_STEP_MM) {
+            Ok(mut v) => v.pop().ok_or_else(|| FemError::Invalid("an empty load step".into()))?,
+            Err(e) if ends_the_sweep(&e) && 4 * normal.len() > plan.normal_steps => break,
+            Err(e) => return Err(e),
+        };
+        let gamma1_mm = mesh_extrapolated(f.gamma1_mm, c.gamma1_mm, TABLE_FINE_MM, TABLE_COARSE_MM);
+        let gamma2_mm = mesh_extrapolated(f.gamma2_mm, c.gamma2_mm, TABLE_FINE_MM, TABLE_COARSE_MM);
+        normal.push((f, gamma1_mm, gamma2_mm));
+    }
+    let (deepest, ..) = normal.last().ok_or_else(|| FemError::Invalid("an empty sweep".into()))?;
+    let twists: Vec<f64> = plan.twists_deg.iter().map(|d| d.to_radians()).collect();
+    let theta = fine.theta1_rad(deepest, &twists, plan.friction)?;
+    let torsion_deg = plan.twists_deg.iter().zip(&theta).map(|(&d, t)| (d, t.to_degrees())).collect();
+    let normal: Vec<LargeState> =
+        normal.into_iter().map(|(f, gamma1_mm, gamma2_mm)| LargeState { gamma1_mm, gamma2_mm, ..f }).collect();
+    let beta_reached = normal.last().map_or(0.0, |s| s.gamma2_mm / indenter_radius_mm);
     Ok(Sweep { normal, torsion_deg, beta_reached })
 }
 

@@ -33,6 +33,21 @@ struct Case {
 /// not mesh-converged (docs/physics.md, "Large strain").
 pub const TABLE_FINE_MM: f64 = 0.04;
 
+/// Element size at the contact (mm) of the coarser twin of the selective
+/// table (`fem/data/large_strain_coarse.csv`), which with the fine one gives
+/// the gamma1 ratios' limit at zero element size
+/// ([`LargeStrainTable::extrapolate_mesh`]).
+pub const TABLE_COARSE_MM: f64 = 0.06;
+
+/// The first-order (Richardson) limit at zero element size of a quantity
+/// that is `fine` on a mesh of `fine_mm` and `coarse` on one of `coarse_mm`:
+/// fine + (fine - coarse) fine_mm / (coarse_mm - fine_mm). The neo-Hookean
+/// reference's deep press converges to first order in the element size
+/// (docs/physics.md, "Mesh convergence").
+pub fn mesh_extrapolated(fine: f64, coarse: f64, fine_mm: f64, coarse_mm: f64) -> f64 {
+    fine + (fine - coarse) * fine_mm / (coarse_mm - fine_mm)
+}
+
 /// Where a query falls against the table.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Lookup {
@@ -48,6 +63,9 @@ pub struct LargeStrainTable {
     axes: [Vec<f64>; 3],
     h_over_r2: f64,
     cases: Vec<Case>,
+    /// Element size at the contact of the references it was built from, mm
+    /// (its CSV's `# gel mesh ... mm` line), when recorded.
+    mesh_mm: Option<f64>,
 }
 
 /// The dimensionless groups of one sample.
@@ -61,7 +79,9 @@ pub struct Groups {
 }
 
 impl LargeStrainTable {
-    /// The table shipped with the project (fem/data/large_strain.csv and
+    /// The table shipped with the project (fem/data/large_strain.csv, its
+    /// gamma1 ratios extrapolated to zero element size with
+    /// large_strain_coarse.csv, see [`Self::extrapolate_mesh`]; and
     /// large_strain_slip.csv, continued in depth by large_strain_full.csv and
     /// large_strain_slip_full.csv; see [`Self::extend_with`]).
     pub fn builtin() -> Result<&'static Self, FemError> {
@@ -69,6 +89,7 @@ impl LargeStrainTable {
         TABLE
             .get_or_init(|| {
                 let mut t = Self::parse(include_str!("../../data/large_strain.csv"))?;
+                t.extrapolate_mesh(&Self::parse(include_str!("../../data/large_strain_coarse.csv"))?)?;
                 t.parse_slip(include_str!("../../data/large_strain_slip.csv"))?;
                 let mut full = Self::parse(include_str!("../../data/large_strain_full.csv"))?;
                 full.parse_slip(include_str!("../../data/large_strain_slip_full.csv"))?;
@@ -122,6 +143,10 @@ impl LargeStrainTable {
     pub fn parse(text: &str) -> Result<Self, FemError> {
         let mut cases: Vec<Case> = Vec::new();
         let mut h = None;
+        let mesh_mm = text.lines().find_map(|l| {
+            let rest = l.strip_prefix("# gel mesh ")?;
+            rest.split_whitespace().next()?.parse::<f64>().ok().filter(|v| *v > 0.0 && v.is_finite())
+        });
         for (n, line) in text.lines().enumerate().filter(|(_, l)| !l.starts_with('#') && !l.trim().is_empty()).skip(1) {
             let bad = || FemError::Invalid(format!("large-strain table, line {}: {line:?}", n + 1));
             let f: Vec<&str> = line.split(',').collect();
@@ -170,7 +195,49 @@ impl LargeStrainTable {
         if cases.len() != axes.iter().map(Vec::len).product::<usize>() || cases.iter().any(|c| c.gamma1.len() < 2) {
             return Err(FemError::Invalid("large-strain table: not a full grid of cases".into()));
         }
-        Ok(Self { axes, h_over_r2: h.unwrap_or(1.0), cases })
+        Ok(Self { axes, h_over_r2: h.unwrap_or(1.0), cases, mesh_mm })
+    }
+
+    /// The gamma1 ratios extrapolated to zero element size from this table
+    /// and `coarse`, the same grid on a coarser mesh: r = r_f + (r_f - r_c)
+    /// h_f / (h_c - h_f), the first-order (Richardson) limit. The neo-Hookean
+    /// reference's deep press converges to first order in the element size
+    /// (docs/physics.md, "Mesh convergence": the dev set's deepest residual
+    /// 12.3, 8.3, 6.1 and 4.1 µm at 0.06, 0.04, 0.03 and 0.02 mm, a straight
+    /// line in h to 0.0 µm). Past the coarse series' end the difference is
+    /// held at its last value. The twist ratios are left as they are (they do
+    /// not move monotonically with the mesh).
+    pub fn extrapolate_mesh(&mut self, coarse: &LargeStrainTable) -> Result<(), FemError> {
+        let (Some(fine_mm), Some(coarse_mm)) = (self.mesh_mm, coarse.mesh_mm) else {
+            return Err(FemError::Invalid("large-strain tables: a mesh size is not recorded".into()));
+        };
+        if coarse_mm <= fine_mm || (coarse.h_over_r2 - self.h_over_r2).abs() > 1e-9 {
+            return Err(FemError::Invalid(format!(
+                "large-strain tables: cannot extrapolate from a {coarse_mm} mm mesh through a {fine_mm} mm one"
+            )));
+        }
+        for case in &mut self.cases {
+            let other = coarse.case(&case.key, "the coarse large-strain table")?;
+            let end = other.gamma1.last().map_or(0.0, |p| p.0);
+            let mut diff = 0.0;
+            for (d, r) in &mut case.gamma1 {
+                // Past the coarse series' end its last difference is held.
+                if *d <= end {
+                    diff = *r - along(&other.gamma1, *d).0;
+                }
+                *r = mesh_extrapolated(*r, *r - diff, fine_mm, coarse_mm);
+            }
+        }
+        self.mesh_mm = Some(0.0);
+        Ok(())
+    }
+
+    /// The case of groups `key`, or an error naming `table` as missing it.
+    fn case(&self, key: &[f64; 3], table: &str) -> Result<&Case, FemError> {
+        self.cases
+            .iter()
+            .find(|c| c.key.iter().zip(key).all(|(a, b)| (a - b).abs() < 1e-9))
+            .ok_or_else(|| FemError::Invalid(format!("{table} misses a case")))
     }
 
     /// Continues every case past where its reference stopped with the ratios
@@ -190,11 +257,7 @@ impl LargeStrainTable {
             return Err(FemError::Invalid("large-strain tables of different gel thicknesses".into()));
         }
         for case in &mut self.cases {
-            let other = full
-                .cases
-                .iter()
-                .find(|c| c.key.iter().zip(&case.key).all(|(a, b)| (a - b).abs() < 1e-9))
-                .ok_or_else(|| FemError::Invalid("the large-strain extension table misses a case".into()))?;
+            let other = full.case(&case.key, "the large-strain extension table")?;
             splice(&mut case.gamma1, &other.gamma1);
             splice(&mut case.twist, &other.twist);
             for (x, series) in &mut case.slip {
@@ -508,6 +571,33 @@ fn along_held(points: &[(f64, f64)], d: f64, hold: f64) -> (f64, bool) {
 mod tests {
     use super::*;
 
+    /// The builtin gamma1 ratios are the fine table's extrapolated to zero
+    /// element size through the coarse one, each mesh as its CSV records it:
+    /// on a node, exactly the first-order limit of the two rows (a quantity
+    /// linear in the element size comes back as its value at zero); the
+    /// twist ratios are the fine table's.
+    #[test]
+    fn the_gamma1_ratios_are_taken_to_zero_element_size() {
+        assert!((mesh_extrapolated(1.0 + 2.0 * 0.04, 1.0 + 2.0 * 0.06, 0.04, 0.06) - 1.0).abs() < 1e-12);
+        let fine = LargeStrainTable::parse(include_str!("../../data/large_strain.csv")).unwrap();
+        let coarse = LargeStrainTable::parse(include_str!("../../data/large_strain_coarse.csv")).unwrap();
+        assert_eq!((fine.mesh_mm, coarse.mesh_mm), (Some(TABLE_FINE_MM), Some(TABLE_COARSE_MM)));
+        let t = LargeStrainTable::builtin().unwrap();
+        let g = Groups { e2_over_e1: 2.0, nu1: 0.48, nu2: 0.4, h_over_r2: 1.0, delta_over_r2: 0.5 };
+        let (f, c, b) = (fine.at_groups(&g), coarse.at_groups(&g), t.at_groups(&g));
+        let (rf, rc) = (f.gamma1_ratio(0.5).ratio, c.gamma1_ratio(0.5).ratio);
+        let rb = b.gamma1_ratio(0.5).ratio;
+        println!("E2/E1 2, nu1 0.48, delta/R2 0.5: {rc:.6} on 0.06 mm, {rf:.6} on 0.04 mm, {rb:.6} at zero");
+        assert!((rb - mesh_extrapolated(rf, rc, TABLE_FINE_MM, TABLE_COARSE_MM)).abs() < 1e-12);
+        // The finer mesh's press is softer, and the limit softer still.
+        assert!(rb > rf && rf > rc, "{rc} {rf} {rb}");
+        assert_eq!(b.twist_ratio(0.5).ratio, f.twist_ratio(0.5).ratio);
+        // Without a recorded mesh there is nothing to extrapolate with.
+        let mut bare = LargeStrainTable::parse(include_str!("../../data/large_strain.csv")).unwrap();
+        bare.mesh_mm = None;
+        assert!(bare.extrapolate_mesh(&coarse).is_err());
+    }
+
     #[test]
     fn the_builtin_table_reads_and_interpolates_between_its_cases() {
         let t = LargeStrainTable::builtin().unwrap();
@@ -576,6 +666,8 @@ mod tests {
     fn the_selective_reach_is_continued_by_the_fully_integrated_increments() {
         let t = LargeStrainTable::builtin().unwrap();
         let mut own = LargeStrainTable::parse(include_str!("../../data/large_strain.csv")).unwrap();
+        own.extrapolate_mesh(&LargeStrainTable::parse(include_str!("../../data/large_strain_coarse.csv")).unwrap())
+            .unwrap();
         own.parse_slip(include_str!("../../data/large_strain_slip.csv")).unwrap();
         let g = Groups { e2_over_e1: 4.0, nu1: 0.48, nu2: 0.4, h_over_r2: 1.0, delta_over_r2: 0.3 };
         let (at, at_own) = (t.at_groups(&g), own.at_groups(&g));
