@@ -203,12 +203,14 @@ fn layer_flags_are_checked_and_name_what_is_wrong() {
     let rec = simulate(dir.path(), &[]);
     let out_path = dir.path().join("x.csv");
     let out_file = out_path.to_str().unwrap();
+    let sliding_fe = format!("simulate -o {out_file} --fidelity fe --thickness-mm 5 --r1-mm inf --base sliding");
     for (args, needle) in [
         (vec!["fit", rec.to_str().unwrap(), "--thickness-mm=-2"], "--thickness-mm"),
         (vec!["fit", rec.to_str().unwrap(), "--thickness-mm", "5", "--base", "glued"], "--base glued"),
         (vec!["diagnose", rec.to_str().unwrap(), "--thickness-mm", "0"], "--thickness-mm"),
         (vec!["simulate", "-o", out_file, "--thickness-mm", "5"], "--r1-mm inf"),
-        (vec!["simulate", "-o", out_file, "--thickness-mm", "5", "--r1-mm", "inf", "--base", "sliding"], "bonded"),
+        (vec!["simulate", "-o", out_file, "--thickness-mm", "5", "--r1-mm", "inf", "--base", "glued"], "--base glued"),
+        (sliding_fe.split(' ').collect(), "bonded"),
         (vec!["simulate", "-o", out_file, "--fidelity", "fe", "--profile", "p.toml"], "--profile"),
         (vec!["simulate", "-o", out_file, "--fidelity", "fe"], "--thickness-mm"),
         (vec!["simulate", "-o", out_file, "--fidelity", "fe", "--thickness-mm", "5", "--r1-mm", "30"], "flat gel"),

@@ -200,14 +200,20 @@ fn well_formed_but_poorly_modelled_recordings_get_an_answer_with_warnings() {
         assert!(json.contains("\"warnings\""));
         assert_nulls_explained(&json);
     }
-    // A layer the model does not take (a sliding base) is fitted as a half-space, and says so.
+    // A layer the model does not take (on a domed gel) is fitted as a half-space, and says so.
+    let mut rec = Recording::read_path(&fem_dev()[0]).unwrap();
+    rec.meta.elastomer_r_mm = 40.0;
+    let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+    assert_eq!(cal.full.model, "half-space");
+    assert!(cal.warnings.iter().any(|w| w.code == "layer_not_modelled"), "{:?}", cal.warnings);
+    // A sliding base is modelled, with the warning that its large strain is the bonded gel's.
     let mut rec = Recording::read_path(&fem_dev()[0]).unwrap();
     if let Some(l) = rec.meta.layer.as_mut() {
         l.base = sim::physics::LayerBase::Sliding;
     }
     let cal = calibrate(&rec, &FitOptions::default()).unwrap();
-    assert_eq!(cal.full.model, "half-space");
-    assert!(cal.warnings.iter().any(|w| w.code == "layer_not_modelled"), "{:?}", cal.warnings);
+    assert!(cal.full.model.starts_with("layer-fe"), "{}", cal.full.model);
+    assert!(cal.warnings.iter().any(|w| w.code == "sliding_base_approximate"), "{:?}", cal.warnings);
 }
 
 #[test]

@@ -191,3 +191,71 @@ fn our_own_layered_rig_with_a_drifting_frame_is_diagnosed() {
     let found = dg.explanation.iter().find(|e| e.effect == "thermal_drift").unwrap().params[0].value;
     assert!((found / 5e-4 - 1.0).abs() < 0.2, "drift {found} mm/s");
 }
+
+/// A coarser or shorter sweep of the same rig is still a well-formed
+/// recording, and gets an answer, not a refusal. Every dev recording with
+/// every other normal step dropped (15 steps: the stiff pairs then pass
+/// through the paper's 0.2-0.8 mm window in three, and the paper's method
+/// is fitted on the narrowest widening that holds four, with a warning),
+/// and the dev set's nu2 = 0.45 recording with its normal samples past the
+/// 21st and its twists past the second lost (the friction is then
+/// undetermined and fitted at about 34; the diagnosis's frictional presses
+/// cycled in a load step there until a step that does not settle was
+/// halved): fit and diagnosis answer, and the fit's intervals hold the
+/// truth (printed).
+#[test]
+fn coarse_and_short_sweeps_of_the_dev_set_still_get_an_answer() {
+    let (mut widened, mut covered, mut total) = (0, 0, 0);
+    for d in dev("linear").iter().chain(&dev("nonlinear")) {
+        let mut rec = d.rec.clone();
+        let mut k = 0;
+        rec.samples.retain(|s| {
+            k += usize::from(s.phase == sim::recording::Phase::Normal);
+            s.phase != sim::recording::Phase::Normal || k % 2 == 1
+        });
+        let cal = calibrate(&rec, &FitOptions::default()).unwrap_or_else(|e| panic!("{}: {e}", d.name));
+        let w = cal.warnings.iter().any(|w| w.code == "paper_window_widened");
+        widened += usize::from(w);
+        println!(
+            "every other step  {:<44} E1 {:+6.2} % nu1 {:+6.2} % paper window {:?}{}",
+            d.name,
+            pct(cal.full.e1_mpa, d.e1),
+            pct(cal.full.nu1, d.nu1),
+            cal.paper.window_mm,
+            if w { " (widened)" } else { "" }
+        );
+        assert_eq!(w, cal.paper.window_mm != [0.2, 0.8], "{}", d.name);
+        let (ce, cn) = (cal.full.ci95.e1_mpa, cal.full.ci95.nu1);
+        let holds = ce[0] <= d.e1 && d.e1 <= ce[1] && cn[0] <= d.nu1 && d.nu1 <= cn[1];
+        covered += usize::from(holds);
+        total += 1;
+        if !holds {
+            println!("  its intervals E1 {ce:.4?} nu1 {cn:.4?} miss the truth");
+        }
+    }
+    assert!(widened >= 2, "only {widened} coarse sweeps needed the paper's window widened");
+    // 95 % intervals: one miss in ten is within their rate (two or more
+    // would happen by chance 9 % of the time). The miss is tableI_3, whose
+    // full sweep already fits E1 1.55 standard errors low: half its steps
+    // keep half the same noise.
+    assert!(covered + 1 >= total, "the intervals held the truth on {covered} of {total}");
+    let d = dev("linear").into_iter().find(|d| d.name.contains("nu2-0.45")).unwrap();
+    let mut rec = d.rec.clone();
+    let (mut steps, mut twists) = (0, 0);
+    rec.samples.retain(|s| match s.phase {
+        sim::recording::Phase::Normal => {
+            steps += 1;
+            steps <= 21
+        }
+        _ => {
+            twists += usize::from(s.rot_deg != 0.0);
+            twists <= 2
+        }
+    });
+    let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+    let dg = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+    report("cut short", &d, &dg, cal.full.e1_mpa, cal.full.nu1);
+    let (ce, cn) = (cal.full.ci95.e1_mpa, cal.full.ci95.nu1);
+    assert!(ce[0] <= d.e1 && d.e1 <= ce[1] && cn[0] <= d.nu1 && d.nu1 <= cn[1], "{ce:?} {cn:?}");
+    assert!(dg.e1_mpa.is_finite() && dg.nu1.is_finite());
+}

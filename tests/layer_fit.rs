@@ -447,3 +447,56 @@ fn the_large_strain_twist_follows_its_reference_under_friction() {
         assert!(de.abs() < 0.5 && dn.abs() < 0.5, "{file}: E1 {de:+.2} %, nu1 {dn:+.2} %");
     }
 }
+
+/// A gel declared sliding on its window (no grip at its base) is fitted on
+/// that base. Three checks, the first two on physics the fit's model did not
+/// make:
+/// - `fem/tests/reference.rs` holds the FE model's sliding gel to the
+///   analytical sliding layer (a different kernel) within 0.2 %;
+/// - noiseless sweeps of the project's own neo-Hookean reference of a
+///   sliding 5 mm gel to beta 0.05, 0.1, 0.15 and 0.18
+///   (`BASE=sliding BETA=b fem/examples/own_noiseless.rs`, E1 1 MPa, nu1
+///   0.48, E2 2 MPa, nu2 0.4): the large-strain correction is tabulated on
+///   bonded gels only, so the fit misses it (printed: up to E1 +1.7 %, nu1
+///   -17.7 %), says so, and its intervals, which carry the measured miss per
+///   unit depth, hold the truth;
+/// - a recording the linear FE model makes on a sliding gel (the generator's
+///   schedule, the dev set's noise) is recovered to within its noise, and the
+///   same recording declared bonded is not (nu1 off by more than 10 %): the
+///   declared base is what the model takes.
+#[test]
+fn a_gel_sliding_on_its_window_is_fitted_on_that_base() {
+    use sim::physics::{Body as Elastic, Layer, LayerBase};
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/fe-self");
+    for beta in ["_beta0.05", "_beta0.1", "_beta0.15", ""] {
+        let file = format!("nh_sliding_E1-1.0_nu1-0.48_E2-2.0_nu2-0.40{beta}_noiseless.csv");
+        let rec = Recording::read_path(&dir.join(&file)).unwrap();
+        assert_eq!(rec.meta.layer.map(|l| l.base), Some(LayerBase::Sliding));
+        let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+        let (de, dn) = ((cal.full.e1_mpa - 1.0) * 100.0, (cal.full.nu1 / 0.48 - 1.0) * 100.0);
+        let (ce, cn) = (cal.full.ci95.e1_mpa, cal.full.ci95.nu1);
+        println!("{file}: {} E1 {de:+.2} % {ce:.3?} nu1 {dn:+.2} % {cn:.3?}", cal.full.model);
+        assert!(cal.warnings.iter().any(|w| w.code == "sliding_base_approximate"), "{:?}", cal.warnings);
+        assert_covers(&cal.full, 1.0, 0.48, &file);
+    }
+
+    let layer = Layer { base: LayerBase::Sliding, ..Layer::bonded(5.0) };
+    let indenter = Elastic::new(2.0, 0.4, 5.0);
+    let law = easycalib::fit::fe_law::frictional_truth(layer, indenter, 1.0, 0.48, 0.4).unwrap();
+    let cfg = sim::generator::GeneratorConfig {
+        pair: sim::physics::ContactPair { elastomer: Elastic::new(1.0, 0.48, f64::INFINITY), indenter },
+        ..Default::default()
+    };
+    let rec = sim::generator::generate_on(&cfg, Some(&sim::generator::LayeredTruth { law, layer })).unwrap();
+    let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+    let (de, dn) = ((cal.full.e1_mpa - 1.0) * 100.0, (cal.full.nu1 / 0.48 - 1.0) * 100.0);
+    println!("linear sliding recording: {} E1 {de:+.2} % nu1 {dn:+.2} %", cal.full.model);
+    assert_eq!(cal.full.model, "layer-fe");
+    assert!(de.abs() < 2.0 && dn.abs() < 3.0, "E1 {de:+.2} %, nu1 {dn:+.2} %");
+    let mut bonded = rec.clone();
+    bonded.meta.layer = Some(Layer::bonded(5.0));
+    let cal = calibrate(&bonded, &FitOptions::default()).unwrap();
+    let dn = (cal.full.nu1 / 0.48 - 1.0) * 100.0;
+    println!("the same declared bonded: {} nu1 {dn:+.2} %", cal.full.model);
+    assert!(dn.abs() > 10.0, "the declared base changed nothing (nu1 {dn:+.2} %)");
+}

@@ -6,11 +6,12 @@
 //! fine mesh's (the table's twist ratios are not extrapolated either).
 //!
 //! `cargo run --release -p fem --example own_noiseless -- E1 NU1 E2 NU2 > rec.csv`
-//! (gel 5 mm bonded, R2 5 mm, Coulomb mu 0.4 in the twist; the files in
+//! (gel 5 mm bonded, or sliding on its window with `BASE=sliding`, R2 5 mm,
+//! Coulomb mu 0.4 in the twist, to beta 0.2 or `BETA`; the files in
 //! tests/data/fe-self/ marked noiseless).
 
-use fem::Material;
 use fem::hyper::{LargeStrainContact, SweepPlan, TABLE_COARSE_MM, TABLE_FINE_MM, calibration_sweep, mesh_extrapolated};
+use fem::{Base, Material};
 
 const H: f64 = 5.0;
 const R2: f64 = 5.0;
@@ -22,12 +23,17 @@ fn main() {
         panic!("usage: own_noiseless E1 NU1 E2 NU2");
     };
     let (gel, ind) = (Material { e_mpa: e1, nu: nu1 }, Material { e_mpa: e2, nu: nu2 });
-    let plan = SweepPlan { beta: 0.2, normal_steps: 30, twists_deg: (0..=10).map(f64::from).collect(), friction: MU };
+    let (base, base_name) = match std::env::var("BASE").as_deref() {
+        Ok("sliding") => (Base::Sliding, "sliding"),
+        _ => (Base::Bonded, "bonded"),
+    };
+    let at = |fine_mm: f64| LargeStrainContact::for_layer_on(base, H, gel, ind, R2, fine_mm);
+    let beta = std::env::var("BETA").ok().and_then(|b| b.parse().ok()).unwrap_or(0.2);
+    let plan = SweepPlan { beta, normal_steps: 30, twists_deg: (0..=10).map(f64::from).collect(), friction: MU };
     let t = std::time::Instant::now();
-    let fine = calibration_sweep(|| LargeStrainContact::for_layer_at(H, gel, ind, R2, TABLE_FINE_MM), R2, &plan)
-        .expect("the fine sweep");
+    let fine = calibration_sweep(|| at(TABLE_FINE_MM), R2, &plan).expect("the fine sweep");
     let stages: Vec<f64> = fine.normal.iter().map(|s| s.delta_mm).collect();
-    let mut coarse = LargeStrainContact::for_layer_at(H, gel, ind, R2, TABLE_COARSE_MM).expect("the coarse mesh");
+    let mut coarse = at(TABLE_COARSE_MM).expect("the coarse mesh");
     let coarse_path = coarse.solve_path(&stages, 0.05).expect("the coarse press at the same stages");
     eprintln!("beta {:.3}, {:.0?}", fine.beta_reached, t.elapsed());
     println!("# easycalib-recording: 1");
@@ -36,14 +42,14 @@ fn main() {
         "# source: easycalib large-strain FE reference (neo-Hookean, frictionless pressing, twist with Coulomb mu \
          {MU}); E1 {e1} MPa, nu1 {nu1}, E2 {e2} MPa, nu2 {nu2}, noiseless; gamma1 extrapolated to zero element \
          size from {TABLE_COARSE_MM} and {TABLE_FINE_MM} mm meshes, twists on {TABLE_FINE_MM} mm \
-         (fem/examples/own_noiseless.rs, 30 steps to beta 0.2, twists 0-10 deg)"
+         (fem/examples/own_noiseless.rs, 30 steps to beta {beta}, twists 0-10 deg)"
     );
     println!("# indenter_E_MPa: {e2}");
     println!("# indenter_nu: {nu2}");
     println!("# indenter_R_mm: {R2}");
     println!("# elastomer_R_mm: inf");
     println!("# elastomer_thickness_mm: {H}");
-    println!("# elastomer_base: bonded");
+    println!("# elastomer_base: {base_name}");
     println!("t_s,phase,stage_mm,rot_deg,gamma1_mm,theta1_deg,rep,dir");
     let mut t_s = 0.0;
     let mut g_last = 0.0;

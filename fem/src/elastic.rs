@@ -99,7 +99,7 @@ pub struct Body {
 }
 
 impl Body {
-    /// Assemble and factor the stiffness with the mesh's clamped and axis nodes held.
+    /// Assemble and factor the stiffness with the mesh's clamped, roller and axis nodes held.
     pub fn new(mesh: Mesh, material: Material) -> Result<Self, FemError> {
         Self::with_integration(mesh, material, Integration::Selective)
     }
@@ -127,6 +127,9 @@ impl Body {
         let mut rhs = vec![0.0; k.size()];
         for &n in &mesh.clamped {
             k.constrain(&mut rhs, 2 * n, 0.0);
+            k.constrain(&mut rhs, 2 * n + 1, 0.0);
+        }
+        for &n in &mesh.rollers {
             k.constrain(&mut rhs, 2 * n + 1, 0.0);
         }
         for &n in &mesh.axis {

@@ -12,7 +12,7 @@ use crate::FemError;
 use crate::contact::{ContactState, FrictionalContact, TwoBodyContact};
 use crate::dense::{self, PrefixCholesky};
 use crate::elastic::{Body, Integration, Material, SurfaceCompliance, combine_block};
-use crate::mesh::Mesh;
+use crate::mesh::{Base, Mesh};
 use crate::torsion::TorsionBody;
 
 /// Element size at the contact, mm, and the gel's radius in thicknesses. A real
@@ -70,8 +70,8 @@ pub fn hemisphere_segments(fine_mm: f64) -> usize {
 impl GelTables {
     /// The tables on the first `nodes` surface nodes; the nine Poisson's ratios
     /// are factored and solved on threads of their own.
-    fn build(h: f64, nodes: usize, integration: Integration) -> Result<Self, FemError> {
-        let mesh = gel_mesh(h)?;
+    fn build(base: Base, h: f64, nodes: usize, integration: Integration) -> Result<Self, FemError> {
+        let mesh = gel_mesh(h)?.on_base(base);
         let nodes = nodes.min(mesh.surface.len());
         let r = mesh.surface_radii()[..nodes].to_vec();
         let nu = nu_nodes();
@@ -98,9 +98,9 @@ impl GelTables {
 
     /// Shared per thickness and node count: the tables take seconds and every
     /// fit of a gel reuses them.
-    fn cached(h: f64, nodes: usize, integration: Integration) -> Result<Arc<Self>, FemError> {
-        static CACHE: BuildOnce<(u64, usize, Integration), GelTables> = BuildOnce::new();
-        CACHE.get((h.to_bits(), nodes, integration), || Self::build(h, nodes, integration))
+    fn cached(base: Base, h: f64, nodes: usize, integration: Integration) -> Result<Arc<Self>, FemError> {
+        static CACHE: BuildOnce<(Base, u64, usize, Integration), GelTables> = BuildOnce::new();
+        CACHE.get((base, h.to_bits(), nodes, integration), || Self::build(base, h, nodes, integration))
     }
 }
 
@@ -200,16 +200,29 @@ const MEMO_STATES: usize = 4096;
 const MEMO_PATHS: usize = 2;
 
 impl Forward {
-    /// Shared per (thickness, indenter): built once per process.
+    /// Shared per (thickness, indenter) on a bonded gel: built once per process.
     pub fn cached(
         thickness_mm: f64,
         indenter_e_mpa: f64,
         indenter_nu: f64,
         indenter_r_mm: f64,
     ) -> Result<Arc<Self>, FemError> {
-        static CACHE: BuildOnce<[u64; 4], Forward> = BuildOnce::new();
-        let key = [thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm].map(f64::to_bits);
-        CACHE.get(key, || Self::new(thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm))
+        Self::cached_on(Base::Bonded, thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm)
+    }
+
+    /// [`Self::cached`] on a gel sitting on its window as `base` says.
+    pub fn cached_on(
+        base: Base,
+        thickness_mm: f64,
+        indenter_e_mpa: f64,
+        indenter_nu: f64,
+        indenter_r_mm: f64,
+    ) -> Result<Arc<Self>, FemError> {
+        static CACHE: BuildOnce<(Base, [u64; 4]), Forward> = BuildOnce::new();
+        let key = (base, [thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm].map(f64::to_bits));
+        CACHE.get(key, || {
+            Self::build(base, thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm, Integration::Selective)
+        })
     }
 
     pub fn new(thickness_mm: f64, indenter_e_mpa: f64, indenter_nu: f64, indenter_r_mm: f64) -> Result<Self, FemError> {
@@ -226,13 +239,24 @@ impl Forward {
         indenter_r_mm: f64,
         integration: Integration,
     ) -> Result<Self, FemError> {
+        Self::build(Base::Bonded, thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm, integration)
+    }
+
+    fn build(
+        base: Base,
+        thickness_mm: f64,
+        indenter_e_mpa: f64,
+        indenter_nu: f64,
+        indenter_r_mm: f64,
+        integration: Integration,
+    ) -> Result<Self, FemError> {
         if !(thickness_mm > 0.0 && thickness_mm.is_finite() && indenter_r_mm > 0.0 && indenter_r_mm < 100.0) {
             return Err(FemError::Invalid(format!("layer {thickness_mm} mm, indenter radius {indenter_r_mm} mm")));
         }
         // Only the gel's nodes under the indenter can touch it: tabulate those.
         let rs: Vec<f64> =
             gel_mesh(thickness_mm)?.surface_radii().into_iter().filter(|&r| r < 0.97 * indenter_r_mm).collect();
-        let gel = GelTables::cached(thickness_mm, rs.len(), integration)?;
+        let gel = GelTables::cached(base, thickness_mm, rs.len(), integration)?;
         let hemi = Mesh::hemisphere(indenter_r_mm, &rs, 30)?;
         let g2 = indenter_e_mpa / (2.0 * (1.0 + indenter_nu));
         let ind_torsion = TorsionBody::new(&hemi)?

@@ -25,7 +25,7 @@ pub mod torsion;
 
 pub use contact::{ContactState, TwoBodyContact};
 pub use elastic::{Body, Integration, Material};
-pub use mesh::Mesh;
+pub use mesh::{Base, Mesh};
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FemError {

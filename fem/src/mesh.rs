@@ -14,10 +14,26 @@ pub struct Mesh {
     pub quads: Vec<[usize; 4]>,
     /// Nodes with both displacements fixed (bonded to something rigid).
     pub clamped: Vec<usize>,
+    /// Nodes resting on something rigid and frictionless: held normal to it
+    /// (u_z = 0), free along it (u_r); the twist holds them, as it holds
+    /// the clamped ones ([`Base::Sliding`]).
+    pub rollers: Vec<usize>,
     /// Nodes on the axis (u_r = 0).
     pub axis: Vec<usize>,
     /// Contact-surface nodes, by increasing radius.
     pub surface: Vec<usize>,
+}
+
+/// How the gel's bottom face sits on its window.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Base {
+    /// Bonded: both displacements held.
+    #[default]
+    Bonded,
+    /// Resting on the window without friction in the press (u_z held, u_r
+    /// free). The twist is held at the base as for a bonded gel, as the
+    /// analytical layer model takes it (docs/physics.md, "Layered contact").
+    Sliding,
 }
 
 /// Points from 0 to `length`: steps of `fine` up to `fine_until`, then growing by
@@ -82,10 +98,20 @@ impl Mesh {
         Ok(Self {
             xy,
             quads,
+            rollers: Vec::new(),
             clamped: (0..r.len()).map(|i| node(i, 0)).collect(),
             axis: (0..nz).map(|j| node(0, j)).collect(),
             surface: (0..r.len()).map(|i| node(i, nz - 1)).collect(),
         })
+    }
+
+    /// The same mesh with its clamped nodes on `base`: kept clamped on a
+    /// bonded one, rollers on a sliding one.
+    pub fn on_base(mut self, base: Base) -> Self {
+        if base == Base::Sliding {
+            self.rollers.append(&mut self.clamped);
+        }
+        self
     }
 
     /// Radii of the contact-surface nodes.
@@ -134,7 +160,7 @@ impl Mesh {
         clamped.extend((1..=rings).map(|k| node(k, np - 1)));
         let axis = (1..=rings).map(|k| node(k, 0)).collect();
         let surface = (0..surface_r.len()).map(|p| node(rings, p)).collect();
-        Ok(Self { xy, quads, clamped, axis, surface })
+        Ok(Self { xy, quads, clamped, rollers: Vec::new(), axis, surface })
     }
 }
 

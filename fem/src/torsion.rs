@@ -49,7 +49,7 @@ impl TorsionBody {
             }
         }
         let mut rhs = vec![0.0; k.size()];
-        for &n in mesh.clamped.iter().chain(&mesh.axis) {
+        for &n in mesh.clamped.iter().chain(&mesh.rollers).chain(&mesh.axis) {
             k.constrain(&mut rhs, n, 0.0);
         }
         // The centre node of a polar mesh is on the axis too.

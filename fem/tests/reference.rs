@@ -31,6 +31,40 @@ fn a_rigid_sphere_on_a_wide_gel_is_the_analytical_layer() {
     }
 }
 
+/// The same on a gel resting on its window without friction (u_z held at
+/// the base, u_r free): the analytical layer's sliding kernel is a different
+/// function, so this checks the FE's base condition, not just its mesh. The
+/// sliding gel is the softer (a fifth less force at nu 0.48, 1 mm).
+#[test]
+fn a_rigid_sphere_on_a_wide_sliding_gel_is_the_analytical_layer() {
+    let (h, r2) = (5.0, 5.0);
+    let sliding = Layer { base: sim::physics::LayerBase::Sliding, ..Layer::bonded(h) };
+    for nu in [0.3, 0.48] {
+        let pair =
+            ContactPair { elastomer: Elastic::new(1.0, nu, f64::INFINITY), indenter: Elastic::new(1e12, 0.3, r2) };
+        let ana = LayeredNormal::with_profile(&pair, &sliding, 4.9, Profile::Sphere).unwrap();
+        let mesh = Mesh::gel(40.0, h, 0.05, 4.0, 1.5).unwrap();
+        let bonded =
+            TwoBodyContact::new(&Body::new(mesh.clone(), Material { e_mpa: 1.0, nu }).unwrap(), None, r2).unwrap();
+        let gel = Body::new(mesh.on_base(fem::Base::Sliding), Material { e_mpa: 1.0, nu }).unwrap();
+        let c = TwoBodyContact::new(&gel, None, r2).unwrap();
+        for delta in [0.3, 1.0] {
+            let (fe, exact) = (c.solve(delta).unwrap(), ana.solve(delta).unwrap());
+            let e = fe.force_n / exact.force_n - 1.0;
+            let softer = fe.force_n / bonded.solve(delta).unwrap().force_n;
+            println!(
+                "sliding, nu {nu} delta {delta}: FE {:.5} N, layer solver {:.5} N ({e:+.2e}); {softer:.3} of the bonded gel's",
+                fe.force_n, exact.force_n
+            );
+            assert!(e.abs() < 2e-3, "nu {nu} delta {delta}: {e}");
+            assert!(softer < 0.99, "nu {nu} delta {delta}: the sliding gel is not softer ({softer})");
+            let [lo, hi] = fe.contact_radius_mm;
+            let a = exact.contact_radius_mm;
+            assert!(a > lo - 0.06 && a < hi + 0.06, "a {a} vs FE [{lo}, {hi}]");
+        }
+    }
+}
+
 /// The contact's radius against the analytical layer's (a rigid sphere on
 /// the bonded 5 mm gel, on the mesh the fit's layer model uses): the
 /// interpolated edge between the outermost node in contact and the next

@@ -210,23 +210,25 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {
 }
 
 /// `simulate --thickness-mm`: the generator's sweeps on a gel layer bonded to
-/// its window, the contact from the linear FE layer model pressed and twisted
+/// its window (or sliding on it, `--base sliding`), the contact from the linear FE layer model pressed and twisted
 /// with Coulomb friction (`fit::fe_law::frictional_truth`), the profile's
 /// rig-level effects around it (docs/physics.md, "The layer in the generator and the emulated rig").
 fn layered_recording(args: &SimulateArgs, cfg: &GeneratorConfig) -> Result<Recording, CliError> {
     let Some(h) = args.layer.thickness_mm else {
         return Err(CliError::bad_input("a layered recording needs --thickness-mm"));
     };
-    if args.layer.base.as_deref().is_some_and(|b| LayerBase::parse(b) != Some(LayerBase::Bonded)) {
-        return Err(CliError::bad_input("the FE layer model simulates a gel bonded to its window (--base bonded)"));
-    }
+    let base = match args.layer.base.as_deref() {
+        None => LayerBase::Bonded,
+        Some(b) => LayerBase::parse(b)
+            .ok_or_else(|| CliError::bad_input(format!("--base {b}: expected `bonded` or `sliding`")))?,
+    };
     if cfg.pair.elastomer.r_mm.is_finite() {
         return Err(CliError::bad_input(format!(
             "a declared layer is simulated flat: give --r1-mm inf (the elastomer's dome radius is {} mm)",
             cfg.pair.elastomer.r_mm
         )));
     }
-    let layer = Layer::bonded(h);
+    let layer = Layer { base, ..Layer::bonded(h) };
     layer.validate().map_err(|e| CliError::bad_input(format!("--thickness-mm {h}: {e}")))?;
     let (gel, indenter) = (cfg.pair.elastomer, cfg.pair.indenter);
     eprintln!("simulating on the linear finite-element layer model (a few seconds)...");

@@ -12,7 +12,7 @@ use crate::fit::ModelParams;
 use crate::fit::fe_law::LayeredBase;
 use crate::fit::full::fe_layer;
 use crate::fit::weights::SampleSd;
-use crate::fit::{Calibration, FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper};
+use crate::fit::{Calibration, FitError, FitOptions, FullOptions, Warning, calibrate, fit_paper_or_widened};
 
 /// The baseline of a diagnosis: the model weighted by the noise floors, its
 /// fit without any effect, and where that fit's residuals are systematic.
@@ -166,7 +166,7 @@ fn start_points(
         }
     }
     if fallback {
-        if let Ok(p) = fit_paper(rec, &fit_opts.paper)
+        if let Ok((p, _)) = fit_paper_or_widened(rec, &fit_opts.paper)
             && p.e1_mpa.is_finite()
             && p.e1_mpa > 0.0
         {

@@ -106,9 +106,26 @@ fn predict_with(
     Ok(out)
 }
 
-/// The declared layer when the finite-element model takes it (a bonded base).
+/// The declared layer when the finite-element model takes it (a flat gel,
+/// bonded to its window or sliding on it).
 pub fn fe_layer(rec: &Recording) -> Option<Layer> {
-    rec.meta.layer.filter(|l| l.base == LayerBase::Bonded && rec.meta.elastomer_r_mm.is_infinite())
+    rec.meta.layer.filter(|_| rec.meta.elastomer_r_mm.is_infinite())
+}
+
+/// The FE layer model of `layer` (on its base) under an indenter of
+/// modulus `e_mpa`, Poisson's ratio `nu` and radius `r_mm` (built once per
+/// process).
+pub(crate) fn layer_forward(
+    layer: &Layer,
+    e_mpa: f64,
+    nu: f64,
+    r_mm: f64,
+) -> Result<std::sync::Arc<fem::forward::Forward>, fem::FemError> {
+    let base = match layer.base {
+        LayerBase::Bonded => fem::Base::Bonded,
+        LayerBase::Sliding => fem::Base::Sliding,
+    };
+    fem::forward::Forward::cached_on(base, layer.thickness_mm, e_mpa, nu, r_mm)
 }
 
 /// Residuals per group, in time order.
@@ -242,11 +259,41 @@ const LAYER_MODEL_SD_NU1: f64 = 0.014;
 /// The layer model's own approximation error, relative, one standard
 /// deviation, of E1 and nu1 on recording `rec` at `p`: the linear model's
 /// above, or the large-strain model's (`super::large_strain::model_sd`, which
-/// grows where the sweep goes deeper than its table). Added in quadrature to
-/// the intervals of the fit and of the diagnosis's refits on a layer.
+/// grows where the sweep goes deeper than its table); on a sliding base, in
+/// quadrature, what the bonded gel's large-strain correction misses there
+/// ([`SLIDING_SD_PER_R2`]). Added in quadrature to the intervals of the fit
+/// and of the diagnosis's refits on a layer.
 pub(super) fn layer_model_sd(rec: &Recording, p: &ModelParams) -> [f64; 2] {
-    if p.large_strain { super::large_strain::model_sd(rec, p) } else { [LAYER_MODEL_SD_E1, LAYER_MODEL_SD_NU1] }
+    let [e1, nu1] =
+        if p.large_strain { super::large_strain::model_sd(rec, p) } else { [LAYER_MODEL_SD_E1, LAYER_MODEL_SD_NU1] };
+    match fe_layer(rec) {
+        Some(l) if l.base == LayerBase::Sliding => {
+            let depth = deepest_over_r2(rec, p);
+            let [ke, kn] = SLIDING_SD_PER_R2[usize::from(p.large_strain)];
+            [e1.hypot(ke * depth), nu1.hypot(kn * depth)]
+        }
+        _ => [e1, nu1],
+    }
 }
+
+/// The deepest approach of the recording at `p`, in indenter radii.
+pub(super) fn deepest_over_r2(rec: &Recording, p: &ModelParams) -> f64 {
+    rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).fold(0.0, f64::max) / rec.meta.indenter.r_mm
+}
+
+/// The model error, relative, one standard deviation per unit of the
+/// deepest approach over R2, of E1 and nu1 on a gel sliding on its window:
+/// [the small-strain model, the large-strain one]. The large-strain
+/// correction is tabulated on bonded gels only, and a sliding gel is softer
+/// at depth and strains further (the same pair pressed to beta 0.18 goes
+/// 3.1 mm deep, not 1.8). Measured on noiseless sweeps of the project's own
+/// neo-Hookean reference of a sliding 5 mm gel (E2/E1 2, nu1 0.48, nu2 0.4)
+/// to beta 0.05, 0.1, 0.15 and 0.18 (delta/R2 0.14-0.63), fitted by each
+/// model: the small-strain one E1 -2.4 to -12.5 %, nu1 +1.4 to -62 %; with
+/// the bonded gel's ratios E1 -0.4 to +1.7 %, nu1 +0.5 to -17.7 %; the
+/// constants bound each measured miss per unit depth (docs/physics.md,
+/// "A gel sliding on its window").
+const SLIDING_SD_PER_R2: [[f64; 2]; 2] = [[0.35, 1.0], [0.08, 0.35]];
 
 /// Distance from either end of nu1's range (0, 0.5) at which the fit counts as pinned.
 const NU1_EDGE: f64 = 0.005;

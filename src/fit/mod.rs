@@ -17,7 +17,7 @@ use serde::Serialize;
 use sim::recording::Recording;
 
 pub use full::{CurvatureBias, FullFit, FullOptions, ModelParams, fit_full, predict};
-pub use paper::{PaperFit, PaperOptions, fit_paper};
+pub use paper::{PaperFit, PaperOptions, fit_paper, fit_paper_or_widened};
 pub use plausible::Implausible;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -87,7 +87,7 @@ pub struct Calibration {
 
 pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitError> {
     plausible::check(rec)?;
-    let paper = fit_paper(rec, &opts.paper)?;
+    let (paper, widened) = fit_paper_or_widened(rec, &opts.paper)?;
     let (full, model_choice) = best_full_fit(rec, opts, &paper)?;
     let mut warnings = full.warnings.clone();
     if let Some(l) = rec.meta.layer.filter(|_| full::fe_layer(rec).is_none()) {
@@ -95,7 +95,7 @@ pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitE
             "layer_not_modelled",
             format!(
                 "the recording declares a {} mm {} elastomer layer{}, which the layer model does not take yet \
-                 (bonded, flat gels only): this fit models a half-space, so E1 and nu1 are biased by the layer and \
+                 (flat gels only): this fit models a half-space, so E1 and nu1 are biased by the layer and \
                  the intervals do not include that bias",
                 l.thickness_mm,
                 l.base.as_str(),
@@ -103,6 +103,24 @@ pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitE
             ),
         ));
     }
+    if let Some(l) = full::fe_layer(rec).filter(|l| l.base == sim::physics::LayerBase::Sliding) {
+        let [sd_e1, sd_nu1] = full::layer_model_sd(rec, &full.params());
+        warnings.push(Warning::new(
+            "sliding_base_approximate",
+            format!(
+                "the {} mm gel is declared sliding on its window: the layer model takes the sliding base in linear \
+                 elasticity, but the large-strain correction is tabulated for a bonded gel, and a sliding one pressed \
+                 to {:.2} R2 strains beyond what it describes (on our own neo-Hookean reference of a sliding gel the \
+                 small-strain model read nu1 62 % low at beta 0.18, the bonded correction 18 % low); the intervals \
+                 carry a model error of {:.1} % in E1 and {:.1} % in nu1 (one standard deviation)",
+                l.thickness_mm,
+                full::deepest_over_r2(rec, &full.params()),
+                100.0 * sd_e1,
+                100.0 * sd_nu1
+            ),
+        ));
+    }
+    warnings.extend(widened);
     warnings.extend(paper_warnings(&paper));
     Ok(Calibration { paper, full, warnings, model_choice })
 }

@@ -7,7 +7,7 @@ use sim::physics::{invert_exact, invert_paper_rounded, rod_correction_factor};
 use sim::recording::{Phase, Recording};
 
 use super::regression::{PAPER_WINDOW_MM, eq22_point, eq38_point, fit_eq22, fit_eq38, torsion_depth};
-use super::{Ci95, FitError};
+use super::{Ci95, FitError, Warning};
 use crate::numerics::stats::interval;
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -82,8 +82,9 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
     // Eq. 38: theta2 = H3 theta1 through the origin.
     let tors: Vec<(f64, f64)> =
         rec.sweep(Phase::Torsion).filter(|s| s.theta1_deg != 0.0 || s.rot_deg != 0.0).map(eq38_point).collect();
-    if tors.len() < 3 {
-        return Err(FitError::TooFewSamples { what: "torsion samples with twist".into(), found: tors.len(), need: 3 });
+    // One slope through the origin: two twists leave it a degree of freedom.
+    if tors.len() < 2 {
+        return Err(FitError::TooFewSamples { what: "torsion samples with twist".into(), found: tors.len(), need: 2 });
     }
     let torsion =
         fit_eq38(&tors).ok_or_else(|| FitError::Degenerate("theta1 is zero in every torsion sample".into()))?;
@@ -136,4 +137,49 @@ pub fn fit_paper(rec: &Recording, opts: &PaperOptions) -> Result<PaperFit, FitEr
         r2_normal: normal.r2,
         r2_torsion: torsion.r2,
     })
+}
+
+/// The paper's method on its window, or, where the sweep puts fewer than the
+/// four samples Eq. 22 needs there (a coarse sweep of a stiff pair passes
+/// through 0.2-0.8 mm in two or three steps), on the narrowest widening of
+/// the window that holds four, with a warning saying so. The paper's answer
+/// only starts the full fit and is reported beside it; a recording the full
+/// fit can take is not refused for it.
+pub fn fit_paper_or_widened(rec: &Recording, opts: &PaperOptions) -> Result<(PaperFit, Option<Warning>), FitError> {
+    let first = fit_paper(rec, opts);
+    let Err(FitError::TooFewSamples { .. }) = &first else {
+        return first.map(|p| (p, None));
+    };
+    let Some(window_mm) = widened_window(rec, opts.window_mm, 4) else {
+        return first.map(|p| (p, None));
+    };
+    let p = fit_paper(rec, &PaperOptions { window_mm })?;
+    let [lo, hi] = opts.window_mm;
+    let w = Warning::new(
+        "paper_window_widened",
+        format!(
+            "the normal sweep has fewer than 4 samples with gamma1 in the paper's window [{lo}, {hi}] mm; the \
+             paper's method (Eq. 22) was fitted on [{:.4}, {:.4}] mm, the narrowest widening that holds 4",
+            window_mm[0], window_mm[1]
+        ),
+    );
+    Ok((p, Some(w)))
+}
+
+/// `window` widened to the nearest normal samples in contact outside it,
+/// one at a time (nearest in gamma1 first), until it holds `need`; `None`
+/// if it already does or the sweep has fewer in contact.
+fn widened_window(rec: &Recording, window: [f64; 2], need: usize) -> Option<[f64; 2]> {
+    let [mut lo, mut hi] = window;
+    let g: Vec<f64> = rec.sweep(Phase::Normal).map(|s| s.gamma1_mm).filter(|&g| g > 0.0).collect();
+    let inside = |lo: f64, hi: f64| g.iter().filter(|&&x| x >= lo && x <= hi).count();
+    if inside(lo, hi) >= need || g.len() < need {
+        return None;
+    }
+    while inside(lo, hi) < need {
+        let gap = |x: f64| if x < lo { lo - x } else { x - hi };
+        let next = g.iter().copied().filter(|&x| x < lo || x > hi).min_by(|a, b| gap(*a).total_cmp(&gap(*b)))?;
+        (lo, hi) = (lo.min(next), hi.max(next));
+    }
+    Some([lo, hi])
 }

@@ -184,6 +184,8 @@ impl HyperBody {
             return Err(FemError::Invalid(format!("material E {} MPa, nu {}", material.e_mpa, material.nu)));
         }
         let nn = mesh.xy.len();
+        let mut roller = vec![false; nn];
+        mesh.rollers.iter().for_each(|&n| roller[n] = true);
         let mut clamped = vec![false; nn];
         mesh.clamped.iter().for_each(|&n| clamped[n] = true);
         let mut on_axis = vec![false; nn];
@@ -226,8 +228,10 @@ impl HyperBody {
                     dof[n][0] = Some(free);
                     free += 1;
                 }
-                dof[n][1] = Some(free);
-                free += 1;
+                if !roller[n] {
+                    dof[n][1] = Some(free);
+                    free += 1;
+                }
             }
             let mut bw = 0;
             for q in &mesh.quads {
@@ -322,7 +326,7 @@ impl HyperBody {
         let nn = self.mesh.xy.len();
         let mut idx = vec![None; nn];
         let mut clamped = vec![false; nn];
-        self.mesh.clamped.iter().for_each(|&n| clamped[n] = true);
+        self.mesh.clamped.iter().chain(&self.mesh.rollers).for_each(|&n| clamped[n] = true);
         let mut count = 0;
         // The same order as the in-plane dofs (small band).
         let mut order: Vec<(usize, usize)> =

@@ -58,7 +58,19 @@ impl LargeStrainContact {
         indenter_radius_mm: f64,
         fine_mm: f64,
     ) -> Result<Self, FemError> {
-        let gel_mesh = crate::forward::gel_mesh_at(thickness_mm, fine_mm)?;
+        Self::for_layer_on(crate::Base::Bonded, thickness_mm, gel, indenter, indenter_radius_mm, fine_mm)
+    }
+
+    /// [`Self::for_layer_at`] on a gel sitting on its window as `base` says.
+    pub fn for_layer_on(
+        base: crate::Base,
+        thickness_mm: f64,
+        gel: Material,
+        indenter: Material,
+        indenter_radius_mm: f64,
+        fine_mm: f64,
+    ) -> Result<Self, FemError> {
+        let gel_mesh = crate::forward::gel_mesh_at(thickness_mm, fine_mm)?.on_base(base);
         let rs: Vec<f64> = gel_mesh.surface_radii().into_iter().filter(|&r| r < 0.97 * indenter_radius_mm).collect();
         let hemi = Mesh::hemisphere(indenter_radius_mm, &rs, crate::forward::hemisphere_segments(fine_mm))?;
         Self::new(gel_mesh, gel, hemi, indenter, indenter_radius_mm)
