@@ -285,8 +285,8 @@ pub(super) fn deepest_over_r2(rec: &Recording, p: &ModelParams) -> f64 {
 /// deepest approach over R2, of E1 and nu1 on a gel sliding on its window:
 /// [the small-strain model, the large-strain one]. The large-strain
 /// correction is tabulated on bonded gels only, and a sliding gel is softer
-/// at depth and strains further (the same pair pressed to beta 0.18 goes
-/// 3.1 mm deep, not 1.8). Measured on noiseless sweeps of the project's own
+/// at depth and strains further (the pair below reaches beta 0.18 at a
+/// 3.1 mm approach on a sliding gel, beta 0.2 at 1.75 mm on a bonded one). Measured on noiseless sweeps of the project's own
 /// neo-Hookean reference of a sliding 5 mm gel (E2/E1 2, nu1 0.48, nu2 0.4)
 /// to beta 0.05, 0.1, 0.15 and 0.18 (delta/R2 0.14-0.63), fitted by each
 /// model: the small-strain one E1 -2.4 to -12.5 %, nu1 +1.4 to -62 %; with
