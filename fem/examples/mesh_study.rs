@@ -18,7 +18,7 @@ fn main() {
     let mut columns = Vec::new();
     for &h in &meshes {
         let t = std::time::Instant::now();
-        let mut c = LargeStrainContact::for_layer_at(5.0, gel, ind, 5.0, h).expect("mesh");
+        let mut c = LargeStrainContact::for_layer_at(fem::Base::Bonded, 5.0, gel, ind, 5.0, h).expect("mesh");
         let path = c.solve_path(&stages, 0.05).expect("press");
         eprintln!("{h} mm: {:.0?}", t.elapsed());
         columns.push(path.iter().map(|s| s.gamma1_mm * 1e3).collect::<Vec<f64>>());

@@ -27,7 +27,7 @@ fn main() {
         Ok("sliding") => (Base::Sliding, "sliding"),
         _ => (Base::Bonded, "bonded"),
     };
-    let at = |fine_mm: f64| LargeStrainContact::for_layer_on(base, H, gel, ind, R2, fine_mm);
+    let at = |fine_mm: f64| LargeStrainContact::for_layer_at(base, H, gel, ind, R2, fine_mm);
     let beta = std::env::var("BETA").ok().and_then(|b| b.parse().ok()).unwrap_or(0.2);
     let plan = SweepPlan { beta, normal_steps: 30, twists_deg: (0..=10).map(f64::from).collect(), friction: MU };
     let t = std::time::Instant::now();

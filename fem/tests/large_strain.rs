@@ -102,7 +102,7 @@ fn the_dev_sets_nonlinear_recordings_are_reproduced_at_their_truth() {
         let normal: Vec<_> = rec.samples.iter().filter(|s| s.phase == Phase::Normal && s.stage_mm > 0.0).collect();
         let stages: Vec<f64> = normal.iter().map(|s| s.stage_mm).collect();
         let path = large.solve_path(&stages, 0.05).unwrap();
-        let coarse_path = LargeStrainContact::for_layer_at(5.0, gel_m, ind_m, ind.r_mm, coarse)
+        let coarse_path = LargeStrainContact::for_layer_at(fem::Base::Bonded, 5.0, gel_m, ind_m, ind.r_mm, coarse)
             .unwrap()
             .solve_path(&stages, 0.05)
             .unwrap();

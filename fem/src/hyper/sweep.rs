@@ -46,23 +46,20 @@ impl LargeStrainContact {
         indenter: Material,
         indenter_radius_mm: f64,
     ) -> Result<Self, FemError> {
-        Self::for_layer_at(thickness_mm, gel, indenter, indenter_radius_mm, crate::forward::FINE_MM)
+        Self::for_layer_at(
+            crate::Base::Bonded,
+            thickness_mm,
+            gel,
+            indenter,
+            indenter_radius_mm,
+            crate::forward::FINE_MM,
+        )
     }
 
     /// [`Self::for_layer`] with elements of `fine_mm` at the contact (the
-    /// hemisphere's segments matched to them).
+    /// hemisphere's segments matched to them), on a gel sitting on its window
+    /// as `base` says.
     pub fn for_layer_at(
-        thickness_mm: f64,
-        gel: Material,
-        indenter: Material,
-        indenter_radius_mm: f64,
-        fine_mm: f64,
-    ) -> Result<Self, FemError> {
-        Self::for_layer_on(crate::Base::Bonded, thickness_mm, gel, indenter, indenter_radius_mm, fine_mm)
-    }
-
-    /// [`Self::for_layer_at`] on a gel sitting on its window as `base` says.
-    pub fn for_layer_on(
         base: crate::Base,
         thickness_mm: f64,
         gel: Material,
@@ -148,7 +145,9 @@ pub fn converged_layer_sweep(
     plan: &SweepPlan,
 ) -> Result<Sweep, FemError> {
     use super::{TABLE_COARSE_MM, TABLE_FINE_MM, mesh_extrapolated};
-    let at = |fine_mm: f64| LargeStrainContact::for_layer_at(thickness_mm, gel, indenter, indenter_radius_mm, fine_mm);
+    let at = |fine_mm: f64| {
+        LargeStrainContact::for_layer_at(crate::Base::Bonded, thickness_mm, gel, indenter, indenter_radius_mm, fine_mm)
+    };
     let coarse = calibration_sweep(|| at(TABLE_COARSE_MM), indenter_radius_mm, plan)?;
     let mut fine = at(TABLE_FINE_MM)?;
     let mut normal = Vec::with_capacity(coarse.normal.len());
