@@ -1,13 +1,15 @@
 //! Fit timing on a ~200-sample recording: the paper's method and the full-model
 //! fit; and the full-model fit of a declared bonded layer (the FE model with
 //! friction) on a recording of the independent finite-element dev set, at
-//! small and at large strain.
+//! small and at large strain, and on a layered recording of the ~200-sample
+//! plan.
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use easycalib::fit::fe_law::frictional_truth;
 use easycalib::fit::{FitOptions, ModelParams, fit_full, fit_paper};
-use sim::generator::{GeneratorConfig, SweepPlan, generate};
+use sim::generator::{GeneratorConfig, LayeredTruth, SweepPlan, generate, generate_on};
 
 fn fits(c: &mut Criterion) {
     let cfg = GeneratorConfig {
@@ -50,6 +52,21 @@ fn fits(c: &mut Criterion) {
     let start = ModelParams { large_strain: true, ..start };
     g.bench_function(format!("{}_samples_large_strain", large.samples.len()), |b| {
         b.iter(|| fit_full(black_box(&large), &opts.full, start))
+    });
+    // The size: the 200-sample plan above on the simulated rig's gel
+    // (E1 0.33 MPa, nu1 0.39) as a 5 mm bonded layer, written by the linear
+    // FE layer model with friction (what `simulate --thickness-mm 5` writes).
+    let layer = sim::physics::Layer::bonded(5.0);
+    let mut cfg = cfg;
+    cfg.pair.elastomer.r_mm = f64::INFINITY;
+    let gel = cfg.pair.elastomer;
+    let law = frictional_truth(layer, cfg.pair.indenter, gel.e_mpa, gel.nu, sim::defaults::GEL_FRICTION)
+        .expect("the simulated gel's layer law");
+    let long = generate_on(&cfg, Some(&LayeredTruth { law, layer })).expect("layered recording");
+    let start = ModelParams { e1_mpa: 0.25, nu1: 0.3, large_strain: false, ..start };
+    fit_full(&long, &opts.full, start).expect("layered fit of the long recording");
+    g.bench_function(format!("{}_samples", long.samples.len()), |b| {
+        b.iter(|| fit_full(black_box(&long), &opts.full, start))
     });
     g.finish();
 }

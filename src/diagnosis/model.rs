@@ -518,6 +518,14 @@ impl<'a> Model<'a> {
         x
     }
 
+    /// The internal base coordinates of where a previous pass's explanation
+    /// ended, on a layer whose correction was taken there
+    /// ([`LayeredBase::previous_explanation`]).
+    pub fn previous_start(&self) -> Option<Vec<f64>> {
+        let p = self.layer.as_ref()?.previous_explanation()?;
+        Some(self.start(&Base { e1_mpa: p.e1_mpa, nu1: p.nu1, contact_offset_mm: p.contact_offset_mm }))
+    }
+
     /// The friction of internal coordinates `x` on a declared layer (the layer
     /// fit's when `x` has none), `None` when the twist sticks.
     pub fn friction(&self, x: &[f64]) -> Option<f64> {
@@ -705,7 +713,7 @@ impl<'a> Model<'a> {
         max_iterations: usize,
         cost_tolerance: f64,
     ) -> Option<Fitted> {
-        // On the FE layer model a search ends within a hundredth of a standard
+        // On the FE layer model a search ends within a twentieth of a standard
         // error of its optimum (the fit's rule, `fit::full`): the contact's
         // nodes ripple the model in its last digits, and the cost tolerance
         // alone spends refused trials there.

@@ -304,6 +304,18 @@ pub(crate) fn extend(model: &Model, from: &Fitted, add: Candidate) -> Option<Fit
             results.push(f);
         }
     }
+    // On a layer whose correction was taken where the last pass's
+    // explanation ended, from there too (the usual amounts of the effect).
+    if let Some(prev) = model.previous_start() {
+        for st in add.starts() {
+            let mut x = prev.clone();
+            x.extend_from_slice(&from.x[prev.len().min(from.x.len())..]);
+            x.extend_from_slice(st);
+            if let Some(f) = model.fit(&cands, &x) {
+                results.push(f);
+            }
+        }
+    }
     // A start far from the answer (a thin layer, where the baseline is far
     // off) or correlated parameters (adhesion: strong tack sits at the end of
     // a long, flat w/eta valley that takes >100 iterations, while a weak-tack

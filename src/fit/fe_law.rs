@@ -35,6 +35,9 @@ pub struct LayeredBase {
     fit: [[f64; 3]; 2],
     /// Where the friction correction was taken.
     anchor: ModelParams,
+    /// Whether that was given (where a previous pass's explanation ended)
+    /// rather than the full fit's optimum.
+    anchor_given: bool,
 }
 
 impl LayeredBase {
@@ -63,6 +66,7 @@ impl LayeredBase {
                 [full.nu1, full.ci95.nu1[0], full.ci95.nu1[1]],
             ],
             anchor: *p,
+            anchor_given: at.is_some(),
         }))
     }
 
@@ -83,6 +87,14 @@ impl LayeredBase {
                     (Some(x), Some(y)) => (x / y - 1.0).abs() < 0.1,
                     (x, y) => x == y,
                 })
+    }
+
+    /// Where a previous pass's explanation ended, when the correction was
+    /// taken there: a refit on this model starts from there too (a baseline
+    /// that absorbed an effect can sit where the twist sticks, where the
+    /// friction's cost is flat and a refit started on it stays).
+    pub fn previous_explanation(&self) -> Option<&ModelParams> {
+        self.anchor_given.then_some(&self.anchor)
     }
 
     /// The layer model's parameters at E1, nu1, z0 and `friction`.
