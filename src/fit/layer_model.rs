@@ -30,11 +30,28 @@ pub(super) struct Correction {
 impl Correction {
     /// The correction at `p`, per sample.
     pub(super) fn at(&self, p: &ModelParams) -> impl Iterator<Item = (f64, f64)> + '_ {
-        let moved: Vec<f64> = physical(p).iter().zip(&self.at).map(|(v, a)| v - a).collect();
+        let mut moved: Vec<f64> = physical(p).iter().zip(&self.at).map(|(v, a)| v - a).collect();
+        if let (Some(m), Some(&a)) = (moved.get_mut(3), self.at.get(3)) {
+            *m = friction_move(a + *m, a);
+        }
         self.base.iter().enumerate().map(move |(i, &(g, t))| {
             self.slope.iter().zip(&moved).fold((g, t), |(g, t), (d, m)| (g + d[i].0 * m, t + d[i].1 * m))
         })
     }
+}
+
+/// How far the friction `mu` lies from `at` (where a correction was taken)
+/// for the correction's slope: itself below, `at` ln(mu / at) above. Friction
+/// acts less and less as it grows (past the value at which the whole contact
+/// sticks, not at all), so above, the correction follows its slope in
+/// ln(friction); a slope per unit friction followed far up (the linear
+/// model's fit of the neo-Hookean tableI_2 took the friction from 8.9 to
+/// 10⁴) read a correction thousands of times too large. Below, it is
+/// followed as it is: towards zero friction the correction goes to zero, not
+/// to minus infinity as it would in ln(friction). The two meet with the same
+/// slope at `at`.
+fn friction_move(mu: f64, at: f64) -> f64 {
+    if mu > at { at * (mu / at).ln() } else { mu - at }
 }
 
 /// E1, nu1, z0 and (when fitted) the friction coefficient.
