@@ -223,3 +223,32 @@ pub(super) fn friction_correction(
 /// path (from 30 to 120 steps gamma1 moves by at most 0.4 µm on the dev set's
 /// recordings, a fifth of their noise; docs/physics.md).
 const NORMAL_LOAD_STEPS: f64 = 60.0;
+
+#[cfg(test)]
+mod tests {
+    use super::friction_move;
+
+    /// Below where it was taken the correction moves with the friction
+    /// itself, above with its logarithm; the two meet with the same value and
+    /// slope there, and far above the move grows only logarithmically (10⁴
+    /// from a correction taken at 8.9: 62 in place of 9991).
+    #[test]
+    fn the_friction_move_is_linear_below_logarithmic_above_and_smooth_between() {
+        let at = 0.4;
+        assert_eq!(friction_move(at, at), 0.0);
+        assert!((friction_move(0.1, at) - (0.1 - at)).abs() < 1e-15);
+        assert!((friction_move(0.0, at) + at).abs() < 1e-15, "zero friction is a finite move");
+        let h = 1e-6;
+        let below = (friction_move(at, at) - friction_move(at - h, at)) / h;
+        let above = (friction_move(at + h, at) - friction_move(at, at)) / h;
+        assert!((below - 1.0).abs() < 1e-9 && (above - 1.0).abs() < 1e-5, "slopes {below} {above}");
+        let far = friction_move(1e4, 8.9);
+        assert!((far - 8.9 * (1e4f64 / 8.9).ln()).abs() < 1e-9 && far < 63.0, "{far}");
+        let mut last = f64::NEG_INFINITY;
+        for k in 0..200 {
+            let m = friction_move(0.01 * 1.05f64.powi(k), at);
+            assert!(m > last, "monotone");
+            last = m;
+        }
+    }
+}
