@@ -496,6 +496,17 @@ fn separation(
     sigma_t: f64,
 ) -> Result<(f64, f64), PlanError> {
     let (pa, pb) = predictions(rec, a, b, spec, step_time_s)?;
+    // An operator's sweep is judged with its own contact offset fitted
+    // ([`ball_chi2`]): what a shift of every depth alike explains separates
+    // nothing (over such a sweep gamma1 follows the stage nearly one to one).
+    let shift = match spec.is_operator() {
+        true => {
+            let live: Vec<f64> =
+                pa.iter().zip(&pb).filter(|(a, b)| a.0 > 0.0 && b.0 > 0.0).map(|(a, b)| a.0 - b.0).collect();
+            if live.is_empty() { 0.0 } else { live.iter().sum::<f64>() / live.len() as f64 }
+        }
+        false => 0.0,
+    };
     let d = pa
         .iter()
         .zip(&pb)
@@ -504,7 +515,8 @@ fn separation(
                 (Some(ta), Some(tb)) => ((ta - tb) / sigma_t).powi(2),
                 _ => 0.0,
             };
-            ((ga - gb) / sigma_g).powi(2) + t
+            let g = if *ga > 0.0 && *gb > 0.0 { ga - gb - shift } else { ga - gb };
+            (g / sigma_g).powi(2) + t
         })
         .sum();
     Ok((d, pa.iter().map(|p| p.0).fold(0.0, f64::max)))
@@ -541,7 +553,10 @@ pub fn predictions(
             let read = |h: &Hypothesis| -> Result<Vec<Reading>, PlanError> {
                 let pair = pair_of(rec, &h.profile).ok_or_else(|| fail("a hypothesis has no material".into()))?;
                 let pair = ContactPair { indenter, ..pair };
-                let r = simulate(pair, &h.profile, &cmds).map_err(|e| fail(e.to_string()))?;
+                // The swapped indenter's contact is found by an approach of
+                // its own: the recording's contact offset is not its.
+                let profile = SimProfile { contact_offset: None, ..h.profile.clone() };
+                let r = simulate(pair, &profile, &cmds).map_err(|e| fail(e.to_string()))?;
                 Ok(r.iter().map(|r| (if r.in_contact { r.gamma1_mm } else { 0.0 }, None)).collect())
             };
             (read(a)?, read(b)?)
@@ -749,6 +764,15 @@ fn with_intervals(e1_mpa: f64, nu1: f64, ci: &Ci95) -> String {
 
 /// chi² of the rigid ball's resolved readings against their prediction
 /// under `profile` (its material and effects, the ball mounted).
+/// χ² of the ball's resolved readings under `profile` (the recording's
+/// material and effects with the ball mounted), with the ball's own contact
+/// offset fitted: the ball's contact was found by an approach of its own, a
+/// micrometre or more off like any (`contact_sd_mm` of its recording, a
+/// prior on the offset when declared), and the recording's offset says
+/// nothing of it. Applying the recording's offset to the ball named the
+/// wrong explanation of a compliant frame whenever the recording's zero had
+/// been moved (a run rewrites it to its calibration's: 9 µm there, which the
+/// frame's hypothesis then carried to the ball as 9 µm of depth).
 fn ball_chi2(
     rec: &Recording,
     profile: &SimProfile,
@@ -759,14 +783,43 @@ fn ball_chi2(
     let fail = |e: String| PlanError::Simulate(e);
     let pair = pair_of(rec, profile).ok_or_else(|| fail("a hypothesis has no material".into()))?;
     let pair = ContactPair { indenter: ball.meta.indenter, ..pair };
-    let r = simulate(pair, profile, cmds).map_err(|e| fail(e.to_string()))?;
-    Ok(ball
-        .samples
-        .iter()
-        .zip(&r)
-        .filter(|(s, _)| ball_resolved(ball, s))
-        .map(|(s, r)| ((s.gamma1_mm - r.gamma1_mm) / sigma_g).powi(2))
-        .sum())
+    let residuals = |offset_mm: f64| -> Result<Vec<f64>, PlanError> {
+        let offset = sim::effects::contact_offset::Params { contact_offset_mm: offset_mm };
+        let profile = SimProfile { contact_offset: Some(offset), ..profile.clone() };
+        let r = simulate(pair, &profile, cmds).map_err(|e| fail(e.to_string()))?;
+        Ok(ball
+            .samples
+            .iter()
+            .zip(&r)
+            .filter(|(s, _)| ball_resolved(ball, s))
+            .map(|(s, r)| (s.gamma1_mm - r.gamma1_mm) / sigma_g)
+            .collect())
+    };
+    // Gauss–Newton in the one offset (the readings move nearly one to one with it).
+    let prior = ball.meta.contact_sd_mm().filter(|sd| sd.is_finite() && *sd > 0.0);
+    let cost = |z: f64, r: &[f64]| r.iter().map(|x| x * x).sum::<f64>() + prior.map_or(0.0, |sd| (z / sd).powi(2));
+    const STEP_MM: f64 = 1e-4;
+    let (mut z, mut r) = (0.0, residuals(0.0)?);
+    for _ in 0..6 {
+        let ahead = residuals(z + STEP_MM)?;
+        let j: Vec<f64> = ahead.iter().zip(&r).map(|(a, b)| (a - b) / STEP_MM).collect();
+        let jj = j.iter().map(|x| x * x).sum::<f64>() + prior.map_or(0.0, |sd| sd.powi(-2));
+        let jr = j.iter().zip(&r).map(|(a, b)| a * b).sum::<f64>() + prior.map_or(0.0, |sd| z / sd.powi(2));
+        if !(jj > 0.0 && jr.is_finite()) {
+            break;
+        }
+        let next = z - jr / jj;
+        let r_next = residuals(next)?;
+        if cost(next, &r_next) >= cost(z, &r) {
+            break;
+        }
+        let moved = (next - z).abs();
+        (z, r) = (next, r_next);
+        if moved < 1e-7 {
+            break;
+        }
+    }
+    Ok(cost(z, &r))
 }
 
 /// Decide with a rigid-ball recording taken after `rec` (diagnosed as `d`,

@@ -138,10 +138,32 @@ fn the_closed_loop_runs_a_deciding_experiment_only_when_something_is_left_to_dec
     let pick = p.experiments.iter().find(|c| c.separates > 0 && c.peak_gamma1_mm <= room).map(|c| c.spec);
     assert_eq!(pick, Some(out.adaptive[0].spec), "{}", easycalib::plan::report(&p));
 
+    // A clean rig: the loop runs an experiment only when the recording's own
+    // diagnosis leaves more than one explanation standing, and names nothing
+    // either way. How often a clean rig leaves one is a rate (no experiment
+    // in 10 of 10 seeds, `closed_loop_rates_over_seeds`): the emulated rig's
+    // recording varies with the machine's load, and about one run in 45
+    // under load leaves a shallow stretch the diagnosis cannot rank. Which
+    // experiment it then picks depends on the noise it expects of one
+    // experiment sample, read from the sensor at that moment.
     let (clean, rec) = emulated::run_script(5, SimProfile::default(), adaptive());
-    assert!(clean.adaptive.is_empty(), "{clean:?}");
-    assert!(clean.report_chain.0.is_null() && clean.report_chain.1.is_empty(), "{:?}", clean.report_chain);
-    assert!(rec.samples.iter().all(|s| s.in_sweep()));
+    assert!(clean.named.is_empty(), "{clean:?}");
+    assert!(clean.corrected.0.abs() < 1.0 && clean.corrected.1.abs() < 2.0, "{clean:?}");
+    match clean.adaptive.first() {
+        None => {
+            assert!(clean.report_chain.0.is_null() && clean.report_chain.1.is_empty(), "{:?}", clean.report_chain);
+            assert!(rec.samples.iter().all(|s| s.in_sweep()));
+        }
+        Some(step) => {
+            assert!(step.why.contains("separates"), "{clean:?}");
+            let first = rec.samples.iter().position(|s| s.experiment.is_some()).unwrap_or(rec.samples.len());
+            let before = sim::recording::Recording { meta: rec.meta.clone(), samples: rec.samples[..first].to_vec() };
+            let p =
+                easycalib::plan::plan(&before, easycalib::plan::PlanOptions { operator: true, experiment_sd: None })
+                    .unwrap();
+            assert!(p.hypotheses.len() >= 2, "{}", easycalib::plan::report(&p));
+        }
+    }
 }
 
 /// Rates of the closed loop over seeds (issue 14, "Must show", for the pair

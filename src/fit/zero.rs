@@ -92,6 +92,24 @@ pub fn refine_stage_zero(rec: &Recording, full: &FullFit) -> Result<(Recording, 
     Ok((out, StageZero { moved_mm, moved_se_mm, approach_sd_mm }))
 }
 
+/// `rec` as a finished run's report reads it (docs/run.md, "Stage zero"):
+/// written and read back through the recording format (its rounding),
+/// calibrated, and with its stage zero moved to that calibration's where
+/// [`refine_stage_zero`] allows (through the format again, as the run
+/// rewrites its file); else as read back. The closed loop plans on this
+/// recording, so its last decision and the report's diagnosis of the
+/// finished run see the same numbers: a decision at the diagnosis's
+/// ambiguity margin otherwise flips between the two on the format's
+/// rounding alone.
+pub fn as_reported(rec: &Recording) -> Recording {
+    let Ok(read) = Recording::parse(&rec.to_csv_string()) else { return rec.clone() };
+    let Ok(cal) = super::calibrate(&read, &super::FitOptions::default()) else { return read };
+    match refine_stage_zero(&read, &cal.full) {
+        Ok((zeroed, _)) => Recording::parse(&zeroed.to_csv_string()).unwrap_or(zeroed),
+        Err(_) => read,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

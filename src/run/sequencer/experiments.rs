@@ -174,6 +174,9 @@ where
                 );
             }
             let planned = tokio::task::spawn_blocking(move || {
+                // The recording as the run's report will read it (format,
+                // stage zero): the loop stops on the decision the report shows.
+                let rec = crate::fit::zero::as_reported(&rec);
                 let d = crate::diagnosis::diagnose(&rec, &crate::diagnosis::DiagnoseOptions::default())?;
                 let p = crate::plan::plan_for(&rec, &d, opts)?;
                 Ok::<_, crate::plan::PlanError>((rec, d, p))
