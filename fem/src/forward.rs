@@ -460,11 +460,34 @@ impl Model {
     /// [`Model::theta1_rad`] for a mount twist `twist_rad` on a state prepared
     /// by [`Model::twist_setup`] (a torsion sweep twists one state many times).
     pub fn theta1_rad_at(&self, setup: &TwistSetup, twist_rad: f64) -> Option<f64> {
+        self.twist_from(setup, twist_rad, &mut Vec::new())
+    }
+
+    /// [`Model::theta1_rad_at`] at each of `twists_rad` (each loaded from
+    /// zero, as there), solved in increasing order: a twist's slip annulus
+    /// holds every node that slips at a smaller twist, so each search for it
+    /// starts from the last one's instead of from a stuck contact (the same
+    /// annulus, found in fewer rounds: the rounds only ever add nodes that
+    /// are past their limit).
+    pub fn theta1_rad_sweep(&self, setup: &TwistSetup, twists_rad: &[f64]) -> Vec<Option<f64>> {
+        let mut order: Vec<usize> = (0..twists_rad.len()).collect();
+        order.sort_by(|&a, &b| twists_rad[a].total_cmp(&twists_rad[b]));
+        let mut out = vec![None; twists_rad.len()];
+        let mut slip = Vec::new();
+        for k in order {
+            out[k] = self.twist_from(setup, twists_rad[k], &mut slip);
+        }
+        out
+    }
+
+    /// theta1 at `twist_rad`, the slip annulus searched from `slip` (the nodes
+    /// 1..=last known to slip; empty: none) and left there.
+    fn twist_from(&self, setup: &TwistSetup, twist_rad: f64, slip: &mut Vec<bool>) -> Option<f64> {
         let r = self.contact.radii();
         let (last, cap) = (setup.last, &setup.cap);
         // Node 0 is on the axis (no twist displacement); unknowns are nodes 1..=last.
         let nodes: Vec<usize> = (1..=last).collect();
-        let mut slip = vec![false; nodes.len()];
+        slip.resize(nodes.len(), false);
         let mut t = vec![0.0; nodes.len()];
         for _ in 0..=nodes.len() {
             let stick: Vec<usize> = (0..nodes.len()).filter(|&k| !slip[k]).collect();

@@ -232,3 +232,33 @@ fn theta1_moves_continuously_as_nodes_touch_down() {
     println!("theta1 at 10°: {:.4}..{:.4}°, largest second difference {worst:.5}°", theta_deg[0], theta_deg[60]);
     assert!(worst < 0.003, "theta1 jumps by {worst}° as a node touches down");
 }
+
+/// A sweep of twists solved in increasing order, each slip annulus searched
+/// from the last one's (`theta1_rad_sweep`, what the fit uses), gives every
+/// twist exactly as solved alone from a stuck contact: the rounds only add
+/// nodes past their limit, so both end on the same annulus. The twists
+/// reach well into slip (theta1 over the mount's twist falls by more than
+/// a tenth from its stuck value), or the check could not fail.
+#[test]
+fn a_twist_sweep_is_each_twist_solved_alone() {
+    let model = fem::forward::Forward::cached(5.0, 2.0, 0.4, 5.0).unwrap().model(1.0, 0.48);
+    let st = model.normal(1.5).unwrap();
+    let setup = model.twist_setup(&st, 0.4).unwrap();
+    // Out of order and repeated, as a sweep out and back gives them.
+    let twists: Vec<f64> = [8.0, 0.5, 3.0, 12.0, 0.5, 20.0, 1.0, 6.0].iter().map(|d: &f64| d.to_radians()).collect();
+    let swept = model.theta1_rad_sweep(&setup, &twists);
+    for (t, s) in twists.iter().zip(&swept) {
+        let alone = model.theta1_rad_at(&setup, *t).unwrap();
+        let s = s.unwrap();
+        println!(
+            "twist {:.1}°: theta1 {:.6}° (alone {:.6}°), ratio {:.4}",
+            t.to_degrees(),
+            s.to_degrees(),
+            alone.to_degrees(),
+            s / t
+        );
+        assert!((s - alone).abs() <= 1e-12 * alone.abs(), "twist {t}: swept {s}, alone {alone}");
+    }
+    let ratio = |k: usize| swept[k].unwrap() / twists[k];
+    assert!(ratio(5) < 0.9 * ratio(1), "no slip: {} at 20° against {} at 0.5°", ratio(5), ratio(1));
+}

@@ -122,17 +122,35 @@ pub(super) fn predict_fe(
     let mut out = Vec::with_capacity(rec.samples.len());
     // The torsion sweep twists the state at one depth many times: what its
     // twists share is prepared once per depth.
-    let mut setups: HashMap<u64, Option<fem::forward::TwistSetup>> = HashMap::new();
+    // A sweep twists out and back through the same angles (and repeats):
+    // each twist of a depth is solved once, the depth's twists in one
+    // sweep (the model has no memory of the twist's path: every twist is
+    // loaded monotonically from zero).
+    let mut twists: HashMap<u64, (usize, Vec<f64>)> = HashMap::new();
+    for (i, (s, &delta)) in rec.samples.iter().zip(&deltas).enumerate() {
+        if s.phase == Phase::Torsion {
+            let (_, at) = twists.entry(delta.to_bits()).or_insert((i, Vec::new()));
+            at.push(s.rot_deg.to_radians().abs());
+        }
+    }
+    let mut twisted: HashMap<(u64, u64), f64> = HashMap::new();
+    for (delta, (first, mut at)) in twists {
+        at.sort_by(f64::total_cmp);
+        at.dedup();
+        let theta1 = match model.twist_setup(&states[first], mu) {
+            Some(setup) => model.theta1_rad_sweep(&setup, &at),
+            None => vec![None; at.len()],
+        };
+        for (t, th) in at.iter().zip(theta1) {
+            twisted.insert((delta, t.to_bits()), th.map_or(0.0, f64::to_degrees));
+        }
+    }
     for ((s, st), &delta) in rec.samples.iter().zip(states.iter()).zip(&deltas) {
         let theta1_deg = match s.phase {
             Phase::Normal => 0.0,
             Phase::Torsion => {
                 let twist = s.rot_deg.to_radians();
-                let setup = setups.entry(delta.to_bits()).or_insert_with(|| model.twist_setup(st, mu));
-                setup
-                    .as_ref()
-                    .and_then(|setup| model.theta1_rad_at(setup, twist.abs()))
-                    .map_or(0.0, |t| t.to_degrees() * twist.signum())
+                twisted.get(&(delta.to_bits(), twist.abs().to_bits())).copied().unwrap_or(0.0) * twist.signum()
             }
         };
         let (g1, t1) = match &table {
