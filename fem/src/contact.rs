@@ -6,6 +6,7 @@
 //! solved by an active set. f is the exact sphere's profile; gaps are vertical
 //! (small strain, small sliding).
 
+use std::collections::HashMap;
 use std::f64::consts::PI;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -324,8 +325,17 @@ impl TwoBodyContact {
     }
 }
 
+/// The stuck core of a frictional path: its factor, grown with the contact,
+/// and the core's response to each unknown outside it, per core size (the
+/// same column of the same compliance, met again at every pass of every load
+/// step while the core keeps its size: solved once).
+struct StuckCore {
+    factor: PrefixCholesky,
+    responses: HashMap<(usize, Unknown), Vec<f64>>,
+}
+
 /// An unknown of the frictional contact: a node's normal force or its radial friction.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 enum Unknown {
     P(usize),
     Q(usize),
@@ -446,7 +456,8 @@ impl FrictionalContact {
         let mut s_ref = vec![0.0; n];
         // The stuck contact's factor, grown with the contact along the path
         // (a copy: paths of one model may run at once).
-        let mut stuck = self.stuck.lock().map(|f| f.clone()).unwrap_or_else(|_| PrefixCholesky::empty());
+        let factor = self.stuck.lock().map(|f| f.clone()).unwrap_or_else(|_| PrefixCholesky::empty());
+        let mut stuck = StuckCore { factor, responses: HashMap::new() };
         let mut at = 0.0f64;
         for &k in &order {
             let target = deltas_mm[k];
@@ -471,8 +482,8 @@ impl FrictionalContact {
             });
         }
         if let Ok(mut shared) = self.stuck.lock() {
-            if stuck.len() > shared.len() {
-                *shared = stuck;
+            if stuck.factor.len() > shared.len() {
+                *shared = stuck.factor;
             }
         }
         out.into_iter()
@@ -543,7 +554,7 @@ impl FrictionalContact {
         mu: f64,
         status: &[Node],
         s_ref: &[f64],
-        stuck: &mut PrefixCholesky,
+        stuck: &mut StuckCore,
         p: &mut [f64],
         q: &mut [f64],
     ) -> Result<Vec<usize>, FemError> {
@@ -568,7 +579,7 @@ impl FrictionalContact {
         mu: f64,
         status: &[Node],
         s_ref: &[f64],
-        stuck: Option<&mut PrefixCholesky>,
+        stuck: Option<&mut StuckCore>,
     ) -> Result<(Vec<Unknown>, Vec<f64>), FemError> {
         let n = self.r.len();
         // The stuck core: nodes 0..c all in contact, sticking off the axis.
@@ -582,9 +593,9 @@ impl FrictionalContact {
         let rhs = |u: Unknown| Self::rhs(u, need, status, s_ref);
         // The block form pays when the core is most of the system.
         let blocks = nc > 0 && extra.len() <= nc;
-        let stuck = stuck
-            .filter(|_| blocks)
-            .and_then(|f| (f.extend_to(nc, |a, b| self.stick_coef(interleaved(a), interleaved(b))) >= nc).then_some(f));
+        let stuck = stuck.filter(|_| blocks).and_then(|f| {
+            (f.factor.extend_to(nc, |a, b| self.stick_coef(interleaved(a), interleaved(b))) >= nc).then_some(f)
+        });
         let Some(stuck) = stuck else {
             let unknowns: Vec<Unknown> = core.into_iter().chain(extra).collect();
             let a: Vec<Vec<f64>> =
@@ -598,13 +609,18 @@ impl FrictionalContact {
             return Ok((unknowns, x));
         };
         let f: Vec<f64> = core.iter().map(|&u| rhs(u)).collect();
-        let z = stuck.solve_prefix(&f).ok_or(FemError::NotPositiveDefinite(0))?;
+        let z = stuck.factor.solve_prefix(&f).ok_or(FemError::NotPositiveDefinite(0))?;
         // The core's response to each unknown outside it.
         let ys: Vec<Vec<f64>> = extra
             .iter()
             .map(|&e| {
+                if let Some(y) = stuck.responses.get(&(nc, e)) {
+                    return Ok(y.clone());
+                }
                 let col: Vec<f64> = core.iter().map(|&r| self.stick_coef(r, e)).collect();
-                stuck.solve_prefix(&col).ok_or(FemError::NotPositiveDefinite(0))
+                let y = stuck.factor.solve_prefix(&col).ok_or(FemError::NotPositiveDefinite(0))?;
+                stuck.responses.insert((nc, e), y.clone());
+                Ok(y)
             })
             .collect::<Result<_, _>>()?;
         let ne = extra.len();
@@ -639,7 +655,7 @@ impl FrictionalContact {
         delta: f64,
         mu: f64,
         st: &mut PathState<'_>,
-        stuck: &mut PrefixCholesky,
+        stuck: &mut StuckCore,
         splits: usize,
     ) -> Result<(), FemError> {
         let saved = (st.status.to_vec(), st.p.to_vec(), st.q.to_vec(), st.s_ref.to_vec());
@@ -670,7 +686,7 @@ impl FrictionalContact {
         p: &mut [f64],
         q: &mut [f64],
         s_ref: &mut [f64],
-        stuck: &mut PrefixCholesky,
+        stuck: &mut StuckCore,
     ) -> Result<(), FemError> {
         let n = self.r.len();
         let need = approach_needed(delta, self.radius_mm, &self.r);
@@ -779,7 +795,7 @@ mod tests {
             [vec![Node::Slip(0.0)], vec![st; 8], vec![fr, st, sl], vec![fr; n - 12]].concat(),
             [vec![st; 3], vec![sl; 9], vec![fr; n - 12]].concat(),
         ];
-        let mut stuck = PrefixCholesky::empty();
+        let mut stuck = StuckCore { factor: PrefixCholesky::empty(), responses: HashMap::new() };
         for (k, status) in patterns.iter().enumerate() {
             for mu in [0.3, 1.0] {
                 let (u_block, x_block) = c.solve_system(&need, mu, status, &s_ref, Some(&mut stuck)).unwrap();
@@ -792,7 +808,7 @@ mod tests {
             }
         }
         // The factor grew with the largest core and no further.
-        assert_eq!(stuck.len(), 2 * 12 - 1);
+        assert_eq!(stuck.factor.len(), 2 * 12 - 1);
     }
 
     /// The disc search on the factor answers as the general active set does, on
