@@ -762,8 +762,6 @@ fn with_intervals(e1_mpa: f64, nu1: f64, ci: &Ci95) -> String {
     )
 }
 
-/// chi² of the rigid ball's resolved readings against their prediction
-/// under `profile` (its material and effects, the ball mounted).
 /// χ² of the ball's resolved readings under `profile` (the recording's
 /// material and effects with the ball mounted), with the ball's own contact
 /// offset fitted: the ball's contact was found by an approach of its own, a
@@ -810,7 +808,8 @@ fn ball_chi2(
         }
         let next = z - jr / jj;
         let r_next = residuals(next)?;
-        if cost(next, &r_next) >= cost(z, &r) {
+        // Only a lower cost moves it (a NaN never does).
+        if cost(next, &r_next).partial_cmp(&cost(z, &r)) != Some(std::cmp::Ordering::Less) {
             break;
         }
         let moved = (next - z).abs();
