@@ -416,6 +416,7 @@ mod tests {
             e1_mpa: 0.33,
             nu1: 0.39,
             ci95: Ci95 { e1_mpa: [0.32, 0.34], nu1: [0.38, 0.40] },
+            contact_offset_mm: None,
             error: None,
             wall_time_s: 0.1,
         }

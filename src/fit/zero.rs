@@ -10,7 +10,7 @@
 use serde::Serialize;
 use sim::recording::Recording;
 
-use super::FullFit;
+use super::{Calibration, FitError, FitOptions, FullFit, calibrate};
 
 /// Metadata key: how far the recording's stage zero was moved after the sweep,
 /// mm (every `stage_mm` is the recorded one minus this).
@@ -92,20 +92,62 @@ pub fn refine_stage_zero(rec: &Recording, full: &FullFit) -> Result<(Recording, 
     Ok((out, StageZero { moved_mm, moved_se_mm, approach_sd_mm }))
 }
 
-/// `rec` as a finished run's report reads it (docs/run.md, "Stage zero"):
-/// written and read back through the recording format (its rounding),
-/// calibrated, and with its stage zero moved to that calibration's where
-/// [`refine_stage_zero`] allows (through the format again, as the run
-/// rewrites its file); else as read back. The closed loop plans on this
+/// A recording as a finished run reports it: calibrated, with its stage zero
+/// moved to that calibration's where [`refine_stage_zero`] allows, and fitted
+/// again on the moved zero.
+pub struct Settled {
+    /// The recording the report reads (the moved one, as read back).
+    pub recording: Recording,
+    pub calibration: Calibration,
+    /// The move, or why the zero stays as recorded.
+    pub stage_zero: Result<StageZero, ZeroKept>,
+}
+
+/// The one sequence by which a run settles its recording `read` (docs/run.md,
+/// "Stage zero"): calibrate; move the zero where [`refine_stage_zero`]
+/// allows; hand the moved recording to `write_back`, which stores it and
+/// returns it as stored (through the recording format: its rounding); fit
+/// that. When the moved one cannot be stored or fitted, `undo` puts the
+/// stored one back (called only after `write_back` succeeded) and the
+/// calibration stands on the zero as recorded, saying why. A run writes its
+/// file this way ([`crate::rig::session`]); its closed loop plans on the
+/// same sequence in memory ([`as_reported`]), so the two cannot drift apart.
+pub fn settle(
+    read: Recording,
+    opts: &FitOptions,
+    write_back: impl FnOnce(&Recording) -> Result<Recording, String>,
+    undo: impl FnOnce(),
+) -> Result<Settled, FitError> {
+    let calibration = calibrate(&read, opts)?;
+    let (zeroed, zero) = match refine_stage_zero(&read, &calibration.full) {
+        Ok(moved) => moved,
+        Err(kept) => return Ok(Settled { recording: read, calibration, stage_zero: Err(kept) }),
+    };
+    let refit = write_back(&zeroed).and_then(|back| match calibrate(&back, opts) {
+        Ok(cal) => Ok((back, cal)),
+        Err(e) => {
+            undo();
+            Err(format!("cannot fit it: {e}"))
+        }
+    });
+    Ok(match refit {
+        Ok((recording, calibration)) => Settled { recording, calibration, stage_zero: Ok(zero) },
+        Err(why) => Settled { recording: read, calibration, stage_zero: Err(ZeroKept::NotWritten(why)) },
+    })
+}
+
+/// `rec` as a finished run's report reads it: through the recording format
+/// (its rounding), then [`settle`]d in memory. The closed loop plans on this
 /// recording, so its last decision and the report's diagnosis of the
 /// finished run see the same numbers: a decision at the diagnosis's
 /// ambiguity margin otherwise flips between the two on the format's
-/// rounding alone.
+/// rounding alone. A recording that cannot be calibrated is returned as
+/// read (the report has no calibration to stand on either).
 pub fn as_reported(rec: &Recording) -> Recording {
-    let Ok(read) = Recording::parse(&rec.to_csv_string()) else { return rec.clone() };
-    let Ok(cal) = super::calibrate(&read, &super::FitOptions::default()) else { return read };
-    match refine_stage_zero(&read, &cal.full) {
-        Ok((zeroed, _)) => Recording::parse(&zeroed.to_csv_string()).unwrap_or(zeroed),
+    let through_format = |r: &Recording| Recording::parse(&r.to_csv_string()).map_err(|e| e.to_string());
+    let Ok(read) = through_format(rec) else { return rec.clone() };
+    match settle(read.clone(), &FitOptions::default(), through_format, || {}) {
+        Ok(settled) => settled.recording,
         Err(_) => read,
     }
 }

@@ -73,6 +73,13 @@ pub struct RunDiagnosis {
     pub e1_mpa: f64,
     pub nu1: f64,
     pub ci95: Ci95,
+    /// Where the named effects' fit places the first contact, mm from the
+    /// recording's stage zero (present only when effects are named). A run
+    /// moves its zero to the calibration's contact, and the calibration
+    /// models no effect: under a compliant frame it reads the frame's give
+    /// as a later contact (docs/run.md, "Stage zero").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contact_offset_mm: Option<f64>,
     /// Why the diagnosis could not be made (`verdict` is `not_made`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
@@ -92,7 +99,18 @@ impl RunDiagnosis {
         } else {
             Vec::new()
         };
-        Self { verdict, summary: prose::brief(d), effects, e1_mpa, nu1, ci95, error: None, wall_time_s }
+        let contact_offset_mm = named.then_some(d.corrected.contact_offset_mm);
+        Self {
+            verdict,
+            summary: prose::brief(d),
+            effects,
+            e1_mpa,
+            nu1,
+            ci95,
+            contact_offset_mm,
+            error: None,
+            wall_time_s,
+        }
     }
 
     /// A diagnosis that failed with `why`: E1 and nu1 are the calibration's.
@@ -105,6 +123,7 @@ impl RunDiagnosis {
             e1_mpa,
             nu1,
             ci95,
+            contact_offset_mm: None,
             error: Some(why),
             wall_time_s,
         }
@@ -243,6 +262,7 @@ impl Decided {
             e1_mpa: c.e1_mpa,
             nu1: c.nu1,
             ci95: c.ci95,
+            contact_offset_mm: Some(c.diagnosis.corrected.contact_offset_mm),
             error: None,
             wall_time_s,
         };

@@ -53,9 +53,24 @@ fn write_header(s: &mut String, out: &CalibrationOutput, rec: &Recording) {
     if let Some((_, moved)) = meta.extra.iter().find(|(k, _)| k == crate::fit::zero::ZERO_MOVED_KEY) {
         let moved_um =
             moved.trim().parse::<f64>().map(|m| format!("{:+.2} um", m * 1e3)).unwrap_or_else(|_| moved.clone());
+        // The calibration that placed it models no effect; a diagnosis that
+        // names some places the contact itself (under a compliant frame the
+        // calibration reads the frame's give as a later contact).
+        let named = out.diagnosis.as_ref().filter(|d| !d.effects.is_empty());
+        let diagnosed = match named.and_then(|d| d.contact_offset_mm.map(|z| (d, z))) {
+            Some((d, z)) => {
+                let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+                format!(
+                    "; with {} named, the diagnosis places the contact {:+.2} um from this zero",
+                    names.join(" + "),
+                    z * 1e3
+                )
+            }
+            None => String::new(),
+        };
         let _ = writeln!(
             s,
-            "| stage zero | moved {moved_um} after the sweep, to the contact the full fit places (docs/run.md, \"Stage zero\") |"
+            "| stage zero | moved {moved_um} after the sweep, to the contact the calibration's full fit (no effect modelled) places{diagnosed} (docs/run.md, \"Stage zero\") |"
         );
     }
     if let Some(t) = &out.run {

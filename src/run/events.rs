@@ -585,6 +585,7 @@ mod tests {
             e1_mpa: 0.33,
             nu1: 0.39,
             ci95,
+            contact_offset_mm: None,
             error: None,
             wall_time_s: 0.1,
         };

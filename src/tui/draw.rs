@@ -513,6 +513,7 @@ mod tests {
             e1_mpa: 0.33,
             nu1: 0.39,
             ci95: Ci95 { e1_mpa: [0.3298, 0.3302], nu1: [0.386, 0.394] },
+            contact_offset_mm: None,
             error: None,
             wall_time_s: 0.1,
         }
