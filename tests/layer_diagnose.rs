@@ -259,3 +259,49 @@ fn coarse_and_short_sweeps_of_the_dev_set_still_get_an_answer() {
     assert!(ce[0] <= d.e1 && d.e1 <= ce[1] && cn[0] <= d.nu1 && d.nu1 <= cn[1], "{ce:?} {cn:?}");
     assert!(dg.e1_mpa.is_finite() && dg.nu1.is_finite());
 }
+
+/// More cases of the same kind: each dev recording with a second draw of its
+/// own noise laid on it (gamma1 2 µm on every sample past the zero, theta1
+/// 0.02° on the twists, as the set's README declares; seeds 1 and 2), so
+/// twenty recordings that are the independent reference's physics at 1.4
+/// times its noise. None of them is a rig effect: the diagnosis names
+/// nothing on any (a spurious name would move the estimate off the fit's),
+/// says nothing is unexplained, and its estimate is the fit's; the fit's
+/// 95 % intervals hold the truth at their rate. Measured: 0 named of 20, 20
+/// covered (six draws through the CLI: 0 named of 60, 59 covered;
+/// docs/diagnosis.md, "On a declared layer").
+#[test]
+fn second_noise_draws_of_the_dev_set_name_nothing_and_keep_their_intervals() {
+    let (mut covered, mut total) = (0, 0);
+    for d in dev("linear").iter().chain(&dev("nonlinear")) {
+        for seed in 1..=2u64 {
+            let mut rng = sim::rng::Rng::seed_from(seed * 1000 + total as u64);
+            let mut rec = d.rec.clone();
+            for s in &mut rec.samples {
+                if s.stage_mm > 0.0 {
+                    s.gamma1_mm += rng.gaussian(0.002);
+                }
+                if s.phase == sim::recording::Phase::Torsion {
+                    s.theta1_deg += rng.gaussian(0.02);
+                }
+            }
+            let rec = Recording::parse(&rec.to_csv_string()).unwrap();
+            let cal = calibrate(&rec, &FitOptions::default()).unwrap_or_else(|e| panic!("{}: {e}", d.name));
+            let dg = diagnose(&rec, &DiagnoseOptions::default()).unwrap_or_else(|e| panic!("{}: {e}", d.name));
+            report(&format!("second draw {seed}"), d, &dg, cal.full.e1_mpa, cal.full.nu1);
+            assert!(dg.effects.is_empty(), "{} draw {seed}: {:?}\n{}", d.name, dg.effects, dg.verdict);
+            assert!(!dg.unexplained, "{} draw {seed}: {}", d.name, dg.verdict);
+            assert_eq!((dg.e1_mpa, dg.nu1), (cal.full.e1_mpa, cal.full.nu1), "{} draw {seed}", d.name);
+            let (ce, cn) = (cal.full.ci95.e1_mpa, cal.full.ci95.nu1);
+            let holds = ce[0] <= d.e1 && d.e1 <= ce[1] && cn[0] <= d.nu1 && d.nu1 <= cn[1];
+            if !holds {
+                println!("  its intervals E1 {ce:.4?} nu1 {cn:.4?} miss the truth");
+            }
+            covered += usize::from(holds);
+            total += 1;
+        }
+    }
+    // Both intervals of a 95 % pair hold together at about 0.95 at least:
+    // 16 or more of 20 but by 0.3 % chance.
+    assert!(covered >= 16, "the intervals held the truth on {covered} of {total}");
+}
