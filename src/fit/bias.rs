@@ -26,10 +26,11 @@ use nalgebra::{DMatrix, DVector};
 /// `None`: a parameter's range), the step is halved, up to three times;
 /// `None` if that does not help.
 pub(super) fn box_bias(
-    mut eval: impl FnMut(&[f64]) -> Option<Vec<f64>>,
+    eval: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync,
     theta: &[f64],
     jac: &DMatrix<f64>,
 ) -> Option<Vec<f64>> {
+    use rayon::prelude::*;
     let np = theta.len();
     let m = jac.nrows();
     if jac.ncols() != np {
@@ -38,26 +39,32 @@ pub(super) fn box_bias(
     let cov = (jac.transpose() * jac).try_inverse()?;
     let r0 = eval(theta).filter(|r| r.len() == m)?;
     let eigen = nalgebra::SymmetricEigen::new(cov.clone());
-    let mut d = DVector::<f64>::zeros(m);
-    for (k, &lambda) in eigen.eigenvalues.iter().enumerate() {
-        if !(lambda.is_finite() && lambda >= 0.0) {
-            return None;
-        }
-        let axis = eigen.eigenvectors.column(k) * lambda.sqrt();
+    if !eigen.eigenvalues.iter().all(|l| l.is_finite() && *l >= 0.0) {
+        return None;
+    }
+    // The second difference along each principal axis; the axes' probes are
+    // independent (the FE layer model's, on the cores there are).
+    let along = |k: usize| -> Option<Vec<f64>> {
+        let axis = eigen.eigenvectors.column(k) * eigen.eigenvalues[k].sqrt();
         let mut scale = 1.0;
+        let at = |sign: f64, scale: f64| {
+            let x: Vec<f64> = theta.iter().zip(axis.iter()).map(|(t, a)| t + sign * scale * a).collect();
+            eval(&x).filter(|r| r.len() == m)
+        };
         let (up, down) = loop {
-            let at = |sign: f64, eval: &mut dyn FnMut(&[f64]) -> Option<Vec<f64>>| {
-                let x: Vec<f64> = theta.iter().zip(axis.iter()).map(|(t, a)| t + sign * scale * a).collect();
-                eval(&x).filter(|r| r.len() == m)
-            };
-            match (at(1.0, &mut eval), at(-1.0, &mut eval)) {
+            match (at(1.0, scale), at(-1.0, scale)) {
                 (Some(u), Some(v)) => break (u, v),
                 _ if scale > 0.2 => scale *= 0.5,
                 _ => return None,
             }
         };
+        Some((0..m).map(|i| (up[i] - 2.0 * r0[i] + down[i]) / (scale * scale)).collect())
+    };
+    let seconds = (0..np).into_par_iter().map(along).collect::<Option<Vec<_>>>()?;
+    let mut d = DVector::<f64>::zeros(m);
+    for s in &seconds {
         for i in 0..m {
-            d[i] += (up[i] - 2.0 * r0[i] + down[i]) / (scale * scale);
+            d[i] += s[i];
         }
     }
     let b = -0.5 * &cov * (jac.transpose() * d);

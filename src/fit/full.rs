@@ -9,6 +9,7 @@ use std::collections::HashMap;
 use std::collections::hash_map::Entry;
 
 use nalgebra::DMatrix;
+use rayon::prelude::*;
 use serde::Serialize;
 use sim::physics::{Body, ContactPair, Layer, LayerBase, NormalModel, torsion_at};
 use sim::recording::{Phase, Recording, Sample};
@@ -541,11 +542,16 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result
     for pass in 0..MAX_PASSES {
         correction = friction_correction(rec, &params, correction.as_ref())?;
         let x0 = to_internal(&params);
-        let out = lm::minimize(
-            |x, r| weighted_residuals(rec, &from_internal(x, &start), correction.as_ref(), &sigma, r),
-            &x0,
-            LmOptions { within_se: fe_layer(rec).map(|_| FIT_WITHIN_SE), ..LmOptions::default() },
-        )?;
+        let f = |x: &[f64], r: &mut Vec<f64>| {
+            weighted_residuals(rec, &from_internal(x, &start), correction.as_ref(), &sigma, r)
+        };
+        // The FE layer model's evaluations are worth a core each.
+        let out = match fe_layer(rec) {
+            Some(_) => {
+                lm::minimize_parallel(f, &x0, LmOptions { within_se: Some(FIT_WITHIN_SE), ..LmOptions::default() })
+            }
+            None => lm::minimize(f, &x0, LmOptions::default()),
+        }?;
         let before = params;
         params = from_internal(&out.x, &start);
         res = Some(out);
@@ -685,7 +691,7 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<AtOptimum, FitE
     let m = r0.len();
     let mut jac = DMatrix::zeros(m, np);
     let steps = [1e-5 * params.e1_mpa, 1e-5, 1e-6, 1e-4 * params.contact_friction.unwrap_or(1.0)];
-    for j in 0..np {
+    let probe = |j: usize| {
         let mut hi = phys.clone();
         let mut lo = phys.clone();
         hi[j] += steps[j];
@@ -693,6 +699,15 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<AtOptimum, FitE
         let (mut rp, mut rm) = (Vec::new(), Vec::new());
         let up = weighted_residuals(rec, &from_physical(&hi, params), correction.as_ref(), sig, &mut rp);
         let down = weighted_residuals(rec, &from_physical(&lo, params), correction.as_ref(), sig, &mut rm);
+        (up, rp, down, rm)
+    };
+    // Each parameter's probes are independent: the FE layer model's on the
+    // cores there are.
+    let probes: Vec<_> = match fe_layer(rec) {
+        Some(_) => (0..np).into_par_iter().map(probe).collect(),
+        None => (0..np).map(probe).collect(),
+    };
+    for (j, (up, rp, down, rm)) in probes.into_iter().enumerate() {
         // Deep sweeps end close to the contact model's turning point, where a
         // step to one side may leave the model's range: difference one-sided then.
         for i in 0..m {

@@ -278,47 +278,77 @@ pub enum LmError {
     Underdetermined { residuals: usize, params: usize },
 }
 
-/// Forward-difference Jacobian of `f` at `x` (rows = residuals). `None` if any probe fails.
-fn jacobian<F>(f: &mut F, x: &[f64], r0: &[f64], fd_step: f64) -> Option<DMatrix<f64>>
+/// Column `j` of the forward-difference Jacobian of `f` at `x`, whose
+/// residuals are `r0`; backward where the forward probe is refused (a bound
+/// may be just past `x`). `None` if both are.
+fn column<F>(f: &mut F, x: &[f64], r0: &[f64], fd_step: f64, j: usize) -> Option<Vec<f64>>
 where
     F: FnMut(&[f64], &mut Vec<f64>) -> bool,
 {
     let m = r0.len();
-    let n = x.len();
-    let mut jac = DMatrix::zeros(m, n);
+    let h = fd_step * x[j].abs().max(1.0);
     let mut xp = x.to_vec();
     let mut r = Vec::with_capacity(m);
-    for j in 0..n {
-        let h = fd_step * x[j].abs().max(1.0);
-        xp[j] = x[j] + h;
-        r.clear();
-        if !f(&xp, &mut r) || r.len() != m {
-            // Try the other side before giving up (a bound may be just past x).
-            xp[j] = x[j] - h;
-            r.clear();
-            if !f(&xp, &mut r) || r.len() != m {
-                return None;
-            }
-            for i in 0..m {
-                jac[(i, j)] = (r0[i] - r[i]) / h;
-            }
-        } else {
-            for i in 0..m {
-                jac[(i, j)] = (r[i] - r0[i]) / h;
-            }
-        }
-        xp[j] = x[j];
+    xp[j] = x[j] + h;
+    if f(&xp, &mut r) && r.len() == m {
+        return Some(r.iter().zip(r0).map(|(a, b)| (a - b) / h).collect());
     }
-    Some(jac)
+    xp[j] = x[j] - h;
+    r.clear();
+    (f(&xp, &mut r) && r.len() == m).then(|| r0.iter().zip(&r).map(|(a, b)| (a - b) / h).collect())
+}
+
+fn to_matrix(m: usize, columns: Vec<Vec<f64>>) -> DMatrix<f64> {
+    let n = columns.len();
+    DMatrix::from_iterator(m, n, columns.into_iter().flatten())
 }
 
 fn sum_of_squares(r: &[f64]) -> f64 {
     r.iter().map(|v| v * v).sum()
 }
 
-/// A residual closure `f(x, r) -> accepted` with its finite-difference Jacobian.
-struct FiniteDifferences<F> {
-    f: F,
+/// Residuals `f(x, r) -> accepted` and their forward-difference Jacobian:
+/// probed one column after the other ([`Serial`]) or each column on a core
+/// of its own ([`Parallel`]; the same numbers).
+trait Residuals {
+    fn eval(&mut self, x: &[f64], r: &mut Vec<f64>) -> bool;
+    fn jacobian(&mut self, x: &[f64], r0: &[f64], fd_step: f64) -> Option<DMatrix<f64>>;
+}
+
+struct Serial<F>(F);
+
+impl<F: FnMut(&[f64], &mut Vec<f64>) -> bool> Residuals for Serial<F> {
+    fn eval(&mut self, x: &[f64], r: &mut Vec<f64>) -> bool {
+        (self.0)(x, r)
+    }
+
+    fn jacobian(&mut self, x: &[f64], r0: &[f64], fd_step: f64) -> Option<DMatrix<f64>> {
+        let columns = (0..x.len()).map(|j| column(&mut self.0, x, r0, fd_step, j)).collect::<Option<Vec<_>>>()?;
+        Some(to_matrix(r0.len(), columns))
+    }
+}
+
+struct Parallel<F>(F);
+
+impl<F: Fn(&[f64], &mut Vec<f64>) -> bool + Sync> Residuals for Parallel<F> {
+    fn eval(&mut self, x: &[f64], r: &mut Vec<f64>) -> bool {
+        (self.0)(x, r)
+    }
+
+    fn jacobian(&mut self, x: &[f64], r0: &[f64], fd_step: f64) -> Option<DMatrix<f64>> {
+        use rayon::prelude::*;
+        let f = &self.0;
+        let columns = (0..x.len())
+            .into_par_iter()
+            .map(|j| column(&mut |x: &[f64], r: &mut Vec<f64>| f(x, r), x, r0, fd_step, j))
+            .collect::<Option<Vec<_>>>()?;
+        Some(to_matrix(r0.len(), columns))
+    }
+}
+
+/// A residual closure with its finite-difference Jacobian.
+struct FiniteDifferences<R> {
+    f: R,
     fd_step: f64,
     /// Parameters.
     n: usize,
@@ -327,12 +357,9 @@ struct FiniteDifferences<F> {
     trial: Vec<f64>,
 }
 
-impl<F> Problem<Dyn> for FiniteDifferences<F>
-where
-    F: FnMut(&[f64], &mut Vec<f64>) -> bool,
-{
+impl<R: Residuals> Problem<Dyn> for FiniteDifferences<R> {
     fn start(&mut self, x: &DVector<f64>) -> Result<f64, LmError> {
-        if !(self.f)(x.as_slice(), &mut self.residuals) || self.residuals.iter().any(|v| !v.is_finite()) {
+        if !self.f.eval(x.as_slice(), &mut self.residuals) || self.residuals.iter().any(|v| !v.is_finite()) {
             return Err(LmError::BadStart);
         }
         if self.residuals.len() < x.len() {
@@ -344,7 +371,7 @@ where
 
     fn cost(&mut self, x: &DVector<f64>) -> Option<f64> {
         self.trial.clear();
-        let ok = (self.f)(x.as_slice(), &mut self.trial) && self.trial.iter().all(|v| v.is_finite());
+        let ok = self.f.eval(x.as_slice(), &mut self.trial) && self.trial.iter().all(|v| v.is_finite());
         ok.then(|| sum_of_squares(&self.trial))
     }
 
@@ -357,7 +384,7 @@ where
     }
 
     fn normal_equations(&mut self, x: &DVector<f64>) -> Option<NormalEquations<Dyn>> {
-        let jac = jacobian(&mut self.f, x.as_slice(), &self.residuals, self.fd_step)?;
+        let jac = self.f.jacobian(x.as_slice(), &self.residuals, self.fd_step)?;
         let jt = jac.transpose();
         let a = &jt * &jac;
         let g = &jt * DVector::from_column_slice(&self.residuals);
@@ -365,12 +392,7 @@ where
     }
 }
 
-/// Minimise the sum of squares of `f(x)`; `f` fills its residuals and returns
-/// `false` where the model refuses `x`.
-pub fn minimize<F>(f: F, x0: &[f64], opts: LmOptions) -> Result<LmResult, LmError>
-where
-    F: FnMut(&[f64], &mut Vec<f64>) -> bool,
-{
+fn run<R: Residuals>(f: R, x0: &[f64], opts: LmOptions) -> Result<LmResult, LmError> {
     let mut problem =
         FiniteDifferences { f, fd_step: opts.fd_step, n: x0.len(), residuals: Vec::new(), trial: Vec::new() };
     let out = solve(&mut problem, DVector::from_column_slice(x0), &opts, &Strategy::FIT)?;
@@ -381,6 +403,26 @@ where
         iterations: out.iterations,
         converged: out.converged,
     })
+}
+
+/// Minimise the sum of squares of `f(x)`; `f` fills its residuals and returns
+/// `false` where the model refuses `x`.
+pub fn minimize<F>(f: F, x0: &[f64], opts: LmOptions) -> Result<LmResult, LmError>
+where
+    F: FnMut(&[f64], &mut Vec<f64>) -> bool,
+{
+    run(Serial(f), x0, opts)
+}
+
+/// [`minimize`] with the Jacobian's columns probed on the cores there are:
+/// the same numbers, for a forward model that costs a fraction of a
+/// millisecond or more per evaluation (the FE layer model), where the
+/// probes are most of a fit's wall time.
+pub fn minimize_parallel<F>(f: F, x0: &[f64], opts: LmOptions) -> Result<LmResult, LmError>
+where
+    F: Fn(&[f64], &mut Vec<f64>) -> bool + Sync,
+{
+    run(Parallel(f), x0, opts)
 }
 
 #[cfg(test)]
