@@ -90,9 +90,7 @@ pub fn fit_and_report(
 ) -> Result<Reported, String> {
     let rec = sim::recording::Recording::read_path(recording)
         .map_err(|e| format!("cannot read the recording {}: {e}", recording.display()))?;
-    let restore = || {
-        let _ = std::fs::rename(recording.with_file_name(RAW_RECORDING_FILE), recording);
-    };
+    let restore = || put_streamed_back(recording);
     let settled = settle(rec, &FitOptions::default(), |zeroed| rezero_on_disk(recording, zeroed), restore)
         .map_err(|e| format!("cannot fit the recording: {e}"))?;
     let (rec, cal, stage_zero) = (settled.recording, settled.calibration, settled.stage_zero);
@@ -156,9 +154,15 @@ fn loop_decision(
 fn rezero_on_disk(path: &Path, zeroed: &sim::recording::Recording) -> Result<sim::recording::Recording, String> {
     rewrite_with_raw_kept(path, zeroed)?;
     sim::recording::Recording::read_path(path).map_err(|e| {
-        let _ = std::fs::rename(path.with_file_name(RAW_RECORDING_FILE), path);
+        put_streamed_back(path);
         format!("cannot read {} back: {e}", path.display())
     })
+}
+
+/// The streamed recording kept beside `path` back at `path` (a moved zero
+/// that could not be read back or fitted).
+fn put_streamed_back(path: &Path) {
+    let _ = std::fs::rename(path.with_file_name(RAW_RECORDING_FILE), path);
 }
 
 /// Where the recording as the run streamed it is kept when its stage zero is
