@@ -373,6 +373,27 @@ mod tests {
         path
     }
 
+    /// The generator's recording of a rig whose frame gives `c_mm_per_n`
+    /// (seed `seed`), declaring `contact_sd_mm` when given, written into `dir`.
+    fn framed(
+        dir: &Path,
+        c_mm_per_n: f64,
+        seed: u64,
+        contact_sd_mm: Option<f64>,
+    ) -> (sim::generator::GeneratorConfig, PathBuf) {
+        use sim::effects::{SimProfile, frame_compliance};
+        let profile =
+            SimProfile { frame_compliance: Some(frame_compliance::Params { c_mm_per_n }), ..SimProfile::default() };
+        let cfg = sim::generator::GeneratorConfig { seed, profile, ..Default::default() };
+        let mut rec = sim::generator::generate(&cfg).unwrap();
+        if let Some(sd) = contact_sd_mm {
+            rec.meta.extra.push((sim::recording::CONTACT_SD_KEY.into(), format!("{sd}")));
+        }
+        let path = dir.join(RECORDING_FILE);
+        rec.write_path(&path).unwrap();
+        (cfg, path)
+    }
+
     fn timings() -> RunTimings {
         RunTimings { rig_time_s: 1.0, wall_time_s: 1.0, phases: vec![], experiments: vec![] }
     }
@@ -418,17 +439,8 @@ mod tests {
     /// reported).
     #[test]
     fn a_moved_zero_under_a_named_frame_is_reported_with_the_diagnosis_contact() {
-        use sim::effects::{SimProfile, frame_compliance};
         let dir = tempfile::tempdir().unwrap();
-        let profile = SimProfile {
-            frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.01 }),
-            ..SimProfile::default()
-        };
-        let cfg = sim::generator::GeneratorConfig { seed: 3, profile, ..Default::default() };
-        let mut rec = sim::generator::generate(&cfg).unwrap();
-        rec.meta.extra.push((sim::recording::CONTACT_SD_KEY.into(), "0.003".into()));
-        let path = dir.path().join(RECORDING_FILE);
-        rec.write_path(&path).unwrap();
+        let (_, path) = framed(dir.path(), 0.01, 3, Some(0.003));
         let r = fit_and_report(&path, dir.path(), None, timings(), true).unwrap();
         let moved = r.stage_zero.expect("the zero is moved").moved_mm;
         let d = r.diagnosis.expect("a diagnosis");
@@ -455,16 +467,9 @@ mod tests {
     /// within 2 % of its truth, the recording's own diagnosis under `standard`.
     #[test]
     fn a_ball_that_names_the_frame_makes_it_the_headline() {
-        use sim::effects::{SimProfile, frame_compliance};
         let dir = tempfile::tempdir().unwrap();
-        let profile = SimProfile {
-            frame_compliance: Some(frame_compliance::Params { c_mm_per_n: 0.003 }),
-            ..SimProfile::default()
-        };
-        let cfg = sim::generator::GeneratorConfig { seed: 2, profile, ..Default::default() };
-        let rec = sim::generator::generate(&cfg).unwrap();
-        let path = dir.path().join(RECORDING_FILE);
-        rec.write_path(&path).unwrap();
+        let (cfg, path) = framed(dir.path(), 0.003, 2, None);
+        let rec = sim::recording::Recording::read_path(&path).unwrap();
         let spec = sim::experiment::ExperimentSpec::RigidBall { r_mm: 5.0, travel_mm: 2.5, steps: 20 };
         let ball = sim::generator::operator_recording(&cfg, &spec, rec.samples.last().unwrap().t_s + 1.0).unwrap();
         let ball_path = dir.path().join("rigid_ball.csv");
