@@ -77,7 +77,8 @@ pub struct RunDiagnosis {
     /// recording's stage zero (present only when effects are named). A run
     /// moves its zero to the calibration's contact, and the calibration
     /// models no effect: under a compliant frame it reads the frame's give
-    /// as a later contact (docs/run.md, "Stage zero").
+    /// as a later contact (docs/run.md, "Stage zero"). Absent, not NaN, when
+    /// that fit gives no finite contact.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_offset_mm: Option<f64>,
     /// Why the diagnosis could not be made (`verdict` is `not_made`).
@@ -99,7 +100,7 @@ impl RunDiagnosis {
         } else {
             Vec::new()
         };
-        let contact_offset_mm = named.then_some(d.corrected.contact_offset_mm);
+        let contact_offset_mm = named.then_some(d.corrected.contact_offset_mm).filter(|z| z.is_finite());
         Self {
             verdict,
             summary: prose::brief(d),
@@ -262,7 +263,7 @@ impl Decided {
             e1_mpa: c.e1_mpa,
             nu1: c.nu1,
             ci95: c.ci95,
-            contact_offset_mm: Some(c.diagnosis.corrected.contact_offset_mm),
+            contact_offset_mm: Some(c.diagnosis.corrected.contact_offset_mm).filter(|z| z.is_finite()),
             error: None,
             wall_time_s,
         };
