@@ -50,7 +50,8 @@ fn frames(c: &mut Criterion) {
     // On a declared 5 mm layer (docs/sensing.md, "On a layer"): the same
     // onset and mid contacts drawn and read with the layer's own field
     // (the table built once, outside the timing).
-    let surface = LayerSurface::bonded_layer(5.0, sim::physics::Body::new(1.1, 0.39, 5.0)).expect("the layer model");
+    let surface = LayerSurface::declared(sim::physics::Layer::bonded(5.0), sim::physics::Body::new(1.1, 0.39, 5.0))
+        .expect("the layer model");
     let on_layer = SensingConfig {
         contact_curvature_per_mm: Some((0.14, 0.0005)),
         contact_centre_mm: Some([0.0, 0.0]),

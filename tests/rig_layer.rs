@@ -67,6 +67,25 @@ fn clean_runs_on_the_default_layered_gel_fit_at_their_noise_and_name_nothing() {
     }
 }
 
+/// A gel resting on its window instead of glued to it (`elastomer_base =
+/// "sliding"`), clean, on five seeds: the rig simulates that layer (the FE
+/// model on a sliding base, its own field drawn by the simulated sensor) and
+/// the run reads it with that base's field and tie, so the full fit recovers
+/// the truth within 1 % / 2 %, fits at its noise and names nothing.
+#[test]
+fn clean_runs_on_a_sliding_gel_fit_at_their_noise_and_name_nothing() {
+    let mut script = layered_script();
+    script.sensor.elastomer_base = Some("sliding".into());
+    let runs: Vec<Outcome> = (1..=5).map(|seed| run_script(seed, SimProfile::default(), script.clone()).0).collect();
+    print("sliding", &runs);
+    for o in &runs {
+        assert!(o.full.0.abs() <= 1.0 && o.full.1.abs() <= 2.0, "seed {}: fit {:?}", o.seed, o.full);
+        assert!(o.named.is_empty() && o.verdict != "unexplained", "seed {}: {}", o.seed, o.summary);
+    }
+    let fitted = runs.iter().filter(|o| o.chi2_dof <= 1.3).count();
+    assert!(fitted >= 4, "{fitted} of 5 clean sliding runs fit to chi2/dof <= 1.3");
+}
+
 /// `effect`, given to the layered rig at a size that biases the calibration
 /// by 2 % or more (checked), is named and E1/nu1 corrected to within 1 %/2 %.
 /// Ten seeds named ten of ten (docs/diagnosis.md); two of these three must.

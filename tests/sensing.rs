@@ -727,7 +727,8 @@ impl FeLayer {
 #[test]
 fn a_bonded_gels_own_field_reads_its_depth_at_every_contact_size() {
     use easycalib::sensing::{FrameEstimator, LayerSurface};
-    let declared = LayerSurface::bonded_layer(5.0, sim::physics::Body::new(1.1, 0.39, 5.0)).expect("the layer model");
+    let declared = LayerSurface::declared(sim::physics::Layer::bonded(5.0), sim::physics::Body::new(1.1, 0.39, 5.0))
+        .expect("the layer model");
     let radii = [0.4, 0.6, 0.8, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 4.0];
     let mut weights = Vec::new();
     for (nu1, centre) in [(0.39, [0.0, 0.0]), (0.48, [0.5, 0.5])] {

@@ -4,7 +4,6 @@ use std::path::Path;
 
 use history::Source;
 use sim::generator::{GeneratorConfig, generate};
-use sim::physics::{Layer, LayerBase};
 use sim::recording::Recording;
 
 use super::sim_setup::{SimSetupArgs, sim_setup};
@@ -214,13 +213,8 @@ pub fn simulate(args: &SimulateArgs) -> Result<(), CliError> {
 /// with Coulomb friction (`fit::fe_law::frictional_truth`), the profile's
 /// rig-level effects around it (docs/physics.md, "The layer in the generator and the emulated rig").
 fn layered_recording(args: &SimulateArgs, cfg: &GeneratorConfig) -> Result<Recording, CliError> {
-    let Some(h) = args.layer.thickness_mm else {
+    let Some(layer) = args.layer.layer()? else {
         return Err(CliError::bad_input("a layered recording needs --thickness-mm"));
-    };
-    let base = match args.layer.base.as_deref() {
-        None => LayerBase::Bonded,
-        Some(b) => LayerBase::parse(b)
-            .ok_or_else(|| CliError::bad_input(format!("--base {b}: expected `bonded` or `sliding`")))?,
     };
     if cfg.pair.elastomer.r_mm.is_finite() {
         return Err(CliError::bad_input(format!(
@@ -228,8 +222,6 @@ fn layered_recording(args: &SimulateArgs, cfg: &GeneratorConfig) -> Result<Recor
             cfg.pair.elastomer.r_mm
         )));
     }
-    let layer = Layer { base, ..Layer::bonded(h) };
-    layer.validate().map_err(|e| CliError::bad_input(format!("--thickness-mm {h}: {e}")))?;
     let (gel, indenter) = (cfg.pair.elastomer, cfg.pair.indenter);
     eprintln!("simulating on the linear finite-element layer model (a few seconds)...");
     let law = crate::fit::fe_law::frictional_truth(layer, indenter, gel.e_mpa, gel.nu, sim::defaults::GEL_FRICTION)

@@ -131,21 +131,35 @@ pub struct LayerArgs {
     pub base: Option<String>,
 }
 
+/// `--base`: bonded when not given; another word is an error naming it.
+pub(crate) fn base_flag(base: Option<&str>) -> Result<::sim::physics::LayerBase, CliError> {
+    match base {
+        None => Ok(::sim::physics::LayerBase::Bonded),
+        Some(b) => ::sim::physics::LayerBase::parse(b)
+            .ok_or_else(|| CliError::bad_input(format!("--base {b}: expected `bonded` or `sliding`"))),
+    }
+}
+
 impl LayerArgs {
-    /// `rec` with the layer declared here, if any; a bad value is an error naming it.
-    pub fn apply(&self, rec: &mut ::sim::recording::Recording) -> Result<(), CliError> {
+    /// The layer declared here (no thickness tolerance), if any; a bad value
+    /// is an error naming its flag.
+    pub fn layer(&self) -> Result<Option<::sim::physics::Layer>, CliError> {
         let Some(h) = self.thickness_mm else {
-            return Ok(());
+            return Ok(None);
         };
-        let base = match self.base.as_deref() {
-            None => ::sim::physics::LayerBase::Bonded,
-            Some(b) => ::sim::physics::LayerBase::parse(b)
-                .ok_or_else(|| CliError::bad_input(format!("--base {b}: expected `bonded` or `sliding`")))?,
-        };
-        let tol = rec.meta.layer.and_then(|l| l.thickness_tol_mm);
-        let layer = ::sim::physics::Layer { thickness_mm: h, base, thickness_tol_mm: tol };
+        let layer =
+            ::sim::physics::Layer { thickness_mm: h, base: base_flag(self.base.as_deref())?, thickness_tol_mm: None };
         layer.validate().map_err(|e| CliError::bad_input(format!("--thickness-mm {h}: {e}")))?;
-        rec.meta.layer = Some(layer);
+        Ok(Some(layer))
+    }
+
+    /// `rec` with the layer declared here, if any (keeping the recording's
+    /// own thickness tolerance); a bad value is an error naming it.
+    pub fn apply(&self, rec: &mut ::sim::recording::Recording) -> Result<(), CliError> {
+        if let Some(layer) = self.layer()? {
+            let tol = rec.meta.layer.and_then(|l| l.thickness_tol_mm);
+            rec.meta.layer = Some(::sim::physics::Layer { thickness_tol_mm: tol, ..layer });
+        }
         Ok(())
     }
 }
@@ -257,12 +271,16 @@ pub struct RunArgs {
     pub no_operator: bool,
     #[command(flatten)]
     pub db: history::DbArg,
-    /// Emulated rig: thickness of the simulated gel, a flat layer bonded to its
+    /// Emulated rig: thickness of the simulated gel, a flat layer on its
     /// window, mm; `inf` simulates a half-space (with --r1-mm for its dome).
     /// The recording declares it. A script declares its own ([sensor]
     /// elastomer_thickness_mm) [default: the reference sensor's 5 mm gel]
     #[arg(long, value_name = "MM", conflicts_with_all = ["rig", "script"])]
     pub thickness_mm: Option<f64>,
+    /// Emulated rig: how the simulated gel sits on its window, `bonded`
+    /// (default) or `sliding`; the recording declares it.
+    #[arg(long, value_name = "BASE", conflicts_with_all = ["rig", "script"])]
+    pub base: Option<String>,
     /// The simulated elastomer and indenter (emulated rig only).
     #[command(flatten)]
     pub elastomer: ElastomerArgs,

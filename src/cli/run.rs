@@ -124,6 +124,8 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
         let mut s = Script { indenter: setup.pair().indenter, ..Script::default() };
         s.sensor.elastomer_r_mm = setup.pair().elastomer.r_mm;
         s.sensor.elastomer_thickness_mm = layer.map(|l| l.thickness_mm);
+        s.sensor.elastomer_base =
+            layer.filter(|l| l.base != sim::physics::LayerBase::Bonded).map(|l| l.base.as_str().to_string());
         s
     });
     let rig = EmulatedRig::start(setup, ServeOptions { grbl: args.grbl, ..ServeOptions::default() })
@@ -139,8 +141,14 @@ async fn choose_rig(args: &RunArgs) -> Result<RigChoice, CliError> {
 /// naming the flag that makes it one.
 fn emulated_layer(args: &RunArgs) -> Result<Option<sim::physics::Layer>, CliError> {
     let h = args.thickness_mm.unwrap_or(sim::defaults::ELASTOMER_THICKNESS_MM);
+    let base = super::base_flag(args.base.as_deref())?;
     if h == f64::INFINITY {
-        return Ok(None);
+        return match &args.base {
+            Some(b) => Err(CliError::bad_input(format!(
+                "--base {b}: --thickness-mm inf simulates a half-space, which has no base"
+            ))),
+            None => Ok(None),
+        };
     }
     if !(h.is_finite() && h > 0.0) {
         return Err(CliError::bad_input(format!("--thickness-mm must be a positive thickness or `inf`, got {h}")));
@@ -152,7 +160,7 @@ fn emulated_layer(args: &RunArgs) -> Result<Option<sim::physics::Layer>, CliErro
             if args.thickness_mm.is_some() { "" } else { " by default" }
         )));
     }
-    Ok(Some(sim::physics::Layer { thickness_mm: h, base: sim::physics::LayerBase::Bonded, thickness_tol_mm: None }))
+    Ok(Some(sim::physics::Layer { thickness_mm: h, base, thickness_tol_mm: None }))
 }
 
 /// The emulated rig on the declared gel layer
@@ -439,6 +447,14 @@ mod tests {
         assert_eq!((default.thickness_mm, default.base), (5.0, sim::physics::LayerBase::Bonded));
         assert_eq!(layer(&["--thickness-mm", "3.5"]).expect("a layer").map(|l| l.thickness_mm), Some(3.5));
         assert_eq!(layer(&["--thickness-mm", "inf"]).expect("a half-space"), None);
+        let sliding = layer(&["--base", "sliding"]).expect("a layer").expect("a layer");
+        assert_eq!((sliding.thickness_mm, sliding.base), (5.0, sim::physics::LayerBase::Sliding));
+        for (bad, says) in
+            [(&["--base", "glued"][..], "--base glued"), (&["--thickness-mm", "inf", "--base", "sliding"], "no base")]
+        {
+            let err = layer(bad).expect_err("refused");
+            assert!(err.message.contains(says), "{bad:?}: {}", err.message);
+        }
         assert_eq!(layer(&["--thickness-mm", "inf", "--r1-mm", "33"]).expect("a domed half-space"), None);
         let dome = layer(&["--r1-mm", "33"]).expect_err("a domed layer");
         assert!(dome.message.contains("--thickness-mm inf"), "{}", dome.message);

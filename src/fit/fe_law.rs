@@ -374,16 +374,16 @@ impl ContactLaw for PathLaw {
         Ok((lo.map_or(0.0, at) * (1.0 - w) + at(hi) * w).to_degrees() * twist.signum())
     }
 
-    /// The true gel's own field shape (the same FE layer, frictionless;
-    /// docs/sensing.md, "On a layer"), so the simulated sensor draws what a
-    /// bonded gel shows rather than Hertz's field. `None` only if the layer
+    /// The true gel's own field shape (the same FE layer on its base,
+    /// frictionless; docs/sensing.md, "On a layer"), so the simulated sensor
+    /// draws what the layer shows rather than Hertz's field. `None` only if the layer
     /// model cannot give it (`rig::emulated::on_declared_layer` then refuses
     /// the layer).
     fn surface(&self) -> Option<Arc<sim::sensor::shape::SurfaceShape>> {
         self.surface
             .get_or_init(|| {
                 let (layer, indenter, e1, nu1) = self.gel;
-                crate::sensing::LayerSurface::of_gel(layer.thickness_mm, indenter, e1, nu1).ok().map(|s| s.shape)
+                crate::sensing::LayerSurface::of_gel(layer, indenter, e1, nu1).ok().map(|s| s.shape)
             })
             .clone()
     }

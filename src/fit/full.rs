@@ -122,11 +122,15 @@ pub(crate) fn layer_forward(
     nu: f64,
     r_mm: f64,
 ) -> Result<std::sync::Arc<fem::forward::Forward>, fem::FemError> {
-    let base = match layer.base {
+    fem::forward::Forward::cached_on(fem_base(layer.base), layer.thickness_mm, e_mpa, nu, r_mm)
+}
+
+/// The FE model's boundary at the gel's base for a declared `base`.
+pub(crate) fn fem_base(base: LayerBase) -> fem::Base {
+    match base {
         LayerBase::Bonded => fem::Base::Bonded,
         LayerBase::Sliding => fem::Base::Sliding,
-    };
-    fem::forward::Forward::cached_on(base, layer.thickness_mm, e_mpa, nu, r_mm)
+    }
 }
 
 /// Residuals per group, in time order.

@@ -132,11 +132,8 @@ the recording does not carry all of the profile's effect"
 /// generator and the emulated rig"): the linear FE layer model pressed and
 /// twisted with friction, as `simulate --thickness-mm` simulates it, wrapped by
 /// the set-up's rig-level effects. The error says why the rig cannot simulate
-/// that layer (a sliding base, a domed gel, a contact effect in the profile).
+/// that layer (a domed gel, a contact effect in the profile).
 pub fn on_declared_layer(setup: SimSetup, layer: sim::physics::Layer) -> Result<SimSetup, String> {
-    if layer.base != sim::physics::LayerBase::Bonded {
-        return Err("the emulated rig simulates a gel bonded to its window (elastomer_base = \"bonded\")".into());
-    }
     let (gel, indenter) = (setup.pair().elastomer, setup.pair().indenter);
     if gel.r_mm.is_finite() {
         return Err(format!(

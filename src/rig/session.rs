@@ -224,19 +224,15 @@ pub async fn run_calibration_with(
     std::fs::create_dir_all(&req.out_dir).map_err(|source| StartError::OutDir { path: req.out_dir.clone(), source })?;
     // The indenter bounds what a contact under the marker pitch can look like.
     let mut sensing = SensingConfig::for_contact(req.script.indenter.r_mm, req.script.sensor.elastomer_r_mm);
-    // On a declared bonded layer the fits take the layer's own field and
-    // the tie of a small contact's radius to its depth follows the layer
-    // (docs/sensing.md, "On a layer"; a domed layer takes the flat one's).
-    if let Ok(Some(layer)) = req.script.sensor.layer()
-        && layer.base == sim::physics::LayerBase::Bonded
-    {
+    // On a declared layer (bonded or sliding) the fits take the layer's own
+    // field and the tie of a small contact's radius to its depth follows the
+    // layer (docs/sensing.md, "On a layer"; a domed layer takes the flat one's).
+    if let Ok(Some(layer)) = req.script.sensor.layer() {
         let indenter = req.script.indenter;
-        let built = tokio::task::spawn_blocking(move || {
-            crate::sensing::LayerSurface::bonded_layer(layer.thickness_mm, indenter)
-        })
-        .await
-        .map_err(|e| e.to_string())
-        .and_then(|r| r.map_err(|e| e.to_string()));
+        let built = tokio::task::spawn_blocking(move || crate::sensing::LayerSurface::declared(layer, indenter))
+            .await
+            .map_err(|e| e.to_string())
+            .and_then(|r| r.map_err(|e| e.to_string()));
         match built {
             Ok(surface) => sensing.layer = Some(surface),
             Err(why) => {

@@ -675,7 +675,8 @@ mod tests {
     /// own uncertainty; within the resolved sizes nothing changes.
     #[test]
     fn on_a_layer_a_small_contact_takes_the_curvature_carried_to_its_size() {
-        let drift = TieDrift::bonded_layer(5.0, sim::physics::Body::new(1.1, 0.39, 5.0)).expect("the layer model");
+        let drift = TieDrift::declared(sim::physics::Layer::bonded(5.0), sim::physics::Body::new(1.1, 0.39, 5.0))
+            .expect("the layer model");
         let (mut flat, mut layer) = (CurvatureLearner::default(), CurvatureLearner::with_drift(Some(drift)));
         for k in 0..150 {
             let r = 1.6 + 1.0 * k as f64 / 150.0;
