@@ -151,10 +151,32 @@ impl CurvatureLearner {
                 enough.then(|| local_line(&near, radius_mm)).flatten()
             })
             .flatten();
-        match local {
-            Some(c) => Some(self.carried(c, radius_mm, wanted)),
-            None => self.learnt.map(|l| self.carried((l.0, l.1), l.3, wanted)),
+        // Too few on one side for a line: the mean of the sizes near it, at
+        // their own mean radius; only without those, the smallest contacts'.
+        // (Those are the lower fifth of every estimate, which a long hold of
+        // deep frames — the torsion sweep — fills: a contact that shrinks
+        // back after it would take the deepest contact's curvature, 12 %
+        // off on a layer; docs/sensing.md, "Learning the curvature".)
+        let (c, sd, at) = match local {
+            Some((c, sd)) => (c, sd, radius_mm),
+            None => self.nearby(radius_mm).or(self.learnt.map(|l| (l.0, l.1, l.3)))?,
+        };
+        Some(self.carried((c, sd), at, wanted))
+    }
+
+    /// The robust weighted mean of the estimates within [`LOCAL_SPAN`] of
+    /// `radius_mm` (curvature, standard error, their mean radius), when
+    /// [`MIN_ESTIMATES`] are left.
+    fn nearby(&self, radius_mm: f64) -> Option<(f64, f64, f64)> {
+        if !(radius_mm.is_finite() && radius_mm > 0.0) {
+            return None;
         }
+        let (lo, hi) = (radius_mm / LOCAL_SPAN, radius_mm * LOCAL_SPAN);
+        let range = (lo / BIN_MM).floor() as i64..=(hi / BIN_MM).floor() as i64;
+        let near: Vec<&Estimate> =
+            self.bins.range(range).flat_map(|(_, v)| v.iter()).filter(|e| (lo..=hi).contains(&e.0)).collect();
+        let (c, sd, _, at) = weighted(&robust_subset(&near)?)?;
+        Some((c, sd, at))
     }
 
     /// The curvature and its standard error (see [`learn`]); `None` before
@@ -355,6 +377,11 @@ const ADHESIVE_WINDOW: usize = 20;
 /// start of its sweep), after which a gel not shown tacky is taken as not.
 const MAX_PROBES: usize = 600;
 
+/// A frame whose contact radius differs from the last frame's by more than
+/// this (in log) is read again with the curvature learnt at its own size: 5 %
+/// of radius, where a layer's tie drifts by about 0.5 %.
+const RESIZED: f64 = 0.05;
+
 /// New estimates a cached curvature outlives (a few percent of a full window).
 const NEAR_STALE: usize = 8;
 
@@ -530,7 +557,7 @@ impl FrameEstimator {
             };
             self.probe_kept(&cfg);
         }
-        let cfg = SensingConfig {
+        let mut cfg = SensingConfig {
             contact_curvature_per_mm: self.current_curvature(),
             contact_centre_mm: self.centre(),
             marker_noise_mm: self.marker_noise(),
@@ -538,13 +565,26 @@ impl FrameEstimator {
             probe_adhesion: settled && !self.tacky && self.probes < MAX_PROBES,
             ..self.cfg.clone()
         };
-        let m = match measure(frame, &cfg) {
+        let mut m = match measure(frame, &cfg) {
             Ok(m) => m,
             Err(e) => {
                 self.last_radius_mm = None;
                 return Err(e);
             }
         };
+        // The first frame after a move is read with the curvature learnt at
+        // the last contact's size; when its own contact is of another size,
+        // it is read again with the curvature learnt at that one.
+        let resized = self.last_radius_mm.is_some_and(|r| (m.contact_radius_mm / r).ln().abs() > RESIZED);
+        if resized && self.cfg.contact_curvature_per_mm.is_none() && cfg.contact_curvature_per_mm.is_some() {
+            self.last_radius_mm = Some(m.contact_radius_mm);
+            let again = SensingConfig { contact_curvature_per_mm: self.current_curvature(), ..cfg.clone() };
+            if again.contact_curvature_per_mm != cfg.contact_curvature_per_mm
+                && let Ok(m_again) = measure(frame, &again)
+            {
+                (m, cfg) = (m_again, again);
+            }
+        }
         self.last_radius_mm = Some(m.contact_radius_mm);
         // A frame the probe could not read yet (no curvature, or a layer's
         // field not learnt) is kept for it rather than counted as showing no
@@ -667,6 +707,30 @@ mod tests {
             few.add(1.6 + 0.01 * k as f64, 0.18 + 0.001 * jitter[k % 6], 0.004, [0.0, 0.0]);
         }
         assert_eq!(few.estimate_near(1.65), few.estimate());
+    }
+
+    /// The torsion sweep holds a deep contact for hundreds of resolved
+    /// frames; a contact that shrinks back after it, with too few resolved
+    /// sizes below it for a line, takes the curvature of the sizes near it,
+    /// not that of the hold, which those frames have made the lower fifth of
+    /// every estimate. (A few small, noisy frames below the window are what
+    /// leave the line one-sided, as on the emulated rig.)
+    #[test]
+    fn a_long_hold_of_deep_frames_does_not_stand_for_a_smaller_contact() {
+        let mut l = CurvatureLearner::default();
+        for c in [0.138, 0.143, 0.133, 0.120] {
+            l.add(1.19, c, 0.01, [0.0, 0.0]);
+        }
+        for k in 0..40 {
+            l.add(1.8 + 0.8 * k as f64 / 40.0, 0.125, 0.002, [0.0, 0.0]);
+        }
+        for _ in 0..360 {
+            l.add(4.47, 0.142, 0.0005, [0.0, 0.0]);
+        }
+        let (c, sd) = l.estimate_near(1.6).expect("a curvature");
+        assert!((c - 0.125).abs() < 0.002, "at 1.6 mm: {c} ± {sd}");
+        // The hold's own size still takes its own curvature.
+        assert!((l.estimate_near(4.47).expect("a curvature").0 - 0.142).abs() < 1e-3);
     }
 
     /// On a declared layer a curvature learnt on resolved contacts is
