@@ -444,6 +444,10 @@ async fn a_limit_that_forbids_the_target_depth_stops_the_sweep_safely() {
     let RunStatus::Aborted(info) = &out.status else { panic!("{:?}", out.status) };
     assert_eq!(info.culprit, Culprit::Safety);
     assert!(info.message.contains("max gamma1") && info.message.contains("before the target"), "{info}");
+    assert!(
+        info.message.contains("lower [normal] target_beta"),
+        "the abort says what would make the run possible: {info}"
+    );
     let st = rig.state();
     assert!(st.max_true_gamma1 <= 1.0, "true gamma1 reached {}", st.max_true_gamma1);
     assert!(st.max_true_gamma1 > 0.8, "the sweep went as deep as the limit allows: {}", st.max_true_gamma1);

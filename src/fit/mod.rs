@@ -162,14 +162,15 @@ fn best_full_fit(
         format!(
             "the linear-elastic layer model fits this recording better than the large-strain one (chi² {:.4} \
              against {:.4} for {} degrees of freedom at a common noise of {:.3} µm and {:.5}°, decided by {}): \
-             the recording behaves as small strain, which a real gel pressed to beta = 0.2 does not; E1 and nu1 \
+             the recording behaves as small strain, which a real gel pressed to beta = {:.2} does not; E1 and nu1 \
              are the linear model's",
             j.chi2[0],
             j.chi2[1],
             j.dof,
             j.gamma1_mm.sigma * 1e3,
             j.theta1_deg.sigma,
-            j.rule
+            j.rule,
+            linear.beta
         ),
     ));
     Ok((linear, Some(j)))

@@ -224,14 +224,26 @@ where
             let beta_of = |p: &(f64, f64)| ((p.0 - contact) - p.1) / r2;
             let beta_now = path.last().map(beta_of).unwrap_or(0.0);
             if let Err(v) = self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos) {
-                return Err(self.safety(
+                let depth_limit = matches!(v, LimitViolation::Gamma1 { .. });
+                let mut halt = self.safety(
                     &format!(
                         "normal sweep {} stopped at beta {beta_now:.4} before the target {}",
                         rep + 1,
                         n.target_beta
                     ),
                     v,
-                ));
+                );
+                // The target is out of reach of this pair within the limit
+                // (a stiff indenter on a soft or thin gel): say what would
+                // make the run possible.
+                if depth_limit {
+                    halt.message.push_str(&format!(
+                        "; this indenter reaches the target depth only past the limit: lower [normal] target_beta \
+                         (to {:.2} or less) or, where the gel and the indenter allow it, raise [limits] max_gamma1_mm",
+                        (beta_now * 100.0).floor() / 100.0
+                    ));
+                }
+                return Err(halt);
             }
             self.move_stage(pos, "normal sweep").await?;
             // Past the paper's window the samples average `frames`; the
