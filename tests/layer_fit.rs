@@ -563,3 +563,25 @@ fn the_passes_end_on_the_exact_layer_models_optimum() {
         assert!(chi2_fit - exact.ssr < 0.3, "{}: chi2 {chi2_fit:.3} at the fit, {:.3} at the optimum", f[0], exact.ssr);
     }
 }
+
+/// A clean run of the emulated rig on the default 5 mm gel whose sweep
+/// unloads back to a 1.6 mm contact (`unload_step_mm` 0.85, seed 4; its
+/// stage zero moved as the run moves it; tests/data/rig/
+/// layer_unload_friction_basin.csv). From the paper's answer the layer fit
+/// ended in another basin of its friction: E1 +1.6 %, nu1 -1.7 %, friction
+/// 0.46, chi²/dof 2.6 at the recording's own standard errors, where the truth
+/// fits at 1.0. A fit that poor at the recording's errors looks further
+/// (the typical starts) and keeps the better: E1 within 0.5 %, chi²/dof
+/// near 1.
+#[test]
+fn a_layer_fit_left_poor_at_the_recordings_errors_finds_the_better_basin() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/rig/layer_unload_friction_basin.csv");
+    let rec = Recording::read_path(&path).unwrap();
+    let full = calibrate(&rec, &FitOptions::default()).unwrap().full;
+    let (de, dn) = (100.0 * (full.e1_mpa / 0.33 - 1.0), 100.0 * (full.nu1 / 0.39 - 1.0));
+    let chi2 = full.chi2_dof.expect("weighted by the recording's standard errors");
+    println!("E1 {de:+.2} %, nu1 {dn:+.2} %, friction {:?}, chi2/dof {chi2:.2}", full.contact_friction);
+    assert!(de.abs() < 0.5 && dn.abs() < 1.0, "E1 {de:+.2} %, nu1 {dn:+.2} %");
+    assert!(chi2 < 1.5, "chi2/dof {chi2}");
+    assert_covers(&full, 0.33, 0.39, "the emulated run");
+}
