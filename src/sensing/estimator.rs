@@ -156,7 +156,7 @@ impl CurvatureLearner {
         // (Those are the lower fifth of every estimate, which a long hold of
         // deep frames — the torsion sweep — fills: a contact that shrinks
         // back after it would take the deepest contact's curvature, 12 %
-        // off on a layer; docs/sensing.md, "Learning the curvature".)
+        // off on a layer; docs/sensing.md, "What a run learns".)
         let (c, sd, at) = match local {
             Some((c, sd)) => (c, sd, radius_mm),
             None => self.nearby(radius_mm).or(self.learnt.map(|l| (l.0, l.1, l.3)))?,
