@@ -207,8 +207,8 @@ fn best_fit_over_starts(
         Err(e) => last_err = Some(e),
     };
     // The further starts look for another basin where the fits so far ended
-    // on a bound of nu1 or, on the FE layer, fit poorly at the recording's
-    // own errors (the typical starts), or for a better one than the first
+    // on a bound of nu1, still moving or, on the FE layer, fit poorly at the
+    // recording's own errors (the typical starts), or for a better one than the first
     // start's (the paper's). Neither is needed when the other strain
     // model fits this recording so much better that no basin of this one
     // could be chosen: on the linear finite-element recordings the
@@ -228,7 +228,7 @@ fn best_fit_over_starts(
     if plausible && best.as_ref().is_none_or(|b| !lost(b)) {
         consider(fit_full(rec, &opts.full, start(paper.e1_mpa, paper.nu1)), &mut best);
     }
-    if best.as_ref().is_none_or(|b| (pinned(b) || poor_on_layer(rec, b)) && !lost(b)) {
+    if best.as_ref().is_none_or(|b| (pinned(b) || poor_on_layer(rec, b) || unsettled(b)) && !lost(b)) {
         for m in start_points::typical_elastomers(rec.meta.indenter.e_mpa) {
             consider(fit_full(rec, &opts.full, start(m.e1_mpa, m.nu1)), &mut best);
         }
@@ -255,6 +255,12 @@ fn poor_on_layer(rec: &Recording, f: &FullFit) -> bool {
 /// chi²/dof at the recording's standard errors past which the layer fit
 /// looks for another basin (a clean run's is 0.7-1.4).
 const POOR_CHI2_DOF: f64 = 2.0;
+
+/// A fit whose passes ran out still moving (`passes_unsettled`): another
+/// start may find where they were heading.
+fn unsettled(f: &FullFit) -> bool {
+    f.warnings.iter().any(|w| w.code == "passes_unsettled")
+}
 
 fn pinned(f: &FullFit) -> bool {
     f.warnings.iter().any(|w| w.code == "nu1_at_bound")
