@@ -3,6 +3,7 @@
 pub mod cli;
 pub mod diagnosis;
 pub mod fit;
+pub mod layer;
 pub mod numerics;
 pub mod plan;
 pub mod report;

@@ -50,7 +50,7 @@ impl LayeredBase {
         };
         let p = &at.copied().unwrap_or_else(|| full.params());
         let ind = rec.meta.indenter;
-        let forward = super::full::layer_forward(&layer, ind.e_mpa, ind.nu, ind.r_mm)?;
+        let forward = crate::layer::forward(&layer, ind.e_mpa, ind.nu, ind.r_mm)?;
         Ok(Some(Self {
             forward,
             layer,
@@ -286,7 +286,7 @@ pub fn frictional_truth(
     if !(e1_mpa.is_finite() && e1_mpa > 0.0 && (0.0..=0.5).contains(&nu1) && mu >= 0.0) {
         return Err(FitError::Model(format!("E1 {e1_mpa} MPa, nu1 {nu1}, friction {mu} outside the layer model")));
     }
-    let forward = super::full::layer_forward(&layer, indenter.e_mpa, indenter.nu, indenter.r_mm)?;
+    let forward = crate::layer::forward(&layer, indenter.e_mpa, indenter.nu, indenter.r_mm)?;
     let model = forward.model(e1_mpa, nu1);
     // How deep to go: double the approach until the indenter deforms enough
     // (frictionless, cheap) or the model stops solving.

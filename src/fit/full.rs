@@ -113,26 +113,6 @@ pub fn fe_layer(rec: &Recording) -> Option<Layer> {
     rec.meta.layer.filter(|_| rec.meta.elastomer_r_mm.is_infinite())
 }
 
-/// The FE layer model of `layer` (on its base) under an indenter of
-/// modulus `e_mpa`, Poisson's ratio `nu` and radius `r_mm` (built once per
-/// process).
-pub(crate) fn layer_forward(
-    layer: &Layer,
-    e_mpa: f64,
-    nu: f64,
-    r_mm: f64,
-) -> Result<std::sync::Arc<fem::forward::Forward>, fem::FemError> {
-    fem::forward::Forward::cached_on(fem_base(layer.base), layer.thickness_mm, e_mpa, nu, r_mm)
-}
-
-/// The FE model's boundary at the gel's base for a declared `base`.
-pub(crate) fn fem_base(base: LayerBase) -> fem::Base {
-    match base {
-        LayerBase::Bonded => fem::Base::Bonded,
-        LayerBase::Sliding => fem::Base::Sliding,
-    }
-}
-
 /// Residuals per group, in time order.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct Residuals {

@@ -80,7 +80,7 @@ pub(super) fn predict_fe(
     normal: NormalContact,
 ) -> Result<Vec<Prediction>, FitError> {
     let ind = rec.meta.indenter;
-    let fw = super::full::layer_forward(&layer, ind.e_mpa, ind.nu, ind.r_mm)?;
+    let fw = crate::layer::forward(&layer, ind.e_mpa, ind.nu, ind.r_mm)?;
     if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
         return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
     }

@@ -154,12 +154,12 @@ impl LayerSurface {
     }
 
     fn build(layer: Layer, indenter: Body, e1_mpa: f64, nu1: f64) -> Result<Self, fem::FemError> {
-        let forward = crate::fit::full::layer_forward(&layer, indenter.e_mpa, indenter.nu, indenter.r_mm)?;
+        let forward = crate::layer::forward(&layer, indenter.e_mpa, indenter.nu, indenter.r_mm)?;
         let model = forward.model(e1_mpa, nu1);
         // The gel's surface response everywhere (the model keeps only the
         // nodes an indenter can touch) to the contact's nodal forces, on the
         // same base.
-        let mesh = fem::forward::gel_mesh(layer.thickness_mm)?.on_base(crate::fit::full::fem_base(layer.base));
+        let mesh = fem::forward::gel_mesh(layer.thickness_mm)?.on_base(crate::layer::fem_base(layer.base));
         let surface_r = mesh.surface_radii();
         let press = fem::Body::new(mesh, fem::Material { e_mpa: e1_mpa, nu: nu1 })?.surface_compliance_rz(usize::MAX);
         let step_mm = REACH_IN_R2 * indenter.r_mm / POINTS as f64;
