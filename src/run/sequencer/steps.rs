@@ -300,15 +300,13 @@ where
             if r.gamma1_mm < a.refine_to_gamma1_mm {
                 step = step.min(a.step_mm);
             }
-            // Land on the target: the depth grows along the stage at the
-            // slope of the last two samples (gamma2 over the approach).
-            if let [.., p0, p1] = path.as_slice() {
-                let slope = (beta_of(p1) - beta_of(p0)) / (p1.0 - p0.0);
-                if slope > 0.0 && beta + slope * step > n.target_beta + tol {
-                    step = step.min(((n.target_beta - beta) / slope + 0.5 * tol / slope).max(a.step_mm));
-                }
-            }
-            pos += step;
+            // Land on the target (see `landing_step`).
+            let local = match path.as_slice() {
+                [.., p0, p1] => (beta_of(p1) - beta_of(p0)) / (p1.0 - p0.0),
+                _ => f64::NAN,
+            };
+            let landing = Landing { target_beta: n.target_beta, tol, min_step_mm: a.step_mm };
+            pos += landing.step(step, beta, local, approach);
         }
         if rep == 0 {
             self.track.loads_rep0 = Some(path.len());
@@ -509,6 +507,40 @@ pub(super) fn next_load_step(n: &crate::run::script::NormalSection, approach_mm:
     }
     let next = gamma1_mm * (1.0 + n.step_mm / approach_mm);
     if next >= lo && gamma1_mm < hi { n.window_step_mm.min(n.step_mm) } else { n.step_mm }
+}
+
+/// Where the loading branch stops: within `tol` of `target_beta`, the last
+/// step no shorter than `min_step_mm`.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Landing {
+    pub target_beta: f64,
+    pub tol: f64,
+    pub min_step_mm: f64,
+}
+
+impl Landing {
+    /// The next loading step, mm: `step_mm`, shortened to land on the target
+    /// when beta (now `beta`, at `approach_mm` past the contact) would pass
+    /// it. beta grows along the stage at the slope of the last two samples
+    /// (`local_slope`, per mm; NaN before two); a slope that noise or a
+    /// drifting frame has flattened or turned negative would let a full step
+    /// run past the target (toward the depth limit), so a slope under half
+    /// the sweep's mean (beta over the approach, from zero at contact) is
+    /// taken as the mean.
+    pub fn step(&self, step_mm: f64, beta: f64, local_slope: f64, approach_mm: f64) -> f64 {
+        let mean = if approach_mm > 0.0 && beta > 0.0 { beta / approach_mm } else { f64::NAN };
+        let slope = match (local_slope.is_finite(), mean.is_finite()) {
+            (true, true) if local_slope >= 0.5 * mean => local_slope,
+            (_, true) => mean,
+            (true, false) if local_slope > 0.0 => local_slope,
+            _ => return step_mm,
+        };
+        if beta + slope * step_mm > self.target_beta + self.tol {
+            step_mm.min(((self.target_beta - beta) / slope + 0.5 * self.tol / slope).max(self.min_step_mm))
+        } else {
+            step_mm
+        }
+    }
 }
 
 /// How far before the provisional contact the normal sweep may start, mm.

@@ -1,5 +1,5 @@
 use super::settle::{mean, remaining_relaxation};
-use super::steps::{contact_from_line, next_load_step};
+use super::steps::{Landing, contact_from_line, next_load_step};
 use super::*;
 
 #[test]
@@ -99,6 +99,35 @@ fn loading_steps_finely_where_the_papers_window_is() {
     // A script whose steps are finer everywhere keeps them.
     let fine = crate::run::script::NormalSection { step_mm: 0.05, ..n };
     assert_eq!(next_load_step(&fine, 1.0, 0.75), 0.05);
+}
+
+#[test]
+fn the_loading_branch_lands_on_its_target_whatever_the_last_two_samples_slope() {
+    // The default script near the top of the default run (target 0.2 within
+    // 0.25 %, landing steps of at least 0.05 mm, coarse steps of 1.3 mm), as
+    // in a run on a frame drifting 2.5 um/s that stopped at the depth limit:
+    // beta 0.1992 at 4.3 mm past the contact, the mean slope 0.046 per mm.
+    let land = Landing { target_beta: 0.2, tol: 0.0005, min_step_mm: 0.05 };
+    let (beta, approach) = (0.1992, 4.3);
+    // A healthy slope: the step that lands on the target (within the tolerance).
+    let s = land.step(1.3, beta, 0.05, approach);
+    assert!(s == 0.05 && beta + 0.05 * s <= 0.2 + 0.0025, "{s}");
+    let s = land.step(1.3, 0.19, 0.05, approach);
+    assert!((0.19 + 0.05 * s - 0.2).abs() <= 0.0005, "{s}");
+    // A slope the drift turned negative, or flattened, must not let the
+    // full 1.3 mm step run past the target (gamma1 would jump by ~1 mm).
+    for local in [-0.01, 0.0, 1e-4, 0.01, f64::NAN] {
+        let s = land.step(1.3, beta, local, approach);
+        assert!(s <= 0.05 + 1e-12, "local slope {local}: step {s} mm");
+        let s = land.step(1.3, 0.17, local, approach);
+        // At the sweep's mean slope it lands within the tolerance.
+        assert!((0.17 + 0.17 / approach * s - 0.2).abs() <= 0.0005, "local slope {local}: step {s} mm");
+    }
+    // Far from the target the step is the script's.
+    assert_eq!(land.step(1.3, 0.05, 0.046, 1.0), 1.3);
+    assert_eq!(land.step(1.3, 0.05, -0.02, 1.0), 1.3);
+    // Before contact (no depth yet, no slope): the script's step.
+    assert_eq!(land.step(0.05, 0.0, f64::NAN, -0.1), 0.05);
 }
 
 #[test]
