@@ -63,14 +63,16 @@ fn stress_tangent(f: &[f64; 5], mu: f64, bulk: f64, volumetric: bool, safe: bool
     Some((p, tan))
 }
 
-/// Internal force (8) and tangent stiffness (8x8) per radian of one quad with
-/// reference corners `p` and displacements `u`; `None` if the element inverts.
+/// Internal force (8) and, when `tangent`, tangent stiffness (8x8; zeros
+/// otherwise) per radian of one quad with reference corners `p` and
+/// displacements `u`; `None` if the element inverts.
 fn element(
     p: [[f64; 2]; 4],
     u: [[f64; 2]; 4],
     m: &Material,
     integration: Integration,
     safe: bool,
+    tangent: bool,
 ) -> Option<([f64; 8], [[f64; 8]; 8])> {
     let mu = m.e_mpa / (2.0 * (1.0 + m.nu));
     let bulk = m.e_mpa / (3.0 * (1.0 - 2.0 * m.nu));
@@ -98,6 +100,12 @@ fn element(
         }
         let (s, tan) = stress_tangent(&f, mu, bulk, volumetric, safe)?;
         let w = weight * r * det;
+        if !tangent {
+            for c in 0..8 {
+                fe[c] += w * (0..5).map(|x| g[x][c] * s[x]).sum::<f64>();
+            }
+            return Some(());
+        }
         let mut tg = [[0.0; 8]; 5];
         for x in 0..5 {
             for c in 0..8 {
@@ -262,8 +270,8 @@ impl HyperBody {
         for q in &self.mesh.quads {
             let p = q.map(|n| self.mesh.xy[n]);
             let u = q.map(|n| self.u[n]);
-            let (fe, ke) =
-                element(p, u, &self.material, self.integration, safe).ok_or(FemError::Inverted(self.material.e_mpa))?;
+            let (fe, ke) = element(p, u, &self.material, self.integration, safe, tangent)
+                .ok_or(FemError::Inverted(self.material.e_mpa))?;
             for (x, &nx) in q.iter().enumerate() {
                 for cx in 0..2 {
                     let Some(dx) = self.dof[nx][cx] else { continue };

@@ -76,6 +76,13 @@ struct Projection {
     gap: f64,
 }
 
+/// The indenter's contact surface at one configuration: the chain's points
+/// and its nodal normals.
+struct ChainSurface {
+    pts: Vec<[f64; 2]>,
+    normals: Vec<[f64; 2]>,
+}
+
 /// A round's factored tangents and constraint rows (kept while the iteration contracts).
 struct Frozen<'a> {
     kg: &'a Factor,
@@ -154,13 +161,16 @@ impl LargeStrainContact {
         })
     }
 
-    /// Where gel node `s` meets the indenter's surface. The surface is the chain of
-    /// segments with normals interpolated between nodal normals (the mean of the
-    /// two segments at a node), so the gap and its direction are continuous as a
-    /// node slides over the chain's corners: the point is where the line along the
-    /// interpolated normal through the node crosses the segment.
-    fn project(&self, s: usize) -> Projection {
-        let xs = self.gel.x(s);
+    /// Where each gel node meets the indenter's surface (see
+    /// [`LargeStrainContact::project_on`]), on the current surfaces.
+    fn project_all(&self) -> Vec<Projection> {
+        let surface = self.chain_surface();
+        self.slaves.iter().map(|&s| self.project_on(&surface, s)).collect()
+    }
+
+    /// The indenter's chain as it stands: its points and nodal normals (the
+    /// mean of the two segments' at a node; vertical on the axis).
+    fn chain_surface(&self) -> ChainSurface {
         let pts: Vec<[f64; 2]> = self.chain.iter().map(|&n| self.indenter.x(n)).collect();
         let seg_normal = |m: usize| {
             let t = [pts[m + 1][0] - pts[m][0], pts[m + 1][1] - pts[m][1]];
@@ -168,13 +178,28 @@ impl LargeStrainContact {
             [t[1] / len, -t[0] / len]
         };
         let nseg = pts.len() - 1;
-        let node_normal = |k: usize| {
-            let (p, q) = (seg_normal(k.saturating_sub(1).min(nseg - 1)), seg_normal(k.min(nseg - 1)));
-            // On the axis the surface is symmetric: its normal is vertical.
-            let v = if k == 0 { [0.0, p[1]] } else { [p[0] + q[0], p[1] + q[1]] };
-            let len = v[0].hypot(v[1]);
-            [v[0] / len, v[1] / len]
-        };
+        let normals = (0..pts.len())
+            .map(|k| {
+                let (p, q) = (seg_normal(k.saturating_sub(1).min(nseg - 1)), seg_normal(k.min(nseg - 1)));
+                // On the axis the surface is symmetric: its normal is vertical.
+                let v = if k == 0 { [0.0, p[1]] } else { [p[0] + q[0], p[1] + q[1]] };
+                let len = v[0].hypot(v[1]);
+                [v[0] / len, v[1] / len]
+            })
+            .collect();
+        ChainSurface { pts, normals }
+    }
+
+    /// Where gel node `s` meets the indenter's `surface`, the chain of
+    /// segments with normals interpolated between nodal normals, so the gap
+    /// and its direction are continuous as a node slides over the chain's
+    /// corners: the point is where the line along the interpolated normal
+    /// through the node crosses the segment.
+    fn project_on(&self, surface: &ChainSurface, s: usize) -> Projection {
+        let xs = self.gel.x(s);
+        let (pts, normals) = (&surface.pts, &surface.normals);
+        let nseg = pts.len() - 1;
+        let node_normal = |k: usize| normals[k];
         let at = |m: usize, xi: f64| {
             let (na, nb) = (node_normal(m), node_normal(m + 1));
             let v = [(1.0 - xi) * na[0] + xi * nb[0], (1.0 - xi) * na[1] + xi * nb[1]];
@@ -259,7 +284,7 @@ impl LargeStrainContact {
         let mut total = 0;
         for round in 0..40 {
             let (kg, ki) = (self.gel.tangent()?, self.indenter.tangent()?);
-            let proj0: Vec<Projection> = self.slaves.iter().map(|&s| self.project(s)).collect();
+            let proj0 = self.project_all();
             if round == 0 {
                 for k in 0..ns {
                     active[k] |= proj0[k].gap < 0.0;
@@ -274,7 +299,7 @@ impl LargeStrainContact {
                 total += 1;
                 let (_, fg) = self.gel.assemble(false, false)?;
                 let (_, fi) = self.indenter.assemble(false, false)?;
-                let proj: Vec<Projection> = self.slaves.iter().map(|&s| self.project(s)).collect();
+                let proj = self.project_all();
                 // Right-hand sides with the current normals and multipliers.
                 let mut rg: Vec<f64> = fg.iter().map(|v| -v).collect();
                 let mut ri: Vec<f64> = fi.iter().map(|v| -v).collect();
@@ -412,9 +437,10 @@ impl LargeStrainContact {
         let mut meets = vec![None; ns];
         let mut force = 0.0;
         let mut last = 0;
+        let surface = self.chain_surface();
         for k in 0..ns {
             if self.lambda[k] > 0.0 {
-                let pr = self.project(self.slaves[k]);
+                let pr = self.project_on(&surface, self.slaves[k]);
                 meets[k] = Some((pr.m, pr.xi));
                 force += self.lambda[k] * -pr.normal[1];
                 last = k;
