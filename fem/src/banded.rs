@@ -113,8 +113,9 @@ impl Banded {
     }
 }
 
-/// x · y, in four interleaved sums (the band's rows are hundreds long: one
-/// running sum would wait on each addition).
+/// x · y, in four interleaved sums (a row of the band is up to its width,
+/// tens to a hundred and more entries: one running sum would wait on each
+/// addition).
 fn dot(x: &[f64], y: &[f64]) -> f64 {
     let mut s = [0.0; 4];
     let (xc, yc) = (x.chunks_exact(4), y.chunks_exact(4));
@@ -144,6 +145,7 @@ impl Factor {
     pub fn solve_many(&self, rhs: &[Vec<f64>]) -> Vec<Vec<f64>> {
         let l = &self.l;
         let (n, bw) = (l.n, l.bw);
+        let w = bw + 1;
         let mut out = Vec::with_capacity(rhs.len());
         for chunk in rhs.chunks(BLOCK) {
             let m = chunk.len();
@@ -159,7 +161,6 @@ impl Factor {
                 }
             }
             let mut acc = vec![0.0; m];
-            let w = bw + 1;
             for i in start..n {
                 let lo = i.saturating_sub(bw).max(start);
                 let (done, rest) = y.split_at_mut(i * m);

@@ -300,7 +300,7 @@ where
             if r.gamma1_mm < a.refine_to_gamma1_mm {
                 step = step.min(a.step_mm);
             }
-            // Land on the target (see `landing_step`).
+            // Land on the target (see `Landing::step`).
             let local = match path.as_slice() {
                 [.., p0, p1] => (beta_of(p1) - beta_of(p0)) / (p1.0 - p0.0),
                 _ => f64::NAN,
