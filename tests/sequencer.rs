@@ -190,6 +190,49 @@ async fn adaptive_settling_waits_longer_for_a_slower_elastomer() {
     assert!(per_sample[1] > per_sample[0] * 1.1, "time per sample {per_sample:?}");
 }
 
+/// Readings eight frames late (a full queue of a link that holds eight, the
+/// devices' default; the settling's windows take six): every sample is still
+/// read where the rig stands once its move is done, not where it stood
+/// before (docs/run.md, "Reading after a move").
+#[tokio::test]
+async fn a_run_reading_behind_the_sensor_records_each_sample_where_the_rig_stands() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("behind.csv");
+    let cfg = SimRigConfig { queued_frames: 8, ..SimRigConfig::default() };
+    let (out, _, rig) = run_sim(Script::default(), cfg, &path).await;
+    assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
+    // Each move after a reading left a full queue, and the run dropped it
+    // (every twist comes after one).
+    let st = rig.state();
+    assert!(st.superseded % 8 == 0 && st.superseded >= 8 * st.mount_moves, "{} dropped", st.superseded);
+    drop(st);
+    let rec = Recording::read_path(&path).unwrap();
+    let clean = CleanRig::new(cfg.pair).unwrap();
+    let contact = out.contact_mm.unwrap();
+    let stage = |s: &sim::recording::Sample| s.stage_mm + contact - cfg.surface_mm;
+    // gamma1 at each normal sample's own stage position (the mean of two
+    // frames carries ~1.4 um of noise, the contact's error a few um).
+    let worst_g = rec
+        .phase(Phase::Normal)
+        .map(|s| (s.gamma1_mm - clean.normal(stage(s)).unwrap().0).abs())
+        .fold(0.0f64, f64::max);
+    // theta1 at each twist sample's own angle: a sample read on the queue
+    // holds the previous angle's, 1.25 deg away per 2 deg step. (The sim's
+    // elastomer lag leaves up to 0.09 deg at the sweep's first and last
+    // angles, within the settle's noise tolerance, with or without a queue.)
+    let worst_t = rec
+        .phase(Phase::Torsion)
+        .map(|s| (s.theta1_deg - clean.torsion_theta1_deg(stage(s), s.rot_deg).unwrap()).abs())
+        .fold(0.0f64, f64::max);
+    eprintln!("reading 8 frames behind: worst gamma1 error {worst_g:.5} mm, worst theta1 error {worst_t:.5} deg");
+    assert!(worst_g < 0.008, "a normal sample {worst_g} mm from its stage position's gamma1");
+    assert!(worst_t < 0.2, "a twist sample {worst_t} deg from its angle's theta1");
+    let cal = calibrate(&rec, &FitOptions::default()).unwrap();
+    let (e1, nu1) = (cfg.pair.elastomer.e_mpa, cfg.pair.elastomer.nu);
+    assert!((cal.full.e1_mpa / e1 - 1.0).abs() < 0.01, "E1 {} vs {e1}", cal.full.e1_mpa);
+    assert!((cal.full.nu1 / nu1 - 1.0).abs() < 0.02, "nu1 {} vs {nu1}", cal.full.nu1);
+}
+
 /// A frame processor reports exact zeros without contact, so the noise at
 /// rest reads zero; the sequencer learns the in-contact noise from its
 /// settled windows instead of demanding sub-noise stability (which would
@@ -241,6 +284,9 @@ impl Gauge for ScriptedGauge {
             }
         }
         self.inner.read(timeout).await
+    }
+    fn discard_queued(&mut self) -> usize {
+        self.inner.discard_queued()
     }
     async fn tare(&mut self) -> Result<(), GaugeError> {
         self.inner.tare().await
@@ -548,6 +594,7 @@ mod mocks {
         impl Gauge for Sensor {
             async fn start(&mut self) -> Result<(), GaugeError>;
             async fn read(&mut self, timeout: Duration) -> Result<GaugeReading, GaugeError>;
+            fn discard_queued(&mut self) -> usize;
             async fn tare(&mut self) -> Result<(), GaugeError>;
             fn link_stats(&self) -> SensorStatus;
             fn describe(&self) -> String;
@@ -650,6 +697,7 @@ mod mocks {
         let mut m = MockSensor::new();
         m.expect_start().returning(|| Ok(()));
         m.expect_tare().returning(|| Ok(()));
+        m.expect_discard_queued().return_const(0usize);
         let t = Arc::new(Mutex::new(0.0f64));
         m.expect_read().returning(move |_| {
             let mut t = t.lock().unwrap();

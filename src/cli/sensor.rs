@@ -357,6 +357,9 @@ mod tests {
             self.delivered += 1;
             Ok(f)
         }
+        fn discard_queued(&mut self) -> usize {
+            0
+        }
         async fn tare(&mut self) -> Result<(), SensorError> {
             Ok(())
         }

@@ -96,6 +96,9 @@ impl SensorLink for SensorDriver {
     async fn next_frame(&mut self, timeout: Duration) -> Result<SensorFrame, SensorError> {
         self.0.next_frame(timeout).await
     }
+    fn discard_queued(&mut self) -> usize {
+        self.0.discard_queued()
+    }
     async fn tare(&mut self) -> Result<(), SensorError> {
         self.0.tare().await
     }

@@ -95,6 +95,9 @@ pub trait Gauge: Send {
     async fn start(&mut self) -> Result<(), GaugeError>;
     /// The next reading, waiting at most `timeout` (real time).
     async fn read(&mut self, timeout: Duration) -> Result<GaugeReading, GaugeError>;
+    /// Drop the readings the sensor delivered but the run has not read yet
+    /// (the rig just moved: they show it before or during the move); how many.
+    fn discard_queued(&mut self) -> usize;
     /// Take the current deformation as zero (elastomer untouched).
     async fn tare(&mut self) -> Result<(), GaugeError>;
     /// Health of the stream so far.
@@ -168,6 +171,10 @@ impl<L: SensorLink, F: Measure> Gauge for SensorGauge<L, F> {
         }
     }
 
+    fn discard_queued(&mut self) -> usize {
+        self.link.discard_queued()
+    }
+
     async fn tare(&mut self) -> Result<(), GaugeError> {
         self.link.tare().await.map_err(GaugeError::Link)
     }
@@ -175,7 +182,8 @@ impl<L: SensorLink, F: Measure> Gauge for SensorGauge<L, F> {
     fn link_stats(&self) -> SensorStatus {
         let s = self.link.stats();
         // The consumer's own skips are not losses of the link.
-        let skipped = s.bad_count(BadReason::Overrun) + s.bad_count(BadReason::Stale);
+        let skipped =
+            s.bad_count(BadReason::Overrun) + s.bad_count(BadReason::Stale) + s.bad_count(BadReason::Superseded);
         SensorStatus {
             rate_hz: s.rate_hz,
             frames: s.frames,
@@ -214,6 +222,9 @@ mod tests {
         }
         async fn next_frame(&mut self, timeout: Duration) -> Result<SensorFrame, SensorError> {
             self.queue.pop_front().unwrap_or(Err(SensorError::Timeout { waited: timeout }))
+        }
+        fn discard_queued(&mut self) -> usize {
+            0
         }
         async fn tare(&mut self) -> Result<(), SensorError> {
             self.tared = true;

@@ -75,6 +75,10 @@ pub struct SimRigConfig {
     /// Report exact zeros out of contact, as a frame processor that finds no
     /// contact does (the noise at rest then reads as zero).
     pub zero_out_of_contact: bool,
+    /// The run reads this many frames behind the sensor, as one that
+    /// measures frames more slowly than they come finds a full link queue
+    /// (0: each reading is made when asked for).
+    pub queued_frames: usize,
     pub faults: SimFaults,
 }
 
@@ -96,6 +100,7 @@ impl Default for SimRigConfig {
             theta1_sigma_deg: sim::defaults::THETA1_SIGMA_DEG,
             seed: 1,
             zero_out_of_contact: false,
+            queued_frames: 0,
             faults: SimFaults::default(),
         }
     }
@@ -131,6 +136,10 @@ pub struct SimState {
     pub mount_stops: usize,
     /// Largest true gamma1 the elastomer ever saw, mm.
     pub max_true_gamma1: f64,
+    /// Readings made but not yet read ([`SimRigConfig::queued_frames`]).
+    queue: std::collections::VecDeque<GaugeReading>,
+    /// Readings discarded unread after a move.
+    pub superseded: usize,
 }
 
 impl SimState {
@@ -150,6 +159,21 @@ impl SimState {
         }
         let beta = g2 / self.cfg.pair.indenter.r_mm;
         torsion_at(&self.cfg.pair, beta, self.mount_deg.to_radians()).theta1_rad.to_degrees()
+    }
+
+    /// The next frame's reading: one frame period of rig time passes.
+    fn frame(&mut self) -> GaugeReading {
+        let dt = 1.0 / self.cfg.frame_rate_hz;
+        self.advance(dt);
+        self.frames += 1;
+        let (g1s, ths) = (self.cfg.gamma1_sigma_mm, self.cfg.theta1_sigma_deg);
+        let noise_g = self.rng.gaussian(g1s);
+        let noise_t = self.rng.gaussian(ths);
+        let (_, _, a) = self.truth();
+        if self.cfg.zero_out_of_contact && self.shown_gamma1 <= 0.0 {
+            return GaugeReading::new(self.t_s, 0.0, 0.0, 0.0);
+        }
+        GaugeReading::new(self.t_s, self.shown_gamma1 - self.tare + noise_g, self.shown_theta1 + noise_t, a)
     }
 
     /// Let rig time pass at the current pose: the elastomer relaxes towards the truth.
@@ -197,6 +221,8 @@ impl SimRig {
             mount_targets: Vec::new(),
             stage_stops: 0,
             mount_stops: 0,
+            queue: Default::default(),
+            superseded: 0,
             max_true_gamma1: 0.0,
         };
         Ok(Self { state: Arc::new(Mutex::new(st)) })
@@ -436,17 +462,21 @@ impl Gauge for SimGauge {
         if st.cfg.faults.sensor_silent_from.is_some_and(|k| n >= k) {
             return Err(GaugeError::Timeout { waited: timeout });
         }
-        let dt = 1.0 / st.cfg.frame_rate_hz;
-        st.advance(dt);
-        st.frames += 1;
-        let (g1s, ths) = (st.cfg.gamma1_sigma_mm, st.cfg.theta1_sigma_deg);
-        let noise_g = st.rng.gaussian(g1s);
-        let noise_t = st.rng.gaussian(ths);
-        let (_, _, a) = st.truth();
-        if st.cfg.zero_out_of_contact && st.shown_gamma1 <= 0.0 {
-            return Ok(GaugeReading::new(st.t_s, 0.0, 0.0, 0.0));
+        while st.queue.len() < st.cfg.queued_frames {
+            let r = st.frame();
+            st.queue.push_back(r);
         }
-        Ok(GaugeReading::new(st.t_s, st.shown_gamma1 - st.tare + noise_g, st.shown_theta1 + noise_t, a))
+        let r = st.frame();
+        st.queue.push_back(r);
+        Ok(st.queue.pop_front().expect("a reading was queued above"))
+    }
+    /// Readings waiting behind the one read ([`SimRigConfig::queued_frames`]).
+    fn discard_queued(&mut self) -> usize {
+        let mut st = self.rig.state();
+        let n = st.queue.len();
+        st.queue.clear();
+        st.superseded += n;
+        n
     }
     async fn tare(&mut self) -> Result<(), GaugeError> {
         let mut st = self.rig.state();
@@ -456,7 +486,12 @@ impl Gauge for SimGauge {
     }
     fn link_stats(&self) -> SensorStatus {
         let st = self.rig.state();
-        SensorStatus { rate_hz: st.cfg.frame_rate_hz, frames: st.frames, ..SensorStatus::default() }
+        SensorStatus {
+            rate_hz: st.cfg.frame_rate_hz,
+            frames: st.frames,
+            skipped: st.superseded as u64,
+            ..SensorStatus::default()
+        }
     }
     fn describe(&self) -> String {
         "sim-gauge".into()

@@ -99,6 +99,18 @@ impl Inbox {
         s.queue.clear();
     }
 
+    /// Drop every frame queued so far, unread (counted as
+    /// [`BadReason::Superseded`]); how many.
+    pub fn discard_queued(&self) -> usize {
+        let mut s = self.lock();
+        let n = s.queue.len();
+        s.queue.clear();
+        for _ in 0..n {
+            s.tracker.bad(BadReason::Superseded);
+        }
+        n
+    }
+
     pub fn stats(&self) -> LinkStats {
         self.lock().tracker.stats()
     }
@@ -126,5 +138,37 @@ impl Inbox {
                 return Err(SensorError::Timeout { waited: timeout });
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(index: u64) -> SensorFrame {
+        SensorFrame { index, t_s: index as f64 / 30.0, positions: vec![], displacements: vec![] }
+    }
+
+    /// A consumer that fell behind finds a full queue of frames older than
+    /// the move it just finished: discarding them hands it the next frame
+    /// the sensor sends, and the link counts them as skipped by the
+    /// consumer, not lost on the wire.
+    #[tokio::test]
+    async fn frames_queued_before_a_move_are_discarded_and_counted_as_superseded() {
+        let inbox = Inbox::new(8);
+        inbox.set_streaming(true);
+        for i in 0..12 {
+            inbox.frame(frame(i));
+        }
+        // Frames 4..=11 wait (the four oldest overran).
+        assert_eq!(inbox.discard_queued(), 8);
+        assert_eq!(inbox.discard_queued(), 0);
+        let short = Duration::from_millis(5);
+        assert!(matches!(inbox.next(short).await, Err(SensorError::Timeout { .. })));
+        inbox.frame(frame(12));
+        assert_eq!(inbox.next(short).await.unwrap().index, 12);
+        let st = inbox.stats();
+        assert_eq!((st.bad_count(BadReason::Overrun), st.bad_count(BadReason::Superseded)), (4, 8));
+        assert_eq!(st.frames, 13);
     }
 }

@@ -38,6 +38,11 @@ pub trait SensorLink: Send {
     /// wall-clock time). If the consumer falls behind, the oldest queued
     /// frames are discarded and counted as [`BadReason::Overrun`].
     async fn next_frame(&mut self, timeout: Duration) -> Result<SensorFrame, SensorError>;
+    /// Drop the frames received but not yet delivered (counted as
+    /// [`BadReason::Superseded`]) and say how many: after a move they show
+    /// the rig before or while it moved, and a consumer that fell behind
+    /// would otherwise average them into the new pose.
+    fn discard_queued(&mut self) -> usize;
     /// Take the current deformation as zero (sensor must be untouched). Tac3D
     /// does not acknowledge it; frames already in flight still carry the old
     /// zero, so wait for a frame or two before relying on it.

@@ -47,6 +47,10 @@ pub enum BadReason {
     Overrun,
     /// A datagram from an address other than the configured sensor's.
     Foreign,
+    /// Queued before the rig last moved and discarded unread by the
+    /// consumer ([`crate::sensor::SensorLink::discard_queued`]): it shows the
+    /// rig before or during the move.
+    Superseded,
 }
 
 impl fmt::Display for BadReason {
@@ -69,6 +73,7 @@ impl fmt::Display for BadReason {
             BadReason::Stale => "stale",
             BadReason::Overrun => "overrun",
             BadReason::Foreign => "foreign sender",
+            BadReason::Superseded => "superseded",
         };
         f.write_str(s)
     }

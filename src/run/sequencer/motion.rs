@@ -30,7 +30,10 @@ where
             drive(&mut self.stage, target, timeout, &mut self.stage_mm, &mut self.controls, &mut self.pause_requested)
                 .await;
         match moved {
-            Ok(Ok(p)) => Ok(p),
+            Ok(Ok(p)) => {
+                self.after_move();
+                Ok(p)
+            }
             Ok(Err(e)) => Err(self.stage_fault(&format!("{context}: move to {target:.4} mm"), e)),
             Err(c) => Err(self.operator(c, context)),
         }
@@ -52,10 +55,24 @@ where
             drive(&mut self.mount, target, timeout, &mut self.mount_deg, &mut self.controls, &mut self.pause_requested)
                 .await;
         match moved {
-            Ok(Ok(p)) => Ok(p),
+            Ok(Ok(p)) => {
+                self.after_move();
+                Ok(p)
+            }
             Ok(Err(e)) => Err(self.mount_fault(&format!("{context}: move to {target:.3} deg"), e)),
             Err(c) => Err(self.operator(c, context)),
         }
+    }
+
+    /// The device said the move is done: what the sensor delivered before
+    /// that shows the rig before or during it. A run that reads frames more
+    /// slowly than they come (a loaded host, a slow estimator) finds up to a
+    /// queue of them waiting, and averaging them would put the moving rig's
+    /// deformation into the new pose's sample and date the move's end too
+    /// early (docs/run.md, "Reading after a move").
+    /// The link counts them (skipped, not lost).
+    fn after_move(&mut self) {
+        self.gauge.discard_queued();
     }
 
     pub(super) fn operator(&self, c: RunControl, context: &str) -> Halt {

@@ -209,6 +209,10 @@ impl SensorLink for LinkReceiver {
         self.inbox.next(timeout).await
     }
 
+    fn discard_queued(&mut self) -> usize {
+        self.inbox.discard_queued()
+    }
+
     async fn tare(&mut self) -> Result<(), SensorError> {
         self.command(LinkCommand::Tare).await
     }

@@ -174,6 +174,10 @@ impl SensorLink for Tac3dReceiver {
         self.inbox.next(timeout).await
     }
 
+    fn discard_queued(&mut self) -> usize {
+        self.inbox.discard_queued()
+    }
+
     /// Sends `$C`. The main program does not acknowledge it; frames after the
     /// re-zero read zero displacement while the sensor stays untouched.
     async fn tare(&mut self) -> Result<(), SensorError> {
