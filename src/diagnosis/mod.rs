@@ -34,7 +34,10 @@ pub use schema::{
 pub const VIF_DEGENERATE: f64 = 1000.0;
 
 /// Explanations whose BIC lies within this of the best cannot be ranked by
-/// the data (a Bayes factor below e^3 ~ 20): none of them is named.
+/// the data (a Bayes factor below e^3 ~ 20): none of them is named. A
+/// depth-scale error, and two effects that both mimic a stiffer elastomer,
+/// are held to the significance guard's wider margin (search.rs,
+/// `ambiguity`; docs/diagnosis.md, "3. Explain").
 pub const AMBIGUOUS_BIC: f64 = 6.0;
 
 /// Most samples the diagnosis fits; a longer recording is thinned evenly (with a

@@ -73,6 +73,15 @@ impl Candidate {
         )
     }
 
+    /// Whether the effect, on the standard sweeps, takes approach away in
+    /// proportion to the load as a stiffer elastomer would (a compliant
+    /// frame, a thin layer, a depth-scale error): E1 and nu1 nearly stand
+    /// in for it, and two of these rank only on the noise draw
+    /// (docs/diagnosis.md, "3. Explain").
+    pub fn mimics_stiffness(self) -> bool {
+        matches!(self, Candidate::FrameCompliance | Candidate::FiniteThickness | Candidate::SensorGain)
+    }
+
     pub fn info(self) -> &'static EffectInfo {
         match self {
             Candidate::FiniteThickness => &finite_thickness::INFO,

@@ -82,8 +82,8 @@ pub struct Degenerate {
     pub separate_by: Option<&'static str>,
 }
 
-/// One of several explanations the sweeps cannot rank (BIC within
-/// [`AMBIGUOUS_BIC`](super::AMBIGUOUS_BIC) of the best).
+/// One of several explanations the sweeps cannot rank (BIC within the
+/// ambiguity margin of the best: docs/diagnosis.md, "3. Explain").
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Alternative {
     pub effects: Vec<&'static str>,
