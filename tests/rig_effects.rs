@@ -20,7 +20,7 @@
 #[path = "support/emulated.rs"]
 mod emulated;
 
-use emulated::{Outcome, run_seed};
+use emulated::{Outcome, SPEEDUP, run_seed_at};
 use sim::effects::{
     SimProfile, frame_compliance, partial_slip, rotation_backlash, sensor_gain, stage_backlash, thermal_drift,
     viscoelastic,
@@ -29,7 +29,12 @@ use sim::effects::{
 const SEEDS: u64 = 10;
 
 fn check(effect: &str, profile: SimProfile) {
-    let runs: Vec<Outcome> = (1..=SEEDS).map(|seed| run_seed(seed, profile.clone())).collect();
+    check_at(effect, profile, SPEEDUP)
+}
+
+/// [`check`] with the rig's clock `speedup` times faster than wall time.
+fn check_at(effect: &str, profile: SimProfile, speedup: f64) {
+    let runs: Vec<Outcome> = (1..=SEEDS).map(|seed| run_seed_at(seed, profile.clone(), speedup)).collect();
     println!("{effect}: seed  calibration E1 % nu1 %   corrected E1 % nu1 %   named");
     for o in &runs {
         println!(
@@ -80,9 +85,12 @@ fn thermal_drift_is_named_and_corrected_on_the_emulated_rig() {
     // 2.5 um/s of the frame: about 0.2 mm more approach by the end of a run.
     // The issue-15 sweeps take half the rig time and twist at the top of the
     // loading branch: 0.15 um/s, which biased the step-by-step design by
-    // 3.2 %, moves nu1 by 0.2 % here (docs/diagnosis.md).
+    // 3.2 %, moves nu1 by 0.2 % here (docs/diagnosis.md). The rig runs 10
+    // times faster than real time, not 40: a loaded host stretches the rig
+    // time between stops at 40, and with it the drift a stop sees (in CI
+    // seed 3 stopped at the depth limit at beta 0.1972).
     let p = thermal_drift::Params { v_mm_per_s: 2.5e-3, vdot_mm_per_s2: 0.0 };
-    check("thermal_drift", SimProfile { thermal_drift: Some(p), ..Default::default() });
+    check_at("thermal_drift", SimProfile { thermal_drift: Some(p), ..Default::default() }, 10.0);
 }
 
 #[test]
@@ -103,7 +111,7 @@ const DEGENERATE_SEEDS: u64 = 5;
 /// calibration, and the diagnosis lists it among explanations it cannot tell
 /// apart, names nothing and keeps the calibration's E1/nu1.
 fn check_ambiguous(effect: &str, profile: SimProfile) {
-    let runs: Vec<Outcome> = (1..=DEGENERATE_SEEDS).map(|seed| run_seed(seed, profile.clone())).collect();
+    let runs: Vec<Outcome> = (1..=DEGENERATE_SEEDS).map(|seed| run_seed_at(seed, profile.clone(), SPEEDUP)).collect();
     for o in &runs {
         println!("{effect}: {:4}  {:+8.2} {:+8.2}   {}: {}", o.seed, o.full.0, o.full.1, o.verdict, o.summary);
     }

@@ -51,15 +51,29 @@ pub fn run_seed(seed: u64, profile: SimProfile) -> Outcome {
     run_script(seed, profile, Script::default()).0
 }
 
+/// As [`run_seed`] with the rig's clock `speedup` times faster than wall time
+/// (the rig tests' default is [`SPEEDUP`]).
+pub fn run_seed_at(seed: u64, profile: SimProfile, speedup: f64) -> Outcome {
+    run_script_at(seed, profile, Script::default(), speedup).0
+}
+
+/// How much faster than wall time the rig's clock runs in these tests.
+pub const SPEEDUP: f64 = 40.0;
+
 /// As [`run_seed`] with `script`; also the recording the run left (stage zero moved).
 pub fn run_script(seed: u64, profile: SimProfile, script: Script) -> (Outcome, Recording) {
+    run_script_at(seed, profile, script, SPEEDUP)
+}
+
+/// As [`run_script`] at `speedup`.
+pub fn run_script_at(seed: u64, profile: SimProfile, script: Script, speedup: f64) -> (Outcome, Recording) {
     let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     rt.block_on(async {
         // A script that declares a gel layer runs on that layer with the
         // script's R1 and indenter, as `easycalib run --script` does.
         let layer = script.sensor.layer().expect("a valid script");
-        let mut input = SimSetupInput { speedup: 40.0, seed, profile, ..SimSetupInput::default() };
+        let mut input = SimSetupInput { speedup, seed, profile, ..SimSetupInput::default() };
         if layer.is_some() {
             input.pair.elastomer.r_mm = script.sensor.elastomer_r_mm;
             input.pair.indenter = script.indenter;
