@@ -303,11 +303,14 @@ impl LargeStrainTable {
             // likely values lie just above the last node, which the neo-Hookean
             // reference cannot reach: a clamp there would put a kink in the
             // model that holds a fit of nu1 on the node); flagged past 0.49.
-            let top = if i == 0 { hi } else { hi.max(0.5) };
-            if v < lo - 1e-9 || v > top + 1e-9 || (i > 0 && v > hi.max(NU_TRUSTED)) {
+            // The modulus ratio follows it a little past either end unflagged:
+            // an indenter as stiff as the gel sits on the first node, and a fit
+            // of it lands on either side of that by its own scatter.
+            let (bottom, top) = if i == 0 { (lo - MODULUS_MARGIN, hi + MODULUS_MARGIN) } else { (lo, hi.max(0.5)) };
+            if v < bottom - 1e-9 || v > top + 1e-9 || (i > 0 && v > hi.max(NU_TRUSTED)) {
                 clamped = true;
             }
-            let v = v.clamp(lo, top);
+            let v = v.clamp(bottom, top);
             weights[i] = (0..axis.len())
                 .map(|k| {
                     (0..axis.len()).filter(|&m| m != k).map(|m| (v - axis[m]) / (axis[k] - axis[m])).product::<f64>()
@@ -512,6 +515,11 @@ const TREND_POINTS: usize = 4;
 /// node is not flagged.
 const NU_TRUSTED: f64 = 0.49;
 
+/// How far past its first and last node (in ln(E2/E1)) the modulus ratio
+/// follows the polynomial unflagged: a tenth of the ratio, a seventh of the
+/// nodes' spacing (ln 2).
+const MODULUS_MARGIN: f64 = 0.0953;
+
 /// `own` continued past its last row by the increments of `ext` (see
 /// [`LargeStrainTable::extend_with`]); left as it is where `ext` ends first.
 fn splice(own: &mut Vec<(f64, f64)>, ext: &[(f64, f64)]) {
@@ -615,6 +623,13 @@ mod tests {
         );
         let mid = t.gamma1_ratio(&Groups { e2_over_e1: 2f64.sqrt(), ..g }).ratio;
         assert!(lo > mid && mid > hi, "{lo} {mid} {hi}");
+        // A little past the softest indenter the polynomial goes on, the
+        // ratio keeping its trend (a fit of a gel as stiff as its indenter
+        // lands on either side of the node); further out it is flagged.
+        let below = t.gamma1_ratio(&Groups { e2_over_e1: 0.95, ..g });
+        assert!(!below.clamped && below.ratio > lo && below.ratio - lo < lo - mid, "{below:?} {lo} {mid}");
+        assert!(t.gamma1_ratio(&Groups { e2_over_e1: 0.85, ..g }).clamped);
+        assert!(!t.gamma1_ratio(&Groups { e2_over_e1: 8.5, ..g }).clamped);
         // Outside the table: flagged.
         assert!(t.gamma1_ratio(&Groups { e2_over_e1: 50.0, ..g }).clamped);
         assert!(t.gamma1_ratio(&Groups { h_over_r2: 0.4, ..g }).clamped);
