@@ -500,6 +500,54 @@ async fn a_limit_that_forbids_the_target_depth_stops_the_sweep_safely() {
     assert_eq!(st.stage_mm, 0.0);
 }
 
+/// A pair whose target depth lies just inside the depth limit: the landing
+/// step's worst case (all of it into the gel) passes the limit, the gel
+/// takes only part of it, so the sweep shortens its steps to what the limit
+/// allows and lands on the target instead of stopping short of it; the gel
+/// is never pressed past the limit. A limit below the target still stops
+/// the sweep (`a_limit_that_forbids_the_target_depth_stops_the_sweep_safely`).
+#[tokio::test]
+async fn a_target_just_inside_the_depth_limit_is_reached_by_shorter_steps() {
+    // The depth each loading branch reached, as the sweep reports it
+    // ("normal sweep 1: beta 0.2003 reached at stage ...").
+    let reached = |events: &[RunEvent]| -> Vec<f64> {
+        events
+            .iter()
+            .filter_map(|e| match e {
+                RunEvent::Log { message, .. } if message.contains(" reached at stage ") => {
+                    message.split("beta ").nth(1)?.split(' ').next()?.parse().ok()
+                }
+                _ => None,
+            })
+            .collect()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let free = dir.path().join("free.csv");
+    let (out, events, rig) = run_sim(Script::default(), SimRigConfig::default(), &free).await;
+    assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
+    let deepest = rig.state().max_true_gamma1;
+    assert!(!reached(&events).is_empty());
+
+    let mut script = Script::default();
+    script.limits.max_gamma1_mm = deepest + 0.02;
+    let path = dir.path().join("near.csv");
+    let (out, events, rig) = run_sim(script.clone(), SimRigConfig::default(), &path).await;
+    assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
+    let shortened = events
+        .iter()
+        .filter(|e| matches!(e, RunEvent::Log { message, .. } if message.contains("shortened to")))
+        .count();
+    assert!(shortened > 0, "the limit shortened a step");
+    let st = rig.state();
+    assert!(st.max_true_gamma1 <= script.limits.max_gamma1_mm, "true gamma1 {}", st.max_true_gamma1);
+    let betas = reached(&events);
+    assert_eq!(betas.len(), script.normal.repeats as usize);
+    for b in betas {
+        assert!((b - script.normal.target_beta).abs() <= 0.0025 * script.normal.target_beta + 1e-4, "beta {b}");
+    }
+    assert_eq!(Recording::read_path(&path).unwrap().samples.len(), out.samples);
+}
+
 /// Experiment steps go through the same guard and abort path as the sweeps
 /// (docs/experiments.md): with a gamma1 limit between the torsion depth's and
 /// the second depth's, the run records the dwell, then stops before the

@@ -223,7 +223,23 @@ where
             let contact = self.contact_mm.unwrap_or(contact0);
             let beta_of = |p: &(f64, f64)| ((p.0 - contact) - p.1) / r2;
             let beta_now = path.last().map(beta_of).unwrap_or(0.0);
-            if let Err(v) = self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos) {
+            let mut checked = self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos);
+            if let Err(LimitViolation::Gamma1 { target_mm, bound_mm, max_mm }) = checked
+                && !path.is_empty()
+                && let Some(shorter) = self.step_within_depth_limit(target_mm, bound_mm, max_mm)
+            {
+                self.log(
+                    LogLevel::Warn,
+                    format!(
+                        "normal sweep {}: the step to {target_mm:.4} mm could deform the elastomer by up to \
+                         {bound_mm:.4} mm, more than max gamma1 {max_mm:.4} mm: shortened to {shorter:.4} mm",
+                        rep + 1
+                    ),
+                );
+                pos = shorter;
+                checked = Ok(());
+            }
+            if let Err(v) = checked {
                 let depth_limit = matches!(v, LimitViolation::Gamma1 { .. });
                 let mut halt = self.safety(
                     &format!(
@@ -323,6 +339,22 @@ where
             ),
         );
         Ok(path)
+    }
+
+    /// A loading step to `target_mm` that the depth limit forbids (its
+    /// worst case, all of the step going into the gel, reaches `bound_mm`
+    /// past `max_mm`), shortened to the deepest target the limit allows: the
+    /// gel takes only part of a step, so a sweep near the limit closes on it
+    /// by shrinking steps and lands on the target depth if that lies inside.
+    /// `None` when what is left is under [`MIN_LIMITED_STEP_MM`] (the target
+    /// lies at or past the limit) or the guard still refuses it.
+    fn step_within_depth_limit(&self, target_mm: f64, bound_mm: f64, max_mm: f64) -> Option<f64> {
+        // The bound grows with the target one for one past the current position.
+        let allowed = target_mm - (bound_mm - max_mm) - LIMIT_CLEARANCE_MM;
+        (allowed.is_finite()
+            && allowed - self.stage_mm >= MIN_LIMITED_STEP_MM
+            && self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, allowed).is_ok())
+        .then_some(allowed)
     }
 
     /// The unloading branch: from the top of `path` back out, by
@@ -542,6 +574,13 @@ impl Landing {
         }
     }
 }
+
+/// The shortest loading step the depth limit may leave (see
+/// `Sequencer::step_within_depth_limit`), mm: below it the sweep stops.
+const MIN_LIMITED_STEP_MM: f64 = 0.01;
+
+/// How far under the depth limit a shortened step's worst case stays, mm.
+const LIMIT_CLEARANCE_MM: f64 = 1e-6;
 
 /// How far before the provisional contact the normal sweep may start, mm.
 const MAX_START_BACK_MM: f64 = 2.0;
