@@ -552,7 +552,8 @@ async fn a_target_just_inside_the_depth_limit_is_reached_by_shorter_steps() {
 /// (docs/experiments.md): with a gamma1 limit between the torsion depth's and
 /// the second depth's, the run records the dwell, then stops before the
 /// second depth with the guard's reason, backs the stage off and keeps the
-/// recording; with room, the same script completes with every phase.
+/// recording; with room, or a limit just past what it needs (its steps in
+/// shortened to the limit), the same script completes with every phase.
 #[tokio::test]
 async fn an_experiment_beyond_the_gamma1_limit_stops_safely_and_keeps_the_recording() {
     use sim::experiment::{Experiment, ExperimentSpec};
@@ -574,6 +575,25 @@ async fn an_experiment_beyond_the_gamma1_limit_stops_safely_and_keeps_the_record
     let deepest = rig.state().max_true_gamma1;
     let hold = rec.sweep(Phase::Torsion).map(|s| s.gamma1_mm).fold(0.0, f64::max);
     assert!(deepest > hold * 1.2, "the second depth is deeper: {deepest} vs {hold}");
+
+    // A limit just past the second depth's gamma1: the steps in are
+    // shortened to what it allows and the experiment completes.
+    script.limits.max_gamma1_mm = deepest + 0.02;
+    let path = dir.path().join("near.csv");
+    let (out, events, rig) = run_sim(script.clone(), SimRigConfig::default(), &path).await;
+    assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
+    let shortened: Vec<&str> = events
+        .iter()
+        .filter_map(|e| match e {
+            RunEvent::Log { message, .. } if message.contains("shortened to") => Some(message.as_str()),
+            _ => None,
+        })
+        .collect();
+    println!("{shortened:#?}");
+    assert!(!shortened.is_empty(), "a step near the limit was shortened");
+    assert!(rig.state().max_true_gamma1 <= script.limits.max_gamma1_mm);
+    let rec = Recording::read_path(&path).unwrap();
+    assert_eq!((of(&rec, Experiment::Dwell), of(&rec, Experiment::Torsion2)), (5, 9));
 
     script.limits.max_gamma1_mm = 0.5 * (hold + deepest);
     let path = dir.path().join("limited.csv");

@@ -497,7 +497,9 @@ where
         let here = self.settle().await?;
         let mut last = (self.stage_mm, ((self.stage_mm - contact) - here.gamma1_mm) / r2);
         loop {
-            let pos = last.0 + step;
+            // Near the depth limit a step is shortened to what it allows (as
+            // the normal sweep's are); a refused one aborts in the move.
+            let pos = self.within_depth_limit(last.0 + step, "step in to the second depth");
             self.move_stage(pos, "step in to the second depth").await?;
             let r = self.settle().await?;
             let now = (pos, ((pos - contact) - r.gamma1_mm) / r2);

@@ -223,23 +223,10 @@ where
             let contact = self.contact_mm.unwrap_or(contact0);
             let beta_of = |p: &(f64, f64)| ((p.0 - contact) - p.1) / r2;
             let beta_now = path.last().map(beta_of).unwrap_or(0.0);
-            let mut checked = self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos);
-            if let Err(LimitViolation::Gamma1 { target_mm, bound_mm, max_mm }) = checked
-                && !path.is_empty()
-                && let Some(shorter) = self.step_within_depth_limit(target_mm, bound_mm, max_mm)
-            {
-                self.log(
-                    LogLevel::Warn,
-                    format!(
-                        "normal sweep {}: the step to {target_mm:.4} mm could deform the elastomer by up to \
-                         {bound_mm:.4} mm, more than max gamma1 {max_mm:.4} mm: shortened to {shorter:.4} mm",
-                        rep + 1
-                    ),
-                );
-                pos = shorter;
-                checked = Ok(());
+            if !path.is_empty() {
+                pos = self.within_depth_limit(pos, &format!("normal sweep {}", rep + 1));
             }
-            if let Err(v) = checked {
+            if let Err(v) = self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos) {
                 let depth_limit = matches!(v, LimitViolation::Gamma1 { .. });
                 let mut halt = self.safety(
                     &format!(
@@ -341,20 +328,38 @@ where
         Ok(path)
     }
 
-    /// A loading step to `target_mm` that the depth limit forbids (its
-    /// worst case, all of the step going into the gel, reaches `bound_mm`
-    /// past `max_mm`), shortened to the deepest target the limit allows: the
-    /// gel takes only part of a step, so a sweep near the limit closes on it
-    /// by shrinking steps and lands on the target depth if that lies inside.
-    /// `None` when what is left is under [`MIN_LIMITED_STEP_MM`] (the target
-    /// lies at or past the limit) or the guard still refuses it.
-    fn step_within_depth_limit(&self, target_mm: f64, bound_mm: f64, max_mm: f64) -> Option<f64> {
+    /// `target_mm`, or, when the depth limit refuses the move there (its
+    /// worst case, all of the step going into the gel, passes the limit),
+    /// the deepest target it allows, logged as a warning of `what`: the gel
+    /// takes only part of a step, so a sweep near the limit closes on it by
+    /// shrinking steps and lands on its target depth if that lies inside.
+    /// Unchanged for any other refusal, when what is left of the step is
+    /// under [`MIN_LIMITED_STEP_MM`] (the target lies at or past the limit:
+    /// the move is then refused) or when the guard still refuses the
+    /// shorter one.
+    pub(super) fn within_depth_limit(&self, target_mm: f64, what: &str) -> f64 {
+        let here = self.stage_mm;
+        let Err(LimitViolation::Gamma1 { bound_mm, max_mm, .. }) =
+            self.guard.check_stage(here, self.gamma1_bound_mm, target_mm)
+        else {
+            return target_mm;
+        };
         // The bound grows with the target one for one past the current position.
         let allowed = target_mm - (bound_mm - max_mm) - LIMIT_CLEARANCE_MM;
-        (allowed.is_finite()
-            && allowed - self.stage_mm >= MIN_LIMITED_STEP_MM
-            && self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, allowed).is_ok())
-        .then_some(allowed)
+        if !(allowed.is_finite()
+            && allowed - here >= MIN_LIMITED_STEP_MM
+            && self.guard.check_stage(here, self.gamma1_bound_mm, allowed).is_ok())
+        {
+            return target_mm;
+        }
+        self.log(
+            LogLevel::Warn,
+            format!(
+                "{what}: the step to {target_mm:.4} mm could deform the elastomer by up to {bound_mm:.4} mm, more \
+                 than max gamma1 {max_mm:.4} mm: shortened to {allowed:.4} mm"
+            ),
+        );
+        allowed
     }
 
     /// The unloading branch: from the top of `path` back out, by
@@ -490,6 +495,8 @@ where
         let step = self.script.normal.step_mm;
         let mut beta = f64::NAN;
         for _ in 0..tries {
+            // Near the depth limit, as close as it allows.
+            pos = self.within_depth_limit(pos, "return to depth");
             self.move_stage(pos, "return to depth").await?;
             let r = self.settle().await?;
             beta = ((pos - contact) - r.gamma1_mm) / r2;
@@ -576,7 +583,7 @@ impl Landing {
 }
 
 /// The shortest loading step the depth limit may leave (see
-/// `Sequencer::step_within_depth_limit`), mm: below it the sweep stops.
+/// `Sequencer::within_depth_limit`), mm: below it the sweep stops.
 const MIN_LIMITED_STEP_MM: f64 = 0.01;
 
 /// How far under the depth limit a shortened step's worst case stays, mm.
