@@ -78,6 +78,40 @@ fn run_on_the_simulated_rig_reports_truth_alongside_the_fit() {
     assert!(md.contains("## Diagnosis") && md.contains("| diagnosis ("), "{md}");
 }
 
+/// A stiff indenter (E2 = 2 MPa) on the default gel: its target depth lies
+/// just inside the depth limit (gamma1 about 4.97 of 5 mm) where the
+/// worst-case bound of a full step passes it. Through the real drivers the
+/// run shortens its last steps to the limit (the warning on stderr), reaches
+/// beta 0.2 without pressing the gel past 5 mm and recovers it; it used to
+/// stop at beta 0.16.
+#[test]
+fn a_stiff_indenter_reaches_the_target_depth_just_inside_the_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = easycalib(&[
+        "run",
+        "--json",
+        "--no-history",
+        "--no-diagnose",
+        "--seed",
+        "3",
+        "--indenter-e-mpa",
+        "2",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "run failed: {stderr}");
+    assert!(stderr.contains("more than max gamma1 5.0000 mm: shortened to"), "{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let beta = v["full"]["beta"].as_f64().unwrap();
+    assert!((beta - 0.2).abs() < 0.002, "torsion at beta {beta}");
+    let rec = sim::recording::Recording::read_path(&dir.path().join("recording.csv")).unwrap();
+    let deepest = rec.samples.iter().map(|s| s.gamma1_mm).fold(0.0, f64::max);
+    assert!(deepest > 4.5 && deepest <= 5.0, "deepest gamma1 {deepest} mm");
+    let (e1, truth) = (v["E1_MPa"].as_f64().unwrap(), v["sim_truth"]["E1_MPa"].as_f64().unwrap());
+    assert!((e1 / truth - 1.0).abs() < 0.01, "E1 {e1} vs truth {truth}");
+}
+
 /// report.json's `diagnosis`: a verdict, effects with parameters, E1/nu1 with
 /// intervals around them; the calibration's values when nothing is named.
 fn check_diagnosis(v: &serde_json::Value) -> &serde_json::Value {
