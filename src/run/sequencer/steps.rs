@@ -339,9 +339,8 @@ where
     /// shorter one.
     pub(super) fn within_depth_limit(&self, target_mm: f64, what: &str) -> f64 {
         let here = self.stage_mm;
-        let Err(LimitViolation::Gamma1 { bound_mm, max_mm, .. }) =
-            self.guard.check_stage(here, self.gamma1_bound_mm, target_mm)
-        else {
+        let refused = self.guard.check_stage(here, self.gamma1_bound_mm, target_mm);
+        let Err(v @ LimitViolation::Gamma1 { bound_mm, max_mm, .. }) = refused else {
             return target_mm;
         };
         // The bound grows with the target one for one past the current position.
@@ -352,13 +351,7 @@ where
         {
             return target_mm;
         }
-        self.log(
-            LogLevel::Warn,
-            format!(
-                "{what}: the step to {target_mm:.4} mm could deform the elastomer by up to {bound_mm:.4} mm, more \
-                 than max gamma1 {max_mm:.4} mm: shortened to {allowed:.4} mm"
-            ),
-        );
+        self.log(LogLevel::Warn, format!("{what}: {v}: shortened to {allowed:.4} mm"));
         allowed
     }
 
