@@ -87,17 +87,19 @@ fn run_on_the_simulated_rig_reports_truth_alongside_the_fit() {
 #[test]
 fn a_stiff_indenter_reaches_the_target_depth_just_inside_the_limit() {
     let dir = tempfile::tempdir().unwrap();
+    let (out_dir, db) = (dir.path().join("run"), dir.path().join("history.sqlite"));
     let out = easycalib(&[
         "run",
         "--json",
-        "--no-history",
+        "--db",
+        db.to_str().unwrap(),
         "--no-diagnose",
         "--seed",
         "3",
         "--indenter-e-mpa",
         "2",
         "--out",
-        dir.path().to_str().unwrap(),
+        out_dir.to_str().unwrap(),
     ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "run failed: {stderr}");
@@ -105,11 +107,32 @@ fn a_stiff_indenter_reaches_the_target_depth_just_inside_the_limit() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let beta = v["full"]["beta"].as_f64().unwrap();
     assert!((beta - 0.2).abs() < 0.002, "torsion at beta {beta}");
-    let rec = sim::recording::Recording::read_path(&dir.path().join("recording.csv")).unwrap();
+    let rec = sim::recording::Recording::read_path(&out_dir.join("recording.csv")).unwrap();
     let deepest = rec.samples.iter().map(|s| s.gamma1_mm).fold(0.0, f64::max);
     assert!(deepest > 4.5 && deepest <= 5.0, "deepest gamma1 {deepest} mm");
     let (e1, truth) = (v["E1_MPa"].as_f64().unwrap(), v["sim_truth"]["E1_MPa"].as_f64().unwrap());
     assert!((e1 / truth - 1.0).abs() < 0.01, "E1 {e1} vs truth {truth}");
+    // The report keeps what the run warned of: the shortened step is in
+    // report.json's run.warnings and in report.md, not only on stderr.
+    let warned: Vec<&str> =
+        v["run"]["warnings"].as_array().map_or(vec![], |w| w.iter().filter_map(|x| x.as_str()).collect());
+    assert!(warned.iter().any(|w| w.contains("shortened to")), "run.warnings {warned:?}");
+    let md = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
+    assert!(md.contains("| run warning |") && md.contains("shortened to"), "{md}");
+    // So does the history: the run's own record, and an import of its folder.
+    let imported = dir.path().join("imported.sqlite");
+    let o = easycalib(&["history", "import", out_dir.to_str().unwrap(), "--db", imported.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for db in [&db, &imported] {
+        let o = easycalib(&["history", "--json", "--db", db.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let cal = &doc["sensors"][0]["calibrations"][0];
+        let kept = cal["warnings"].as_array().map_or(vec![], |w| {
+            w.iter().filter(|w| w["code"] == "run_warning").filter_map(|w| w["message"].as_str()).collect()
+        });
+        assert!(kept.iter().any(|m| m.contains("shortened to")), "{}: {cal:#}", db.display());
+    }
 }
 
 /// report.json's `diagnosis`: a verdict, effects with parameters, E1/nu1 with

@@ -307,7 +307,7 @@ fn import_one(dir: &Path) -> Result<(CalibrationRecord, Vec<u8>), String> {
     if !e1.is_finite() {
         return Err(format!("{}: no E1_MPa (not a report of easycalib's)", report.display()));
     }
-    let warnings = j["warnings"]
+    let mut warnings: Vec<WarningRecord> = j["warnings"]
         .as_array()
         .map(|ws| {
             ws.iter()
@@ -318,6 +318,12 @@ fn import_one(dir: &Path) -> Result<(CalibrationRecord, Vec<u8>), String> {
                 .collect()
         })
         .unwrap_or_default();
+    // What the run warned of as it went, as a run's own record keeps it.
+    warnings.extend(
+        j["run"]["warnings"].as_array().into_iter().flatten().filter_map(|w| {
+            w.as_str().map(|m| WarningRecord { code: "run_warning".to_string(), message: m.to_string() })
+        }),
+    );
     let outcome = Outcome {
         source: Source::Import,
         model: j["full"]["model"].as_str().unwrap_or("half-space").to_string(),

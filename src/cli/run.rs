@@ -45,6 +45,8 @@ struct Completed {
     truth: Option<Truth>,
     rig_note: String,
     script_toml: Option<String>,
+    /// What the run warned of as it went (kept on the record as `run_warning`s).
+    run_warnings: Vec<String>,
 }
 
 /// Write a completed run to the history; the lines say what happened.
@@ -55,6 +57,11 @@ fn write_history(db: &super::history::DbArg, done: Completed) -> Vec<String> {
             let mut outcome = super::history::outcome_of_fit(&out, history::Source::Run);
             outcome.rig = Some(done.rig_note);
             outcome.warnings.extend(done.diagnosis.as_ref().and_then(diagnosis_note));
+            outcome.warnings.extend(
+                done.run_warnings
+                    .into_iter()
+                    .map(|message| history::record::WarningRecord { code: "run_warning".into(), message }),
+            );
             outcome.script = done.script_toml;
             super::history::record(db, &done.recording, &rec, outcome)
         }
@@ -258,6 +265,7 @@ async fn run_async(args: &RunArgs) -> Result<(), CliError> {
             truth,
             rig_note: rig_note.clone(),
             script_toml: script_toml.clone(),
+            run_warnings: r.outcome.warnings.clone(),
         };
         let db = args.db.clone();
         history_lines = tokio::task::spawn_blocking(move || write_history(&db, done))

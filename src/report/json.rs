@@ -66,6 +66,10 @@ pub struct RunTimings {
     /// The experiments the closed loop ran (`run --adaptive`, docs/experiments.md), in order.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub experiments: Vec<crate::run::AdaptiveStep>,
+    /// What the run warned of as it went, in order (its log's warnings: a
+    /// step shortened to the depth limit, a sensor reading that timed out).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 #[derive(Debug, Clone, Copy, Serialize)]

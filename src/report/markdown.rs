@@ -96,6 +96,9 @@ fn write_header(s: &mut String, out: &CalibrationOutput, rec: &Recording) {
                 e.nu1
             );
         }
+        for w in &t.warnings {
+            let _ = writeln!(s, "| run warning | {} |", w.replace('|', "/"));
+        }
     }
     let _ = writeln!(s);
 }

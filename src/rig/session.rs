@@ -280,6 +280,7 @@ pub async fn run_calibration_with(
         wall_time_s: outcome.wall_time_s,
         phases: outcome.phase_rig_time_s.clone(),
         experiments: outcome.adaptive.clone(),
+        warnings: outcome.warnings.clone(),
     };
     if req.diagnose {
         let message = "fitting, then diagnosing the recording (--no-diagnose skips the diagnosis)".to_string();
@@ -391,7 +392,7 @@ mod tests {
     }
 
     fn timings() -> RunTimings {
-        RunTimings { rig_time_s: 1.0, wall_time_s: 1.0, phases: vec![], experiments: vec![] }
+        RunTimings { rig_time_s: 1.0, wall_time_s: 1.0, phases: vec![], experiments: vec![], warnings: vec![] }
     }
 
     #[test]

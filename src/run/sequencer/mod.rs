@@ -134,6 +134,9 @@ pub struct Sequencer<S, R, G> {
     /// The recording's metadata, once written (the closed loop diagnoses the samples so far with it).
     meta: Option<Metadata>,
     adaptive: Vec<AdaptiveStep>,
+    /// Every warning the run logged, in order (the report keeps them:
+    /// `run.warnings` in report.json).
+    warnings: std::sync::Mutex<Vec<String>>,
     /// On the emulated rig: the simulated sensor's indenter mount, through
     /// which the simulation performs an operator step itself (no prompt).
     /// `None` on a real rig: an operator step prompts and waits.
@@ -375,6 +378,7 @@ where
             },
             meta: None,
             adaptive: Vec::new(),
+            warnings: std::sync::Mutex::new(Vec::new()),
             emulated_operator: None,
             forced_operator_step: None,
             operator_recordings: Vec::new(),
@@ -462,7 +466,13 @@ where
     }
 
     fn log(&self, level: LogLevel, message: impl Into<String>) {
-        self.emit(RunEvent::Log { level, message: message.into() });
+        let message = message.into();
+        if level == LogLevel::Warn
+            && let Ok(mut w) = self.warnings.lock()
+        {
+            w.push(message.clone());
+        }
+        self.emit(RunEvent::Log { level, message });
     }
 
     fn step(&mut self, index: usize, name: impl Into<String>, phase: RunPhase) {
@@ -516,6 +526,7 @@ where
             torsion_beta: self.torsion_beta,
             phase_rig_time_s: phase_times(&self.clock.phase_marks, self.clock.t_last),
             adaptive: self.adaptive.clone(),
+            warnings: self.warnings.lock().map(|w| w.clone()).unwrap_or_default(),
             status,
         }
     }

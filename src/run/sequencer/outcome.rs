@@ -147,6 +147,9 @@ pub struct RunOutcome {
     pub phase_rig_time_s: Vec<PhaseTime>,
     /// The experiments the closed loop ran, in order (empty without `[adaptive]`).
     pub adaptive: Vec<AdaptiveStep>,
+    /// What the run warned of as it went (a step shortened to the depth
+    /// limit, a sensor that timed out...), in order: the log's warnings.
+    pub warnings: Vec<String>,
     pub status: RunStatus,
 }
 
