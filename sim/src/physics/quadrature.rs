@@ -3,9 +3,24 @@
 
 use std::f64::consts::PI;
 
-/// Gauss–Legendre nodes and weights on [-1, 1] (Newton on P_n from the
-/// Chebyshev-like first guess; exact for polynomials of degree 2n - 1).
+/// Gauss–Legendre nodes and weights on [-1, 1] (exact for polynomials of
+/// degree 2n - 1). Each rule up to [`CACHED_RULES`] points is computed once
+/// per process and copied out after: the layered solver asks for one at
+/// every contact radius it tries, and Newton on P_n took a quarter of a solve.
 pub fn gauss_legendre(n: usize) -> (Vec<f64>, Vec<f64>) {
+    static RULES: [std::sync::OnceLock<(Vec<f64>, Vec<f64>)>; CACHED_RULES + 1] =
+        [const { std::sync::OnceLock::new() }; CACHED_RULES + 1];
+    match RULES.get(n) {
+        Some(cell) => cell.get_or_init(|| gauss_legendre_newton(n)).clone(),
+        None => gauss_legendre_newton(n),
+    }
+}
+
+/// The largest rule [`gauss_legendre`] keeps.
+pub const CACHED_RULES: usize = 256;
+
+/// [`gauss_legendre`] computed: Newton on P_n from the Chebyshev-like first guess.
+fn gauss_legendre_newton(n: usize) -> (Vec<f64>, Vec<f64>) {
     let mut x = vec![0.0; n];
     let mut w = vec![0.0; n];
     for i in 0..n.div_ceil(2) {
@@ -113,7 +128,8 @@ impl UniformTable {
         let last = self.values.len() - 1;
         let x = (y / self.step).clamp(0.0, last as f64);
         // Stencil i-1..i+2 around x, kept inside the table.
-        let i = (x.floor() as usize).clamp(1, last - 2);
+        // x >= 0 here, so the cast truncates as floor would (and is no libm call).
+        let i = (x as usize).clamp(1, last - 2);
         let t = x - i as f64;
         let v = &self.values[i - 1..i + 3];
         let (tm, t1, t2) = (t + 1.0, t - 1.0, t - 2.0);
@@ -127,7 +143,8 @@ mod tests {
 
     #[test]
     fn gauss_legendre_integrates_polynomials_exactly() {
-        for n in [1usize, 2, 5, 16, 33] {
+        // 300 is past the cached rules: computed afresh each time.
+        for n in [1usize, 2, 5, 16, 33, 300, 33] {
             let (x, w) = gauss_legendre(n);
             assert!((w.iter().sum::<f64>() - 2.0).abs() < 1e-13, "n {n}");
             // x^(2n-2) integrates to 2/(2n-1).
