@@ -132,7 +132,11 @@ impl TwoBodyContact {
     /// (column-major: `g[j][i]` is node i's response to a load on node j).
     pub fn from_compliances(r: Vec<f64>, g_gel: Vec<Vec<f64>>, g_ind: &[Vec<f64>], indenter_radius_mm: f64) -> Self {
         let n = r.len();
-        let g_sum = (0..n).map(|j| (0..n).map(|i| g_gel[j][i] + g_ind[j][i]).collect()).collect();
+        let g_sum = g_gel[..n]
+            .iter()
+            .zip(&g_ind[..n])
+            .map(|(g, i)| g[..n].iter().zip(&i[..n]).map(|(a, b)| a + b).collect())
+            .collect();
         Self::assemble(indenter_radius_mm, r, g_gel, g_sum)
     }
 

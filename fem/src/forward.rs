@@ -173,7 +173,11 @@ pub struct Model {
     /// only the normal block).
     frictional: OnceLock<FrictionalContact>,
     frictional_parts: FrictionalParts,
-    torsion_gel: Vec<Vec<f64>>,
+    /// The gel's torsion compliance for unit shear modulus (shared with
+    /// every model of this gel) and 1/G1: the gel's own is their product,
+    /// taken where it is needed rather than stored per model.
+    torsion_unit: Arc<GelTables>,
+    inv_g1: f64,
     torsion_sum: Vec<Vec<f64>>,
     /// Cholesky factor of `torsion_sum` off the axis (nodes 1..): the stuck core
     /// of a twisted contact, nodes 1..=m, at O(m²); factored as far as a
@@ -305,11 +309,12 @@ impl Forward {
         let w = lagrange(&self.gel.nu, nu1.clamp(0.0, 0.5));
         let zz: Vec<(f64, &Vec<Vec<f64>>)> = w.iter().copied().zip(self.gel.normal.iter().map(|m| &m.zz)).collect();
         let gel_zz = combine_block(&zz, n, e1_mpa);
-        let g1 = e1_mpa / (2.0 * (1.0 + nu1));
-        let torsion_gel: Vec<Vec<f64>> =
-            (0..n).map(|j| (0..n).map(|i| self.gel.torsion[j][i] / g1).collect()).collect();
-        let torsion_sum: Vec<Vec<f64>> =
-            (0..n).map(|j| (0..n).map(|i| torsion_gel[j][i] + self.ind_torsion[j][i]).collect()).collect();
+        let inv_g1 = 2.0 * (1.0 + nu1) / e1_mpa;
+        let torsion_sum: Vec<Vec<f64>> = self.gel.torsion[..n]
+            .iter()
+            .zip(&self.ind_torsion)
+            .map(|(gel, ind)| gel[..n].iter().zip(&ind[..n]).map(|(g, i)| g * inv_g1 + i).collect())
+            .collect();
         let torsion_factor = Mutex::new(PrefixCholesky::empty());
         let contact =
             TwoBodyContact::from_compliances(self.gel.r[..n].to_vec(), gel_zz, &self.ind_normal.zz, self.radius_mm);
@@ -324,7 +329,8 @@ impl Forward {
             contact,
             frictional: OnceLock::new(),
             frictional_parts,
-            torsion_gel,
+            torsion_unit: self.gel.clone(),
+            inv_g1,
             torsion_sum,
             torsion_factor,
             solved: Mutex::new(HashMap::new()),
@@ -538,7 +544,8 @@ impl Model {
         // Column by column (contiguous); the axis node does not turn.
         let mut u = vec![0.0; outer + 1];
         for (l, &j) in nodes.iter().enumerate() {
-            u[1..].iter_mut().zip(&self.torsion_gel[j][1..=outer]).for_each(|(ui, g)| *ui += g * t[l]);
+            let f = t[l] * self.inv_g1;
+            u[1..].iter_mut().zip(&self.torsion_unit.torsion[j][1..=outer]).for_each(|(ui, g)| *ui += g * f);
         }
         contact_twist(&r[..=outer], &u, setup.edge_mm)
     }
