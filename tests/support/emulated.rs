@@ -73,6 +73,7 @@ pub fn run_script_at(seed: u64, profile: SimProfile, script: Script, speedup: f6
         // A script that declares a gel layer runs on that layer with the
         // script's R1 and indenter, as `easycalib run --script` does.
         let layer = script.sensor.layer().expect("a valid script");
+        let clean_rig = profile == SimProfile::default();
         let mut input = SimSetupInput { speedup, seed, profile, ..SimSetupInput::default() };
         if layer.is_some() {
             input.pair.elastomer.r_mm = script.sensor.elastomer_r_mm;
@@ -97,6 +98,25 @@ pub fn run_script_at(seed: u64, profile: SimProfile, script: Script, speedup: f6
         let live: Vec<_> = rec.samples.iter().filter(|s| s.gamma1_mm != 0.0).collect();
         let with_sd = live.iter().filter(|s| s.gamma1_sd_mm.is_some()).count();
         let pct = |x: f64, t: f64| 100.0 * (x / t - 1.0);
+        // A clean rig the diagnosis does not call clean (or any run it
+        // leaves unexplained): its folder is kept for whoever traces it.
+        if (clean_rig && !d.effects.is_empty()) || d.verdict.as_str() == "unexplained" {
+            let keep = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("rig-runs").join(format!(
+                "seed{seed}-{}-{}",
+                d.verdict.as_str(),
+                std::process::id()
+            ));
+            if std::fs::create_dir_all(&keep).is_ok() {
+                for f in std::fs::read_dir(dir.path()).into_iter().flatten().flatten() {
+                    let _ = std::fs::copy(f.path(), keep.join(f.file_name()));
+                }
+                println!(
+                    "seed {seed}: {} on this rig; its run folder is kept in {}",
+                    d.verdict.as_str(),
+                    keep.display()
+                );
+            }
+        }
         let out = Outcome {
             seed,
             chi2_dof: cal.full.chi2_dof.expect("a rig-made recording carries standard errors"),
