@@ -189,6 +189,10 @@ impl LargeStrainTable {
         };
         let axes = [axis(0), axis(1), axis(2)];
         for case in &mut cases {
+            // In order of approach (the lookups bisect them); a table written
+            // by the examples already is.
+            case.gamma1.sort_by(|a, b| a.0.total_cmp(&b.0));
+            case.twist.sort_by(|a, b| a.0.total_cmp(&b.0));
             smooth_twist(&mut case.twist);
             case.selective_to = case.gamma1.last().map_or(0.0, |p| p.0);
         }
@@ -564,15 +568,17 @@ fn along_held(points: &[(f64, f64)], d: f64, hold: f64) -> (f64, bool) {
         let reach = (d - d_last).min(EXTEND_AT_MOST);
         return (r_last + slope * reach, d > d_last + hold);
     }
-    let mut prev = (0.0, 1.0);
-    for &(x, r) in points {
-        if d <= x {
-            let t = if x > prev.0 { (d - prev.0) / (x - prev.0) } else { 1.0 };
-            return (prev.1 + t * (r - prev.1), false);
-        }
-        prev = (x, r);
+    if d.is_nan() {
+        return (r_last, true);
     }
-    (r_last, true)
+    // The first tabulated approach at or past d (the rows go deeper in
+    // order), by bisection: the fit reads the table for every sample at
+    // every evaluation.
+    let i = points.partition_point(|p| p.0 < d);
+    let (x, r) = points[i];
+    let prev = if i == 0 { (0.0, 1.0) } else { points[i - 1] };
+    let t = if x > prev.0 { (d - prev.0) / (x - prev.0) } else { 1.0 };
+    (prev.1 + t * (r - prev.1), false)
 }
 
 #[cfg(test)]
