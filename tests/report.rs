@@ -226,6 +226,60 @@ fn markdown_summarises_with_units_and_references_the_figures() {
     assert!(md.contains(&format!("`{}`", rec_path.display())));
 }
 
+/// A run's warnings reach both documents: report.json's `run.warnings` as
+/// logged, report.md one table row each even when a message holds a `|` or
+/// a line break (a device's own text can).
+#[test]
+fn a_runs_warnings_are_one_row_each_and_kept_in_the_json() {
+    use easycalib::report::{RunExtras, json::RunTimings, write_report_for};
+    let (_, rec, cal) = calibrated();
+    let dir = tempfile::tempdir().unwrap();
+    let warnings = vec![
+        "normal sweep 1: stage target 18.0 mm could deform the elastomer by up to 5.2 mm: shortened to 17.8 mm"
+            .to_string(),
+        "stage said: ERR|7\nlimit".to_string(),
+    ];
+    let timings = RunTimings {
+        rig_time_s: 90.0,
+        wall_time_s: 2.0,
+        phases: vec![],
+        experiments: vec![],
+        warnings: warnings.clone(),
+    };
+    let extras = RunExtras { timings: Some(timings), diagnosis: None };
+    let files = write_report_for(dir.path(), &rec, None, &cal, None, extras).unwrap();
+    let json: Value = serde_json::from_str(&std::fs::read_to_string(&files.json).unwrap()).unwrap();
+    let kept: Vec<&str> = json["run"]["warnings"].as_array().unwrap().iter().map(|w| w.as_str().unwrap()).collect();
+    assert_eq!(kept, warnings.iter().map(String::as_str).collect::<Vec<_>>());
+    let md = std::fs::read_to_string(&files.markdown).unwrap();
+    let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| run warning |")).collect();
+    assert_eq!(rows.len(), 2, "{md}");
+    assert!(rows[0].ends_with("shortened to 17.8 mm |"), "{}", rows[0]);
+    assert_eq!(rows[1], "| run warning | stage said: ERR/7 limit |");
+    // Without warnings there is neither the key nor a row.
+    let files = write_report_for(
+        &dir.path().join("quiet"),
+        &rec,
+        None,
+        &cal,
+        None,
+        RunExtras {
+            timings: Some(RunTimings {
+                rig_time_s: 90.0,
+                wall_time_s: 2.0,
+                phases: vec![],
+                experiments: vec![],
+                warnings: vec![],
+            }),
+            diagnosis: None,
+        },
+    )
+    .unwrap();
+    let json: Value = serde_json::from_str(&std::fs::read_to_string(&files.json).unwrap()).unwrap();
+    assert!(json["run"].get("warnings").is_none() && json["run"]["rig_time_s"] == 90.0, "{}", json["run"]);
+    assert!(!std::fs::read_to_string(&files.markdown).unwrap().contains("run warning"));
+}
+
 #[test]
 fn default_run_dir_is_utc_time_and_sensor() {
     let at = |s: u64| UNIX_EPOCH + Duration::from_secs(s);

@@ -97,7 +97,8 @@ fn write_header(s: &mut String, out: &CalibrationOutput, rec: &Recording) {
             );
         }
         for w in &t.warnings {
-            let _ = writeln!(s, "| run warning | {} |", w.replace('|', "/"));
+            // One table row each, whatever the message holds.
+            let _ = writeln!(s, "| run warning | {} |", w.replace('|', "/").replace(['\n', '\r'], " "));
         }
     }
     let _ = writeln!(s);

@@ -50,6 +50,9 @@ struct Halt {
 
 type Step<T> = Result<T, Halt>;
 
+/// How many of a run's warnings its report keeps (then one line says there were more).
+const MAX_KEPT_WARNINGS: usize = 100;
+
 /// Upper bound on readings per settle, whatever the sensor's timestamps say.
 const MAX_SETTLE_READINGS: usize = 2000;
 
@@ -470,7 +473,13 @@ where
         if level == LogLevel::Warn
             && let Ok(mut w) = self.warnings.lock()
         {
-            w.push(message.clone());
+            // A sensor that drops out again and again could warn for every
+            // stop: the report keeps the first ones and counts the rest.
+            match w.len() {
+                n if n < MAX_KEPT_WARNINGS => w.push(message.clone()),
+                n if n == MAX_KEPT_WARNINGS => w.push("(more warnings: see the run's log)".to_string()),
+                _ => {}
+            }
         }
         self.emit(RunEvent::Log { level, message });
     }
