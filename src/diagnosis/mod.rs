@@ -49,7 +49,8 @@ pub const AMBIGUOUS_BIC: f64 = 6.0;
 /// less the frame's had mean +1.2 and standard deviation 4.2, from -12.0 to
 /// +13.5, so the significance guard's 10.8 dropped the true effect in 1 run
 /// of 110 (and in CI). 20 lies 5 deviations below the mean; a real thin
-/// layer leads the frame by thousands.
+/// layer leads the frame by hundreds or more. `tests/rig_effects.rs`,
+/// `stiffness_twins_spread_probe` (ignored; 30 runs) measures it again.
 pub const TWIN_BIC: f64 = 20.0;
 
 /// Most samples the diagnosis fits; a longer recording is thinned evenly (with a
