@@ -336,6 +336,11 @@ impl TwoBodyContact {
 struct StuckCore {
     factor: PrefixCholesky,
     responses: HashMap<(usize, Unknown), Vec<f64>>,
+    /// L⁻¹ of the core's right-hand side in the current load step, as far as
+    /// a pass has needed it: the core's rows close their gaps and hold their
+    /// slips, which change only from one step to the next, so every pass of a
+    /// step shares one forward substitution (emptied when a step starts).
+    rhs_forward: Vec<f64>,
 }
 
 /// An unknown of the frictional contact: a node's normal force or its radial friction.
@@ -461,7 +466,7 @@ impl FrictionalContact {
         // The stuck contact's factor, grown with the contact along the path
         // (a copy: paths of one model may run at once).
         let factor = self.stuck.lock().map(|f| f.clone()).unwrap_or_else(|_| PrefixCholesky::empty());
-        let mut stuck = StuckCore { factor, responses: HashMap::new() };
+        let mut stuck = StuckCore { factor, responses: HashMap::new(), rhs_forward: Vec::new() };
         let mut at = 0.0f64;
         for &k in &order {
             let target = deltas_mm[k];
@@ -612,8 +617,8 @@ impl FrictionalContact {
             };
             return Ok((unknowns, x));
         };
-        let f: Vec<f64> = core.iter().map(|&u| rhs(u)).collect();
-        let z = stuck.factor.solve_prefix(&f).ok_or(FemError::NotPositiveDefinite(0))?;
+        stuck.factor.forward_extend(&mut stuck.rhs_forward, nc, |k| rhs(core[k]));
+        let z = stuck.factor.backward(stuck.rhs_forward[..nc].to_vec()).ok_or(FemError::NotPositiveDefinite(0))?;
         // The core's response to each unknown outside it.
         let ys: Vec<Vec<f64>> = extra
             .iter()
@@ -698,6 +703,7 @@ impl FrictionalContact {
         let limit = 8 * n + 40;
         let mut releasing = 0;
         let mut passes = 0;
+        stuck.rhs_forward.clear();
         let mut slid_free = vec![false; n];
         // Grip lost at the edge in the last step is regained.
         if mu > 0.0 {
@@ -799,7 +805,8 @@ mod tests {
             [vec![Node::Slip(0.0)], vec![st; 8], vec![fr, st, sl], vec![fr; n - 12]].concat(),
             [vec![st; 3], vec![sl; 9], vec![fr; n - 12]].concat(),
         ];
-        let mut stuck = StuckCore { factor: PrefixCholesky::empty(), responses: HashMap::new() };
+        let mut stuck =
+            StuckCore { factor: PrefixCholesky::empty(), responses: HashMap::new(), rhs_forward: Vec::new() };
         for (k, status) in patterns.iter().enumerate() {
             for mu in [0.3, 1.0] {
                 let (u_block, x_block) = c.solve_system(&need, mu, status, &s_ref, Some(&mut stuck)).unwrap();

@@ -33,6 +33,25 @@ pub(crate) fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
     Some(x)
 }
 
+/// The dot product of `a` and `b` (over the shorter), summed in four
+/// interleaved partial sums: the substitutions' inner loop, which a single
+/// running sum keeps from using the vector units (its additions must then
+/// happen in order).
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for k in 0..4 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
 /// The Cholesky factor L (row-major lower triangle) of a symmetric positive
 /// definite matrix. The factor of a leading principal block is the leading block
 /// of L, so one factorisation solves the system restricted to the first k
@@ -42,6 +61,9 @@ pub(crate) struct PrefixCholesky {
     n: usize,
     /// Row i holds L[i][0..=i] at offset i(i+1)/2.
     l: Vec<f64>,
+    /// 1 / L[i][i]: the substitutions multiply by it (a division's latency
+    /// would sit on their serial chain, once per unknown).
+    inv_diag: Vec<f64>,
 }
 
 impl PrefixCholesky {
@@ -57,7 +79,7 @@ impl PrefixCholesky {
 
     /// A factor of nothing yet, to be grown with [`Self::extend_to`].
     pub(crate) fn empty() -> Self {
-        Self { n: 0, l: Vec::new() }
+        Self { n: 0, l: Vec::new(), inv_diag: Vec::new() }
     }
 
     /// Factor further rows of the same matrix until `n` leading unknowns are
@@ -71,16 +93,16 @@ impl PrefixCholesky {
             let mut ok = true;
             for j in 0..=i {
                 let rj = j * (j + 1) / 2;
-                let dot: f64 = l[row0..row0 + j].iter().zip(&l[rj..rj + j]).map(|(u, v)| u * v).sum();
-                let v = at(i, j) - dot;
+                let v = at(i, j) - dot(&l[row0..row0 + j], &l[rj..rj + j]);
                 if j == i {
                     if !(v > 0.0 && v.is_finite()) {
                         ok = false;
                         break;
                     }
                     l.push(v.sqrt());
+                    self.inv_diag.push(1.0 / v.sqrt());
                 } else {
-                    l.push(v / l[rj + j]);
+                    l.push(v * self.inv_diag[j]);
                 }
             }
             if !ok {
@@ -119,8 +141,8 @@ impl PrefixCholesky {
     pub(crate) fn forward_extend(&self, y: &mut Vec<f64>, k: usize, b: impl Fn(usize) -> f64) {
         for i in y.len()..k.min(self.n) {
             let r = self.row(i);
-            let s: f64 = r[..i].iter().zip(&y[..i]).map(|(u, v)| u * v).sum();
-            y.push((b(i) - s) / r[i]);
+            let s = dot(&r[..i], &y[..i]);
+            y.push((b(i) - s) * self.inv_diag[i]);
         }
     }
 
@@ -133,7 +155,7 @@ impl PrefixCholesky {
         // Lᵀ x = y by columns of Lᵀ, i.e. rows of L (contiguous).
         for i in (0..k).rev() {
             let r = self.row(i);
-            y[i] /= r[i];
+            y[i] *= self.inv_diag[i];
             let xi = y[i];
             y[..i].iter_mut().zip(&r[..i]).for_each(|(v, l)| *v -= l * xi);
         }

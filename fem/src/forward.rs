@@ -156,14 +156,21 @@ struct FrictionalParts {
 }
 
 /// What the twists of one normal state share: its outermost node in contact,
-/// each node's Coulomb limit for the twist and the contact's edge.
-#[derive(Debug, Clone)]
+/// each node's Coulomb limit for the twist, the contact's edge, and the stuck
+/// cores its twists have solved so far.
+#[derive(Debug)]
 pub struct TwistSetup {
     last: usize,
     cap: Vec<f64>,
     edge_mm: f64,
-    /// The tractions of the whole contact stuck, per radian of twist.
-    stuck_per_rad: Option<Vec<f64>>,
+    cores: Mutex<Cores>,
+}
+
+impl Clone for TwistSetup {
+    fn clone(&self) -> Self {
+        let cores = self.cores.lock().map(|c| c.clone()).unwrap_or_default();
+        Self { last: self.last, cap: self.cap.clone(), edge_mm: self.edge_mm, cores: Mutex::new(cores) }
+    }
 }
 
 /// One parameter set (E1, nu1) of the forward model.
@@ -340,17 +347,6 @@ impl Forward {
 }
 
 impl Model {
-    /// The twist's stuck core, nodes 1..=b.len(): x with the torsion compliance's
-    /// leading block times x = b, the factor grown to it first.
-    fn solve_stuck_core(&self, b: &[f64]) -> Option<Vec<f64>> {
-        let k = b.len();
-        let mut f = self.torsion_factor.lock().ok()?;
-        if f.extend_to(k, |i, j| self.torsion_sum[j + 1][i + 1]) < k {
-            return None;
-        }
-        f.solve_prefix(b)
-    }
-
     fn frictional(&self) -> &FrictionalContact {
         self.frictional.get_or_init(|| {
             let f = &self.frictional_parts;
@@ -456,17 +452,14 @@ impl Model {
                 ((mu * st.nodal_force[i]).powi(2) - radial * radial).max(0.0).sqrt()
             })
             .collect();
-        // The stuck contact's answer per radian of twist (a first try of every
-        // twist: the contact is linear in the twist while nothing slips).
-        let r_core: Vec<f64> = (1..=last).map(|i| r[i]).collect();
-        let stuck_per_rad = self.solve_stuck_core(&r_core);
-        Some(TwistSetup { last, cap, edge_mm: self.contact.contact_edge_mm(st), stuck_per_rad })
+        Some(TwistSetup { last, cap, edge_mm: self.contact.contact_edge_mm(st), cores: Mutex::default() })
     }
 
     /// [`Model::theta1_rad`] for a mount twist `twist_rad` on a state prepared
     /// by [`Model::twist_setup`] (a torsion sweep twists one state many times).
     pub fn theta1_rad_at(&self, setup: &TwistSetup, twist_rad: f64) -> Option<f64> {
-        self.twist_from(setup, twist_rad, &mut Vec::new())
+        let mut cores = setup.cores.lock().ok()?;
+        self.twist_from(setup, twist_rad, &mut Vec::new(), &mut cores)
     }
 
     /// [`Model::theta1_rad_at`] at each of `twists_rad` (each loaded from
@@ -474,68 +467,113 @@ impl Model {
     /// holds every node that slips at a smaller twist, so each search for it
     /// starts from the last one's instead of from a stuck contact (the same
     /// annulus, found in fewer rounds: the rounds only ever add nodes that
-    /// are past their limit).
+    /// are past their limit); and a stuck core met by an earlier twist is
+    /// not solved again (the setup keeps them for every later twist of it).
     pub fn theta1_rad_sweep(&self, setup: &TwistSetup, twists_rad: &[f64]) -> Vec<Option<f64>> {
         let mut order: Vec<usize> = (0..twists_rad.len()).collect();
         order.sort_by(|&a, &b| twists_rad[a].total_cmp(&twists_rad[b]));
         let mut out = vec![None; twists_rad.len()];
         let mut slip = Vec::new();
+        let Ok(mut cores) = setup.cores.lock() else {
+            return out;
+        };
         for k in order {
-            out[k] = self.twist_from(setup, twists_rad[k], &mut slip);
+            out[k] = self.twist_from(setup, twists_rad[k], &mut slip, &mut cores);
         }
         out
     }
 
+    /// The stuck core of `k` nodes (1..=k) with every node outside it slipping
+    /// at its limit: its tractions per radian of twist and those the slipping
+    /// annulus takes off them ([`Cores`]), solved on the factor's leading
+    /// block; `None` when the factor does not reach that far.
+    fn core<'c>(&self, setup: &TwistSetup, k: usize, cores: &'c mut Cores) -> Option<&'c (Vec<f64>, Vec<f64>)> {
+        let m = setup.last;
+        if cores.by_size.len() != m + 1 {
+            cores.by_size = vec![None; m + 1];
+            cores.forward_r.clear();
+        }
+        if cores.by_size[k].is_none() {
+            let r = self.contact.radii();
+            let mut f = self.torsion_factor.lock().ok()?;
+            if f.extend_to(k, |i, j| self.torsion_sum[j + 1][i + 1]) < k {
+                return None;
+            }
+            // L⁻¹ r is shared by every core (a forward substitution's
+            // leading entries are those of any longer one).
+            f.forward_extend(&mut cores.forward_r, k, |i| r[i + 1]);
+            let per_rad = f.backward(cores.forward_r[..k].to_vec())?;
+            // The annulus's load on the core, column by column (in the same
+            // order per node as a row-wise sum).
+            let mut by_slip = vec![0.0; k];
+            for l in k..m {
+                let col = &self.torsion_sum[l + 1];
+                by_slip.iter_mut().zip(&col[1..=k]).for_each(|(v, g)| *v += g * setup.cap[l]);
+            }
+            let taken = f.solve_prefix(&by_slip)?;
+            cores.by_size[k] = Some((per_rad, taken));
+        }
+        cores.by_size[k].as_ref()
+    }
+
     /// theta1 at `twist_rad`, the slip annulus searched from `slip` (the nodes
     /// 1..=last known to slip; empty: none) and left there.
-    fn twist_from(&self, setup: &TwistSetup, twist_rad: f64, slip: &mut Vec<bool>) -> Option<f64> {
+    fn twist_from(&self, setup: &TwistSetup, twist_rad: f64, slip: &mut Vec<bool>, cores: &mut Cores) -> Option<f64> {
         let r = self.contact.radii();
         let (last, cap) = (setup.last, &setup.cap);
-        // Node 0 is on the axis (no twist displacement); unknowns are nodes 1..=last.
-        let nodes: Vec<usize> = (1..=last).collect();
-        slip.resize(nodes.len(), false);
-        let mut t = vec![0.0; nodes.len()];
-        for _ in 0..=nodes.len() {
-            let stick: Vec<usize> = (0..nodes.len()).filter(|&k| !slip[k]).collect();
-            // Stuck nodes: Σ_stick G T + Σ_slip G cap = θ r.
-            let a = || -> Vec<Vec<f64>> {
-                stick.iter().map(|&k| stick.iter().map(|&l| self.torsion_sum[nodes[l]][nodes[k]]).collect()).collect()
+        // Node 0 is on the axis (no twist displacement); unknowns are nodes
+        // 1..=last, at index node - 1.
+        let n = last;
+        slip.resize(n, false);
+        let mut t = vec![0.0; n];
+        for _ in 0..=n {
+            // The stuck nodes are the core out to the slip annulus: the
+            // factor's leading block, solved once per core size; any other
+            // set by elimination.
+            let k = slip.iter().position(|&s| s).unwrap_or(n);
+            let annulus = slip[k..].iter().all(|&s| s);
+            let core = match annulus {
+                true => self.core(setup, k, cores),
+                false => None,
             };
-            // The slipping nodes' load on every node, column by column (in the
-            // same order per node as a row-wise sum: the same numbers).
-            let mut by_slip = vec![0.0; nodes.len()];
-            for l in (0..nodes.len()).filter(|&l| slip[l]) {
-                let col = &self.torsion_sum[nodes[l]];
-                by_slip.iter_mut().zip(&nodes).for_each(|(v, &i)| *v += col[i] * cap[l]);
-            }
-            let b: Vec<f64> = stick.iter().map(|&k| twist_rad * r[nodes[k]] - by_slip[k]).collect();
-            // The stuck nodes are the core out to the slip annulus: the factor's
-            // leading block; any other set by elimination.
-            let core = stick.iter().enumerate().all(|(m, &k)| m == k);
-            let x = match (stick.is_empty(), core) {
-                (true, _) => Vec::new(),
-                (false, true) if stick.len() == nodes.len() && setup.stuck_per_rad.is_some() => {
-                    setup.stuck_per_rad.iter().flatten().map(|v| v * twist_rad).collect()
+            match core {
+                Some((per_rad, taken)) => {
+                    for (i, v) in t.iter_mut().enumerate() {
+                        *v = if i < k { twist_rad * per_rad[i] - taken[i] } else { cap[i] };
+                    }
                 }
-                (false, true) => match self.solve_stuck_core(&b) {
-                    Some(x) => x,
-                    None => dense::solve(a(), b)?,
-                },
-                (false, false) => dense::solve(a(), b)?,
-            };
-            for (k, v) in t.iter_mut().enumerate() {
-                *v = if slip[k] { cap[k] } else { 0.0 };
-            }
-            for (m, &k) in stick.iter().enumerate() {
-                t[k] = x[m];
+                None => {
+                    let stick: Vec<usize> = (0..n).filter(|&i| !slip[i]).collect();
+                    // Stuck nodes: Σ_stick G T + Σ_slip G cap = θ r.
+                    let a: Vec<Vec<f64>> = stick
+                        .iter()
+                        .map(|&i| stick.iter().map(|&l| self.torsion_sum[l + 1][i + 1]).collect())
+                        .collect();
+                    let mut by_slip = vec![0.0; n];
+                    for l in (0..n).filter(|&l| slip[l]) {
+                        let col = &self.torsion_sum[l + 1];
+                        by_slip.iter_mut().zip(&col[1..=n]).for_each(|(v, g)| *v += g * cap[l]);
+                    }
+                    let b: Vec<f64> = stick.iter().map(|&i| twist_rad * r[i + 1] - by_slip[i]).collect();
+                    let x = if stick.is_empty() { Vec::new() } else { dense::solve(a, b)? };
+                    for (i, v) in t.iter_mut().enumerate() {
+                        *v = if slip[i] { cap[i] } else { 0.0 };
+                    }
+                    for (m, &i) in stick.iter().enumerate() {
+                        t[i] = x[m];
+                    }
+                }
             }
             // Stuck nodes past the friction limit slip (the slip annulus grows inward).
-            let over: Vec<usize> = (0..nodes.len()).filter(|&k| !slip[k] && t[k] > cap[k]).collect();
-            if over.is_empty() {
-                break;
+            let mut grew = false;
+            for i in 0..n {
+                if !slip[i] && t[i] > cap[i] {
+                    slip[i] = true;
+                    grew = true;
+                }
             }
-            for k in over {
-                slip[k] = true;
+            if !grew {
+                break;
             }
         }
         // The gel's twist displacement at every node out to the first one
@@ -543,12 +581,25 @@ impl Model {
         let outer = (last + 1).min(r.len() - 1);
         // Column by column (contiguous); the axis node does not turn.
         let mut u = vec![0.0; outer + 1];
-        for (l, &j) in nodes.iter().enumerate() {
-            let f = t[l] * self.inv_g1;
-            u[1..].iter_mut().zip(&self.torsion_unit.torsion[j][1..=outer]).for_each(|(ui, g)| *ui += g * f);
+        for (i, ti) in t.iter().enumerate() {
+            let f = ti * self.inv_g1;
+            u[1..].iter_mut().zip(&self.torsion_unit.torsion[i + 1][1..=outer]).for_each(|(ui, g)| *ui += g * f);
         }
         contact_twist(&r[..=outer], &u, setup.edge_mm)
     }
+}
+
+/// A twist setup's stuck cores, by size k: with nodes 1..=k stuck and every
+/// node outside slipping at its Coulomb limit, the core's tractions are linear
+/// in the twist θ — θ times the first vector less the second (the slipping
+/// annulus's load on the core, carried by the core) — so a sweep whose twists
+/// meet the same annulus solves it once (docs/physics.md, "Finite-element
+/// reference").
+#[derive(Debug, Clone, Default)]
+struct Cores {
+    by_size: Vec<Option<(Vec<f64>, Vec<f64>)>>,
+    /// L⁻¹ r over the nodes off the axis, as far as a core has needed it.
+    forward_r: Vec<f64>,
 }
 
 /// theta1 as the sensor takes it: the least-squares twist of the surface's
