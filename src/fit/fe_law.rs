@@ -146,7 +146,7 @@ impl LayeredBase {
                 h_over_r2: self.layer.thickness_mm / self.indenter_r_mm,
                 delta_over_r2: 0.0,
             };
-            Some((fem::hyper::LargeStrainTable::builtin()?, groups))
+            Some(fem::hyper::LargeStrainTable::builtin()?.at_groups(&groups))
         } else {
             None
         };
@@ -192,7 +192,9 @@ impl LayeredBase {
 struct FeLaw {
     model: fem::forward::Model,
     friction: f64,
-    table: Option<(&'static fem::hyper::LargeStrainTable, fem::hyper::Groups)>,
+    /// The large-strain table's interpolation at the law's materials (taken
+    /// once: the groups other than the approach are the law's).
+    table: Option<fem::hyper::AtGroups<'static>>,
     indenter_r_mm: f64,
     solved: Mutex<HashMap<u64, Arc<Solved>>>,
 }
@@ -226,13 +228,16 @@ impl FeLaw {
         Ok(solved)
     }
 
-    /// The large-strain ratios (gamma1, twist at `twist_deg` under the law's
-    /// friction) at approach `delta_mm`; 1 at small strain.
-    fn ratios(&self, delta_mm: f64, twist_deg: f64) -> (f64, f64) {
-        self.table.map_or((1.0, 1.0), |(t, g)| {
-            let d = delta_mm.max(0.0) / self.indenter_r_mm;
-            let at = t.at_groups(&g);
-            (at.gamma1_ratio(d).ratio, at.frictional_twist_ratio(d, twist_deg, self.friction).ratio)
+    /// The large-strain ratio of gamma1 at approach `delta_mm`; 1 at small strain.
+    fn gamma1_ratio(&self, delta_mm: f64) -> f64 {
+        self.table.as_ref().map_or(1.0, |at| at.gamma1_ratio(delta_mm.max(0.0) / self.indenter_r_mm).ratio)
+    }
+
+    /// The large-strain ratio of the twist at `twist_deg` under the law's
+    /// friction at approach `delta_mm`; 1 at small strain.
+    fn twist_ratio(&self, delta_mm: f64, twist_deg: f64) -> f64 {
+        self.table.as_ref().map_or(1.0, |at| {
+            at.frictional_twist_ratio(delta_mm.max(0.0) / self.indenter_r_mm, twist_deg, self.friction).ratio
         })
     }
 }
@@ -240,7 +245,7 @@ impl FeLaw {
 impl ContactLaw for FeLaw {
     fn normal(&self, delta_mm: f64) -> Result<LawState, String> {
         let solved = self.state(delta_mm)?;
-        let gamma1_mm = solved.state.gamma1_mm * self.ratios(delta_mm, 0.0).0;
+        let gamma1_mm = solved.state.gamma1_mm * self.gamma1_ratio(delta_mm);
         Ok(LawState {
             gamma1_mm,
             gamma2_mm: delta_mm - gamma1_mm,
@@ -254,7 +259,7 @@ impl ContactLaw for FeLaw {
         let twist = twist_deg.to_radians();
         let setup = solved.twist.get_or_init(|| self.model.twist_setup(&solved.state, self.friction));
         let t = setup.as_ref().and_then(|s| self.model.theta1_rad_at(s, twist.abs())).map_or(0.0, |t| t.to_degrees());
-        Ok(t * self.ratios(delta_mm, twist_deg).1 * twist.signum())
+        Ok(t * self.twist_ratio(delta_mm, twist_deg) * twist.signum())
     }
 }
 
