@@ -147,7 +147,7 @@ impl TwoBodyContact {
     /// The combined compliance's factor and forward substitutions, grown to
     /// the first `k` nodes; `None` when the factor cannot reach them.
     fn leading(&self, k: usize) -> Option<std::sync::MutexGuard<'_, Leading>> {
-        let mut l = self.factor.lock().ok()?;
+        let mut l = crate::lock_cache(&self.factor);
         if l.factor.extend_to(k, |i, j| self.g_sum[j][i]) < k {
             return None;
         }
@@ -465,7 +465,7 @@ impl FrictionalContact {
         let mut s_ref = vec![0.0; n];
         // The stuck contact's factor, grown with the contact along the path
         // (a copy: paths of one model may run at once).
-        let factor = self.stuck.lock().map(|f| f.clone()).unwrap_or_else(|_| PrefixCholesky::empty());
+        let factor = crate::lock_cache(&self.stuck).clone();
         let mut stuck = StuckCore { factor, responses: HashMap::new(), rhs_forward: Vec::new() };
         let mut at = 0.0f64;
         for &k in &order {
@@ -490,11 +490,11 @@ impl FrictionalContact {
                 self.state(target, &p, &q)
             });
         }
-        if let Ok(mut shared) = self.stuck.lock() {
-            if stuck.factor.len() > shared.len() {
-                *shared = stuck.factor;
-            }
+        let mut shared = crate::lock_cache(&self.stuck);
+        if stuck.factor.len() > shared.len() {
+            *shared = stuck.factor;
         }
+        drop(shared);
         out.into_iter()
             .map(|s| s.ok_or_else(|| FemError::Invalid("an approach of the path was not solved".into())))
             .collect()

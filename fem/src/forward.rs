@@ -123,7 +123,7 @@ impl<K: std::hash::Hash + Eq, T> BuildOnce<K, T> {
     fn get(&self, key: K, build: impl FnOnce() -> Result<T, FemError>) -> Result<Arc<T>, FemError> {
         let cells = self.cells.get_or_init(|| Mutex::new(HashMap::new()));
         let cell = {
-            let mut map = cells.lock().map_err(|_| FemError::Invalid("a cache's lock was poisoned".into()))?;
+            let mut map = crate::lock_cache(cells);
             map.entry(key).or_default().clone()
         };
         cell.get_or_init(|| build().map(Arc::new)).clone()
@@ -168,7 +168,7 @@ pub struct TwistSetup {
 
 impl Clone for TwistSetup {
     fn clone(&self) -> Self {
-        let cores = self.cores.lock().map(|c| c.clone()).unwrap_or_default();
+        let cores = crate::lock_cache(&self.cores).clone();
         Self { last: self.last, cap: self.cap.clone(), edge_mm: self.edge_mm, cores: Mutex::new(cores) }
     }
 }
@@ -296,17 +296,15 @@ impl Forward {
     /// compliances and their factors) once.
     pub fn model_shared(&self, e1_mpa: f64, nu1: f64) -> Arc<Model> {
         let key = [e1_mpa.to_bits(), nu1.to_bits()];
-        if let Some(m) = self.recent.lock().ok().and_then(|r| r.iter().find(|(k, _)| *k == key).map(|(_, m)| m.clone()))
-        {
+        if let Some(m) = crate::lock_cache(&self.recent).iter().find(|(k, _)| *k == key).map(|(_, m)| m.clone()) {
             return m;
         }
         let m = Arc::new(self.model(e1_mpa, nu1));
-        if let Ok(mut r) = self.recent.lock() {
-            if r.len() == RECENT_MODELS {
-                r.pop_front();
-            }
-            r.push_back((key, m.clone()));
+        let mut r = crate::lock_cache(&self.recent);
+        if r.len() == RECENT_MODELS {
+            r.pop_front();
         }
+        r.push_back((key, m.clone()));
         m
     }
 
@@ -375,16 +373,15 @@ impl Model {
     /// state as [`Model::normal`] gives (it depends on nothing else).
     pub fn normal_memo(&self, delta_mm: f64) -> Result<ContactState, FemError> {
         let key = delta_mm.to_bits();
-        if let Some(st) = self.solved.lock().ok().and_then(|m| m.get(&key).cloned()) {
+        if let Some(st) = crate::lock_cache(&self.solved).get(&key).cloned() {
             return Ok(st);
         }
         let st = self.contact.solve(delta_mm)?;
-        if let Ok(mut m) = self.solved.lock() {
-            if m.len() >= MEMO_STATES {
-                m.clear();
-            }
-            m.insert(key, st.clone());
+        let mut m = crate::lock_cache(&self.solved);
+        if m.len() >= MEMO_STATES {
+            m.clear();
         }
+        m.insert(key, st.clone());
         Ok(st)
     }
 
@@ -401,17 +398,15 @@ impl Model {
             mu: mu.to_bits(),
             step: max_step_mm.to_bits(),
         };
-        if let Some(p) = self.paths.lock().ok().and_then(|q| q.iter().find(|(k, _)| *k == key).map(|(_, p)| p.clone()))
-        {
+        if let Some(p) = crate::lock_cache(&self.paths).iter().find(|(k, _)| *k == key).map(|(_, p)| p.clone()) {
             return Ok(p);
         }
         let path = Arc::new(self.normal_path(deltas_mm, mu, max_step_mm)?);
-        if let Ok(mut q) = self.paths.lock() {
-            if q.len() == MEMO_PATHS {
-                q.pop_front();
-            }
-            q.push_back((key, path.clone()));
+        let mut q = crate::lock_cache(&self.paths);
+        if q.len() == MEMO_PATHS {
+            q.pop_front();
         }
+        q.push_back((key, path.clone()));
         Ok(path)
     }
 
@@ -458,7 +453,7 @@ impl Model {
     /// [`Model::theta1_rad`] for a mount twist `twist_rad` on a state prepared
     /// by [`Model::twist_setup`] (a torsion sweep twists one state many times).
     pub fn theta1_rad_at(&self, setup: &TwistSetup, twist_rad: f64) -> Option<f64> {
-        let mut cores = setup.cores.lock().ok()?;
+        let mut cores = crate::lock_cache(&setup.cores);
         self.twist_from(setup, twist_rad, &mut Vec::new(), &mut cores)
     }
 
@@ -474,9 +469,7 @@ impl Model {
         order.sort_by(|&a, &b| twists_rad[a].total_cmp(&twists_rad[b]));
         let mut out = vec![None; twists_rad.len()];
         let mut slip = Vec::new();
-        let Ok(mut cores) = setup.cores.lock() else {
-            return out;
-        };
+        let mut cores = crate::lock_cache(&setup.cores);
         for k in order {
             out[k] = self.twist_from(setup, twists_rad[k], &mut slip, &mut cores);
         }
@@ -495,7 +488,7 @@ impl Model {
         }
         if cores.by_size[k].is_none() {
             let r = self.contact.radii();
-            let mut f = self.torsion_factor.lock().ok()?;
+            let mut f = crate::lock_cache(&self.torsion_factor);
             if f.extend_to(k, |i, j| self.torsion_sum[j + 1][i + 1]) < k {
                 return None;
             }
@@ -698,5 +691,37 @@ mod tests {
         per_rad.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (first, last) = (per_rad[0].1, per_rad[per_rad.len() - 1].1);
         assert!(last < 0.9 * first, "no slip reached: theta1 per radian {first} at the smallest twist, {last} at 20°");
+    }
+
+    /// A thread that panics while holding a twist set-up's core cache (or the
+    /// model's torsion factor) poisons its lock; the next twists must still
+    /// answer, and answer as an untouched set-up does — not return nothing,
+    /// which a fit would read as no twist at all.
+    #[test]
+    fn a_poisoned_cache_is_rebuilt_not_refused() {
+        let model = Forward::cached(5.0, 2.0, 0.4, 5.0).unwrap().model(1.0, 0.48);
+        let st = model.normal(1.5).unwrap();
+        let setup = model.twist_setup(&st, 0.4).unwrap();
+        let twists: Vec<f64> = [0.5, 4.0, 15.0].iter().map(|d: &f64| d.to_radians()).collect();
+        let clean: Vec<f64> = model.theta1_rad_sweep(&setup, &twists).into_iter().map(Option::unwrap).collect();
+        std::thread::scope(|s| {
+            let poison = s.spawn(|| {
+                let _cores = setup.cores.lock().unwrap();
+                let _factor = model.torsion_factor.lock().unwrap();
+                panic!("a panic while the caches are held");
+            });
+            assert!(poison.join().is_err());
+        });
+        assert!(setup.cores.is_poisoned() && model.torsion_factor.is_poisoned());
+        for (&t, &c) in twists.iter().zip(&clean) {
+            let again = model.theta1_rad_at(&setup, t);
+            assert!(
+                again.is_some_and(|v| (v - c).abs() <= 1e-12 * c.abs()),
+                "twist {t}: {again:?} after the panic, {c} before"
+            );
+        }
+        assert!(!setup.cores.is_poisoned() && !model.torsion_factor.is_poisoned());
+        let swept = model.theta1_rad_sweep(&setup.clone(), &twists);
+        assert_eq!(swept.iter().filter(|v| v.is_some()).count(), twists.len());
     }
 }

@@ -24,6 +24,21 @@ mod quad;
 pub mod torsion;
 
 pub use contact::{ContactState, TwoBodyContact};
+
+/// The cache behind `m`, locked. A cache only saves work, so one whose lock a
+/// panicking thread poisoned (its contents possibly half-written) is emptied
+/// and used again rather than refused: the answers are the same, rebuilt.
+pub fn lock_cache<T: Default>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    match m.lock() {
+        Ok(g) => g,
+        Err(poisoned) => {
+            let mut g = poisoned.into_inner();
+            *g = T::default();
+            m.clear_poison();
+            g
+        }
+    }
+}
 pub use elastic::{Body, Integration, Material};
 pub use mesh::{Base, Mesh};
 

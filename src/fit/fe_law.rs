@@ -216,15 +216,13 @@ impl std::fmt::Debug for FeLaw {
 impl FeLaw {
     fn state(&self, delta_mm: f64) -> Result<Arc<Solved>, String> {
         let key = delta_mm.to_bits();
-        if let Some(st) = self.solved.lock().ok().and_then(|m| m.get(&key).cloned()) {
+        if let Some(st) = fem::lock_cache(&self.solved).get(&key).cloned() {
             return Ok(st);
         }
         let state = self.model.normal(delta_mm).map_err(|e| e.to_string())?;
         let radius_mm = if state.force_n > 0.0 { self.model.contact_radius_mm(&state) } else { 0.0 };
         let solved = Arc::new(Solved { state, radius_mm, twist: std::sync::OnceLock::new() });
-        if let Ok(mut m) = self.solved.lock() {
-            m.insert(key, solved.clone());
-        }
+        fem::lock_cache(&self.solved).insert(key, solved.clone());
         Ok(solved)
     }
 
