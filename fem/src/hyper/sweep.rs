@@ -3,6 +3,8 @@
 //! indenter's deformation reaches beta R2, then the twist sweep there. This is
 //! `easycalib simulate --fidelity fe`.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 use super::{LargeState, LargeStrainContact};
 use crate::FemError;
 use crate::elastic::Material;
@@ -81,11 +83,29 @@ pub fn calibration_sweep(
     indenter_radius_mm: f64,
     plan: &SweepPlan,
 ) -> Result<Sweep, FemError> {
+    let stages = sweep_stages(&mut build()?, indenter_radius_mm, plan)?;
+    let mut sweep = build()?;
+    let normal = press(&mut sweep, &stages, &AtomicUsize::new(usize::MAX)).ended(stages.len(), plan)?;
+    let deepest = normal.last().ok_or_else(|| FemError::Invalid("an empty sweep".into()))?;
+    let twists: Vec<f64> = plan.twists_deg.iter().map(|d| d.to_radians()).collect();
+    let theta = sweep.theta1_rad(deepest, &twists, plan.friction)?;
+    let torsion_deg = plan.twists_deg.iter().zip(&theta).map(|(&d, t)| (d, t.to_degrees())).collect();
+    let beta_reached = deepest.gamma2_mm / indenter_radius_mm;
+    Ok(Sweep { normal, torsion_deg, beta_reached })
+}
+
+/// The stage positions of `plan`'s normal sweep, from first touch to the
+/// depth where the indenter's deformation reaches beta R2, found by pressing
+/// `search` in steps of [`SEARCH_STEP_MM`] (and interpolating in the last).
+fn sweep_stages(
+    search: &mut LargeStrainContact,
+    indenter_radius_mm: f64,
+    plan: &SweepPlan,
+) -> Result<Vec<f64>, FemError> {
     if !(plan.beta > 0.0 && plan.beta < 0.3 && plan.normal_steps >= 2) {
         return Err(FemError::Invalid(format!("sweep to beta {} in {} steps", plan.beta, plan.normal_steps)));
     }
     let target = plan.beta * indenter_radius_mm;
-    let mut search = build()?;
     let mut last = search.step_to(0.0)?;
     let depth = loop {
         // A step that does not settle (or whose tangent gives out, or that
@@ -108,24 +128,52 @@ pub fn calibration_sweep(
         }
         last = next;
     };
-    let mut sweep = build()?;
-    let stages: Vec<f64> = (0..=plan.normal_steps).map(|k| depth * k as f64 / plan.normal_steps as f64).collect();
-    // The same trouble can come back at a depth the search passed (the load
-    // steps fall elsewhere): the sweep then ends at its deepest solved stage.
-    let mut normal = Vec::with_capacity(stages.len());
-    for &stage in &stages {
-        match sweep.solve_path(&[stage], SEARCH_STEP_MM) {
-            Ok(v) => normal.extend(v),
-            Err(e) if ends_the_sweep(&e) && 4 * normal.len() > plan.normal_steps => break,
-            Err(e) => return Err(e),
+    Ok((0..=plan.normal_steps).map(|k| depth * k as f64 / plan.normal_steps as f64).collect())
+}
+
+/// A contact pressed through stages in order: the states it settled, and
+/// what stopped it before the last stage, if anything did.
+struct Pressed {
+    states: Vec<LargeState>,
+    stopped: Option<FemError>,
+}
+
+/// Presses `contact` through `stages` in order until one fails or `limit`
+/// stages are done (`limit` may fall while it runs: another thread's sweep
+/// that ended says how far this one is still wanted).
+fn press(contact: &mut LargeStrainContact, stages: &[f64], limit: &AtomicUsize) -> Pressed {
+    let mut states = Vec::with_capacity(stages.len());
+    for &stage in stages {
+        if states.len() >= limit.load(Ordering::Relaxed) {
+            break;
+        }
+        match contact.solve_path(&[stage], SEARCH_STEP_MM) {
+            Ok(v) => states.extend(v),
+            Err(e) => return Pressed { states, stopped: Some(e) },
         }
     }
-    let deepest = normal.last().ok_or_else(|| FemError::Invalid("an empty sweep".into()))?;
-    let twists: Vec<f64> = plan.twists_deg.iter().map(|d| d.to_radians()).collect();
-    let theta = sweep.theta1_rad(deepest, &twists, plan.friction)?;
-    let torsion_deg = plan.twists_deg.iter().zip(&theta).map(|(&d, t)| (d, t.to_degrees())).collect();
-    let beta_reached = deepest.gamma2_mm / indenter_radius_mm;
-    Ok(Sweep { normal, torsion_deg, beta_reached })
+    Pressed { states, stopped: None }
+}
+
+impl Pressed {
+    /// The sweep's first `wanted` states, or fewer where the contact stopped
+    /// settling before them (the same trouble the depth's search met can come
+    /// back at a depth it passed: the load steps fall elsewhere), once a
+    /// quarter of the plan's steps are done; any other failure before
+    /// `wanted` is the sweep's error.
+    fn ended(mut self, wanted: usize, plan: &SweepPlan) -> Result<Vec<LargeState>, FemError> {
+        match self.stopped {
+            Some(e)
+                if self.states.len() < wanted && !(ends_the_sweep(&e) && 4 * self.states.len() > plan.normal_steps) =>
+            {
+                Err(e)
+            }
+            _ => {
+                self.states.truncate(wanted);
+                Ok(self.states)
+            }
+        }
+    }
 }
 
 /// [`calibration_sweep`] on a gel layer of `thickness_mm` bonded to its
@@ -148,19 +196,36 @@ pub fn converged_layer_sweep(
     let at = |fine_mm: f64| {
         LargeStrainContact::for_layer_at(crate::Base::Bonded, thickness_mm, gel, indenter, indenter_radius_mm, fine_mm)
     };
-    let coarse = calibration_sweep(|| at(TABLE_COARSE_MM), indenter_radius_mm, plan)?;
-    let mut fine = at(TABLE_FINE_MM)?;
-    let mut normal = Vec::with_capacity(coarse.normal.len());
-    for c in &coarse.normal {
-        let f = match fine.solve_path(&[c.delta_mm], SEARCH_STEP_MM) {
-            Ok(mut v) => v.pop().ok_or_else(|| FemError::Invalid("an empty load step".into()))?,
-            Err(e) if ends_the_sweep(&e) && 4 * normal.len() > plan.normal_steps => break,
-            Err(e) => return Err(e),
-        };
-        let gamma1_mm = mesh_extrapolated(f.gamma1_mm, c.gamma1_mm, TABLE_FINE_MM, TABLE_COARSE_MM);
-        let gamma2_mm = mesh_extrapolated(f.gamma2_mm, c.gamma2_mm, TABLE_FINE_MM, TABLE_COARSE_MM);
-        normal.push((f, gamma1_mm, gamma2_mm));
-    }
+    let stages = sweep_stages(&mut at(TABLE_COARSE_MM)?, indenter_radius_mm, plan)?;
+    // The two meshes press through the same stages at once (each press is
+    // serial); the coarse sweep's end bounds the fine one's, as in turn.
+    let wanted = AtomicUsize::new(usize::MAX);
+    let (coarse, fine) = std::thread::scope(|scope| {
+        let coarse = scope.spawn(|| {
+            let pressed = at(TABLE_COARSE_MM).map(|mut c| press(&mut c, &stages, &AtomicUsize::new(usize::MAX)));
+            let normal = pressed.and_then(|p| p.ended(stages.len(), plan));
+            wanted.store(normal.as_ref().map_or(0, Vec::len), Ordering::Relaxed);
+            normal
+        });
+        let fine = at(TABLE_FINE_MM).map(|mut f| {
+            let pressed = press(&mut f, &stages, &wanted);
+            (f, pressed)
+        });
+        let coarse = coarse.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        (coarse, fine)
+    });
+    let coarse = coarse?;
+    let (fine, pressed) = fine?;
+    let fine_normal = pressed.ended(coarse.len(), plan)?;
+    let normal: Vec<(LargeState, f64, f64)> = fine_normal
+        .into_iter()
+        .zip(&coarse)
+        .map(|(f, c)| {
+            let gamma1_mm = mesh_extrapolated(f.gamma1_mm, c.gamma1_mm, TABLE_FINE_MM, TABLE_COARSE_MM);
+            let gamma2_mm = mesh_extrapolated(f.gamma2_mm, c.gamma2_mm, TABLE_FINE_MM, TABLE_COARSE_MM);
+            (f, gamma1_mm, gamma2_mm)
+        })
+        .collect();
     let (deepest, ..) = normal.last().ok_or_else(|| FemError::Invalid("an empty sweep".into()))?;
     let twists: Vec<f64> = plan.twists_deg.iter().map(|d| d.to_radians()).collect();
     let theta = fine.theta1_rad(deepest, &twists, plan.friction)?;
