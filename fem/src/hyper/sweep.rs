@@ -184,7 +184,9 @@ impl Pressed {
 /// state's gamma1 and gamma2 are the first-order limit of the two
 /// ([`super::mesh_extrapolated`]); the rest of a state and the twists are the
 /// fine mesh's. Where the fine mesh stops settling first, the sweep ends
-/// there. About four times the coarse sweep's time.
+/// there. The two meshes press on two threads once the coarse mesh has found
+/// the stages (the fine mesh's press is most of the time: the default pair's
+/// recording took 164 s in turn and 123 s at once).
 pub fn converged_layer_sweep(
     thickness_mm: f64,
     gel: Material,
