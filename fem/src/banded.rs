@@ -143,9 +143,7 @@ impl Factor {
     /// over the factor; a block's forward pass starts at its first non-zero row
     /// (the surface compliances load one node at a time).
     pub fn solve_many(&self, rhs: &[Vec<f64>]) -> Vec<Vec<f64>> {
-        let l = &self.l;
-        let (n, bw) = (l.n, l.bw);
-        let w = bw + 1;
+        let n = self.l.n;
         let mut out = Vec::with_capacity(rhs.len());
         for chunk in rhs.chunks(BLOCK) {
             let m = chunk.len();
@@ -160,37 +158,76 @@ impl Factor {
                     }
                 }
             }
-            let mut acc = vec![0.0; m];
-            for i in start..n {
-                let lo = i.saturating_sub(bw).max(start);
-                let (done, rest) = y.split_at_mut(i * m);
-                let row = &l.data[i * w + bw - i + lo..i * w + bw];
-                acc.copy_from_slice(&rest[..m]);
-                for (&lik, yk) in row.iter().zip(done[lo * m..].chunks_exact(m)) {
-                    acc.iter_mut().zip(yk).for_each(|(a, v)| *a -= lik * v);
-                }
-                let d = l.data[i * w + bw];
-                rest[..m].iter_mut().zip(&acc).for_each(|(v, a)| *v = a / d);
-            }
-            // Lᵀ x = y by rows of L: x(i) is final once the rows below have
-            // given their share, and row i then gives its share to the
-            // columns before i (contiguous, where the column of Lᵀ is not).
-            for i in (0..n).rev() {
-                let lo = i.saturating_sub(bw);
-                let (before, at) = y.split_at_mut(i * m);
-                let d = l.data[i * w + bw];
-                let xi = &mut at[..m];
-                xi.iter_mut().for_each(|v| *v /= d);
-                let row = &l.data[i * w + bw - i + lo..i * w + bw];
-                for (&lik, yk) in row.iter().zip(before[lo * m..].chunks_exact_mut(m)) {
-                    yk.iter_mut().zip(xi.iter()).for_each(|(v, x)| *v -= lik * x);
-                }
-            }
+            self.solve_block(&mut y, m, start);
             for r in 0..m {
                 out.push((0..n).map(|i| y[i * m + r]).collect());
             }
         }
         out
+    }
+
+    /// [`Factor::solve_many`] for right-hand sides of one non-zero entry each
+    /// (`Some((row, value))`; `None` is a zero right-hand side), keeping of
+    /// each solution only its entries at the rows `keep`, in that order: a
+    /// body's surface compliance, with one block's workspace in memory
+    /// instead of every full load and solution (the same numbers).
+    pub fn solve_point_loads(&self, loads: &[Option<(usize, f64)>], keep: &[usize]) -> Vec<Vec<f64>> {
+        let n = self.l.n;
+        let mut out = Vec::with_capacity(loads.len());
+        let mut y = Vec::new();
+        for chunk in loads.chunks(BLOCK) {
+            let m = chunk.len();
+            y.clear();
+            y.resize(n * m, 0.0);
+            let mut start = n;
+            for (r, load) in chunk.iter().enumerate() {
+                if let Some((i, v)) = *load {
+                    if i < n && v != 0.0 {
+                        y[i * m + r] = v;
+                        start = start.min(i);
+                    }
+                }
+            }
+            self.solve_block(&mut y, m, start);
+            for r in 0..m {
+                out.push(keep.iter().map(|&i| y[i * m + r]).collect());
+            }
+        }
+        out
+    }
+
+    /// L Lᵀ x = y in place for the `m` right-hand sides interleaved in `y`
+    /// (`y[i * m + r]`), all zero above row `start`.
+    fn solve_block(&self, y: &mut [f64], m: usize, start: usize) {
+        let l = &self.l;
+        let (n, bw) = (l.n, l.bw);
+        let w = bw + 1;
+        let mut acc = vec![0.0; m];
+        for i in start..n {
+            let lo = i.saturating_sub(bw).max(start);
+            let (done, rest) = y.split_at_mut(i * m);
+            let row = &l.data[i * w + bw - i + lo..i * w + bw];
+            acc.copy_from_slice(&rest[..m]);
+            for (&lik, yk) in row.iter().zip(done[lo * m..].chunks_exact(m)) {
+                acc.iter_mut().zip(yk).for_each(|(a, v)| *a -= lik * v);
+            }
+            let d = l.data[i * w + bw];
+            rest[..m].iter_mut().zip(&acc).for_each(|(v, a)| *v = a / d);
+        }
+        // Lᵀ x = y by rows of L: x(i) is final once the rows below have
+        // given their share, and row i then gives its share to the
+        // columns before i (contiguous, where the column of Lᵀ is not).
+        for i in (0..n).rev() {
+            let lo = i.saturating_sub(bw);
+            let (before, at) = y.split_at_mut(i * m);
+            let d = l.data[i * w + bw];
+            let xi = &mut at[..m];
+            xi.iter_mut().for_each(|v| *v /= d);
+            let row = &l.data[i * w + bw - i + lo..i * w + bw];
+            for (&lik, yk) in row.iter().zip(before[lo * m..].chunks_exact_mut(m)) {
+                yk.iter_mut().zip(xi.iter()).for_each(|(v, x)| *v -= lik * x);
+            }
+        }
     }
 
     /// x with L Lᵀ x = b.
@@ -244,6 +281,50 @@ mod tests {
             let one = f.solve(b);
             for (p, q) in one.iter().zip(x) {
                 assert!((p - q).abs() < 1e-13, "{p} vs {q}");
+            }
+        }
+    }
+
+    /// Point loads (one unit entry, some scaled, a zero load among them, over
+    /// more than one block) solve to the rows kept of the full solutions, and
+    /// those give back their load: the surface compliances without the full
+    /// vectors.
+    #[test]
+    fn point_loads_keep_the_rows_of_the_full_solutions() {
+        let (n, bw) = (61, 5);
+        let mut a = Banded::zeros(n, bw);
+        for i in 0..n {
+            a.add(i, i, 3.0 + bw as f64 + (i % 4) as f64);
+            for j in i.saturating_sub(bw)..i {
+                a.add(i, j, ((i * 5 + j * 3) % 7) as f64 / 7.0 - 0.4);
+            }
+        }
+        let f = a.clone().factor().unwrap();
+        let loads: Vec<Option<(usize, f64)>> = (0..n)
+            .step_by(2)
+            .map(|j| if j == 10 { None } else { Some((j, if j % 3 == 0 { -1.0 } else { 2.5 })) })
+            .collect();
+        let keep: Vec<usize> = (0..n).rev().step_by(4).collect();
+        let kept = f.solve_point_loads(&loads, &keep);
+        assert_eq!(kept.len(), loads.len());
+        for (load, x) in loads.iter().zip(&kept) {
+            let mut b = vec![0.0; n];
+            if let Some((j, v)) = *load {
+                b[j] = v;
+            }
+            let full = f.solve(&b);
+            let back = a.mul(&full);
+            assert!(back.iter().zip(&b).all(|(p, q)| (p - q).abs() < 1e-12), "{load:?} does not solve");
+            assert_eq!(x.len(), keep.len());
+            for (&i, &v) in keep.iter().zip(x) {
+                assert!(
+                    (v - full[i]).abs() <= 1e-14 * full[i].abs().max(1e-3),
+                    "{load:?}, row {i}: {v} vs {}",
+                    full[i]
+                );
+            }
+            if load.is_none() {
+                assert!(x.iter().all(|&v| v == 0.0), "a zero load moves nothing");
             }
         }
     }

@@ -144,7 +144,6 @@ impl Body {
     /// on node j pressing into the body (mm per N/rad).
     pub fn surface_compliance(&self) -> Vec<Vec<f64>> {
         let s = &self.mesh.surface;
-        let n = 2 * self.mesh.xy.len();
         // Which way "into the body" is: down for the gel (surface on top), up for the indenter.
         let into = |node: usize| {
             let z = self.mesh.xy[node][1];
@@ -152,15 +151,9 @@ impl Body {
             if mean < z { -1.0 } else { 1.0 }
         };
         let sign = into(s[0]);
-        let loads: Vec<Vec<f64>> = s
-            .iter()
-            .map(|&j| {
-                let mut f = vec![0.0; n];
-                f[2 * j + 1] = sign;
-                f
-            })
-            .collect();
-        self.factor.solve_many(&loads).iter().map(|u| s.iter().map(|&i| sign * u[2 * i + 1]).collect()).collect()
+        let loads: Vec<Option<(usize, f64)>> = s.iter().map(|&j| Some((2 * j + 1, sign))).collect();
+        let keep: Vec<usize> = s.iter().map(|&i| 2 * i + 1).collect();
+        self.factor.solve_point_loads(&loads, &keep).into_iter().map(|u| u.iter().map(|v| sign * v).collect()).collect()
     }
 
     /// The full surface compliance in global (r, z) components on the first
@@ -171,24 +164,19 @@ impl Body {
     /// is zero.
     pub fn surface_compliance_rz(&self, nodes: usize) -> SurfaceCompliance {
         let s = &self.mesh.surface[..nodes.min(self.mesh.surface.len())];
-        let n = 2 * self.mesh.xy.len();
         let held: std::collections::HashSet<usize> = self.mesh.axis.iter().copied().collect();
         // Unit loads along r then z at each node, solved together; a held
-        // radial dof takes no load (zero column).
-        let loads: Vec<Vec<f64>> = s
+        // radial dof takes no load (zero column). Of each solution only the
+        // surface nodes' u_r and u_z are kept, node by node.
+        let loads: Vec<Option<(usize, f64)>> = s
             .iter()
             .flat_map(|&j| [(j, 0), (j, 1)])
-            .map(|(j, dof)| {
-                let mut f = vec![0.0; n];
-                if !(dof == 0 && held.contains(&j)) {
-                    f[2 * j + dof] = 1.0;
-                }
-                f
-            })
+            .map(|(j, dof)| (!(dof == 0 && held.contains(&j))).then_some((2 * j + dof, 1.0)))
             .collect();
-        let u = self.factor.solve_many(&loads);
+        let keep: Vec<usize> = s.iter().flat_map(|&i| [2 * i, 2 * i + 1]).collect();
+        let u = self.factor.solve_point_loads(&loads, &keep);
         let split = |u: &[f64]| -> (Vec<f64>, Vec<f64>) {
-            (s.iter().map(|&i| u[2 * i]).collect(), s.iter().map(|&i| u[2 * i + 1]).collect())
+            (u.iter().step_by(2).copied().collect(), u.iter().skip(1).step_by(2).copied().collect())
         };
         let mut out = SurfaceCompliance::default();
         for pair in u.chunks(2) {

@@ -31,7 +31,6 @@ fn element_stiffness(p: [[f64; 2]; 4]) -> [[f64; 4]; 4] {
 /// One body in torsion: its factored stiffness for unit shear modulus.
 pub struct TorsionBody {
     factor: Factor,
-    n: usize,
 }
 
 impl TorsionBody {
@@ -58,21 +57,14 @@ impl TorsionBody {
                 k.constrain(&mut rhs, n, 0.0);
             }
         }
-        Ok(Self { factor: k.factor()?, n: mesh.xy.len() })
+        Ok(Self { factor: k.factor()? })
     }
 
     /// Surface compliance for unit shear modulus: (i, j) the twist displacement at
     /// surface node i under a unit tangential force per radian at node j (column-major).
     pub fn surface_compliance(&self, surface: &[usize]) -> Vec<Vec<f64>> {
-        let loads: Vec<Vec<f64>> = surface
-            .iter()
-            .map(|&j| {
-                let mut f = vec![0.0; self.n];
-                f[j] = 1.0;
-                f
-            })
-            .collect();
-        self.factor.solve_many(&loads).iter().map(|u| surface.iter().map(|&i| u[i]).collect()).collect()
+        let loads: Vec<Option<(usize, f64)>> = surface.iter().map(|&j| Some((j, 1.0))).collect();
+        self.factor.solve_point_loads(&loads, surface)
     }
 }
 
