@@ -5,6 +5,9 @@
 //! sweep at one depth (its ten twists, under friction, from the state's
 //! setup on). The dev set's tableI_2 geometry: a 5 mm bonded gel, E1 1 MPa,
 //! nu1 0.48, under a 5 mm hemisphere of 2 MPa, nu2 0.4, pressed 1.8 mm.
+//! And the rig's tabulated law (docs/fem.md, "The tabulated law"): its
+//! one-off build, one parameter set contracted from it, and one sample read
+//! off that (a press and a twist).
 
 use std::hint::black_box;
 
@@ -30,6 +33,21 @@ fn forward(c: &mut Criterion) {
         b.iter(|| {
             let setup = model.twist_setup(black_box(&state), 0.4).expect("a contact off the axis");
             model.theta1_rad_sweep(&setup, &twists_rad)
+        })
+    });
+    g.finish();
+
+    let mut g = c.benchmark_group("fe_tabulated");
+    g.sample_size(10);
+    g.bench_function("build", |b| b.iter(|| fem::tabulated::TabulatedLaw::build(black_box(&fw))));
+    let table = fw.tabulated().expect("the rig's tabulated law");
+    g.bench_function("at_e1_nu1", |b| b.iter(|| table.at(black_box(1.0), black_box(0.48))));
+    let at = table.at(1.0, 0.48).expect("inside the table");
+    g.bench_function("one_sample", |b| {
+        b.iter(|| {
+            let g1 = at.gamma1_mm(black_box(delta_mm));
+            let t1 = at.theta1_rad(black_box(delta_mm), black_box(2f64.to_radians()), 0.4);
+            (g1, t1)
         })
     });
     g.finish();

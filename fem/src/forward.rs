@@ -13,6 +13,7 @@ use crate::contact::{ContactState, FrictionalContact, TwoBodyContact};
 use crate::dense::{self, PrefixCholesky};
 use crate::elastic::{Body, Integration, Material, SurfaceCompliance, combine_block};
 use crate::mesh::{Base, Mesh};
+use crate::tabulated::TabulatedLaw;
 use crate::torsion::TorsionBody;
 
 /// Element size at the contact, mm, and the gel's radius in thicknesses. A real
@@ -135,6 +136,9 @@ pub struct Forward {
     gel: Arc<GelTables>,
     n: usize,
     radius_mm: f64,
+    indenter_e_mpa: f64,
+    /// The frictionless law tabulated in its groups, built on first use.
+    tabulated: OnceLock<Result<Arc<TabulatedLaw>, FemError>>,
     ind_normal: Arc<SurfaceCompliance>,
     ind_torsion: Vec<Vec<f64>>,
     /// The models of the last few parameter sets asked for (see [`Forward::model_shared`]).
@@ -283,10 +287,33 @@ impl Forward {
             gel,
             n: rs.len(),
             radius_mm: indenter_r_mm,
+            indenter_e_mpa,
+            tabulated: OnceLock::new(),
             ind_normal,
             ind_torsion,
             recent: Mutex::new(VecDeque::with_capacity(RECENT_MODELS)),
         })
+    }
+
+    /// The indenter's Young's modulus, MPa.
+    pub fn indenter_e_mpa(&self) -> f64 {
+        self.indenter_e_mpa
+    }
+
+    /// The indenter's radius, mm.
+    pub fn indenter_radius_mm(&self) -> f64 {
+        self.radius_mm
+    }
+
+    /// The gel's surface nodes the indenter can touch.
+    pub fn surface_nodes(&self) -> usize {
+        self.n
+    }
+
+    /// This rig's frictionless law tabulated in its dimensionless groups
+    /// ([`TabulatedLaw`]), built on first use and kept with the model.
+    pub fn tabulated(&self) -> Result<Arc<TabulatedLaw>, FemError> {
+        self.tabulated.get_or_init(|| TabulatedLaw::build(self).map(Arc::new)).clone()
     }
 
     /// [`Forward::model`], shared with the last few callers that asked for

@@ -21,6 +21,7 @@ pub mod forward;
 pub mod hyper;
 pub mod mesh;
 mod quad;
+pub mod tabulated;
 pub mod torsion;
 
 pub use contact::{ContactState, TwoBodyContact};

@@ -150,13 +150,7 @@ impl LayeredBase {
         } else {
             None
         };
-        Ok(Arc::new(FeLaw {
-            model: self.forward.model(e1_mpa, nu1),
-            friction: friction.unwrap_or(f64::INFINITY),
-            table,
-            indenter_r_mm: self.indenter_r_mm,
-            solved: Mutex::new(HashMap::new()),
-        }))
+        Ok(Arc::new(FeLaw::new(self.forward.clone(), e1_mpa, nu1, friction.unwrap_or(f64::INFINITY), table)?))
     }
 
     /// Add the friction correction at (E1, nu1, z0, friction) to readings of
@@ -186,11 +180,20 @@ impl LayeredBase {
 }
 
 /// One parameter set of the FE layer model as a contact law: the
-/// frictionless press (each approach solved once and kept), the twist
-/// limited by the fit's friction, and at large strain the tabulated ratios
-/// of the neo-Hookean reference at each approach.
+/// frictionless press and the twist limited by the fit's friction, read off
+/// the rig's tabulated law (docs/fem.md, "The tabulated law") and solved on
+/// the FE model where the table ends (each such approach solved once and
+/// kept); at large strain the tabulated ratios of the neo-Hookean reference
+/// at each approach. The fit's friction correction, added per sample
+/// (`LayeredBase::correct`), is what friction adds to it.
 struct FeLaw {
-    model: fem::forward::Model,
+    forward: Arc<fem::forward::Forward>,
+    e1_mpa: f64,
+    nu1: f64,
+    /// The tabulated law at this parameter set; `None` off the table's materials.
+    tabulated: Option<fem::tabulated::LawAt>,
+    /// The FE model at this parameter set, built when the table first ends.
+    model: std::sync::OnceLock<fem::forward::Model>,
     friction: f64,
     /// The large-strain table's interpolation at the law's materials (taken
     /// once: the groups other than the approach are the law's).
@@ -199,8 +202,8 @@ struct FeLaw {
     solved: Mutex<HashMap<u64, Arc<Solved>>>,
 }
 
-/// One approach of [`FeLaw`], solved once: the state, its contact radius and
-/// what its twists share (prepared on the first twist).
+/// One approach of [`FeLaw`] solved on the FE model, once: the state, its
+/// contact radius and what its twists share (prepared on the first twist).
 struct Solved {
     state: fem::ContactState,
     radius_mm: f64,
@@ -214,13 +217,39 @@ impl std::fmt::Debug for FeLaw {
 }
 
 impl FeLaw {
+    fn new(
+        forward: Arc<fem::forward::Forward>,
+        e1_mpa: f64,
+        nu1: f64,
+        friction: f64,
+        table: Option<fem::hyper::AtGroups<'static>>,
+    ) -> Result<Self, FitError> {
+        let tabulated = forward.tabulated()?.at(e1_mpa, nu1);
+        let indenter_r_mm = forward.indenter_radius_mm();
+        Ok(FeLaw {
+            forward,
+            e1_mpa,
+            nu1,
+            tabulated,
+            model: std::sync::OnceLock::new(),
+            friction,
+            table,
+            indenter_r_mm,
+            solved: Mutex::new(HashMap::new()),
+        })
+    }
+
+    fn model(&self) -> &fem::forward::Model {
+        self.model.get_or_init(|| self.forward.model(self.e1_mpa, self.nu1))
+    }
+
     fn state(&self, delta_mm: f64) -> Result<Arc<Solved>, String> {
         let key = delta_mm.to_bits();
         if let Some(st) = fem::lock_cache(&self.solved).get(&key).cloned() {
             return Ok(st);
         }
-        let state = self.model.normal(delta_mm).map_err(|e| e.to_string())?;
-        let radius_mm = if state.force_n > 0.0 { self.model.contact_radius_mm(&state) } else { 0.0 };
+        let state = self.model().normal(delta_mm).map_err(|e| e.to_string())?;
+        let radius_mm = if state.force_n > 0.0 { self.model().contact_radius_mm(&state) } else { 0.0 };
         let solved = Arc::new(Solved { state, radius_mm, twist: std::sync::OnceLock::new() });
         fem::lock_cache(&self.solved).insert(key, solved.clone());
         Ok(solved)
@@ -238,25 +267,44 @@ impl FeLaw {
             at.frictional_twist_ratio(delta_mm.max(0.0) / self.indenter_r_mm, twist_deg, self.friction).ratio
         })
     }
+
+    /// The linear press at `delta_mm`: (gamma1, force, contact radius).
+    fn press(&self, delta_mm: f64) -> Result<(f64, f64, f64), String> {
+        if delta_mm <= 0.0 {
+            return Ok((0.0, 0.0, 0.0));
+        }
+        let read = self
+            .tabulated
+            .as_ref()
+            .and_then(|t| Some((t.gamma1_mm(delta_mm)?, t.force_n(delta_mm)?, t.contact_radius_mm(delta_mm)?)));
+        match read {
+            Some(v) => Ok(v),
+            None => self.state(delta_mm).map(|s| (s.state.gamma1_mm, s.state.force_n, s.radius_mm)),
+        }
+    }
 }
 
 impl ContactLaw for FeLaw {
     fn normal(&self, delta_mm: f64) -> Result<LawState, String> {
-        let solved = self.state(delta_mm)?;
-        let gamma1_mm = solved.state.gamma1_mm * self.gamma1_ratio(delta_mm);
-        Ok(LawState {
-            gamma1_mm,
-            gamma2_mm: delta_mm - gamma1_mm,
-            force_n: solved.state.force_n,
-            contact_radius_mm: solved.radius_mm,
-        })
+        let (gamma1_mm, force_n, contact_radius_mm) = self.press(delta_mm)?;
+        let gamma1_mm = gamma1_mm * self.gamma1_ratio(delta_mm);
+        Ok(LawState { gamma1_mm, gamma2_mm: delta_mm - gamma1_mm, force_n, contact_radius_mm })
     }
 
     fn theta1_deg(&self, delta_mm: f64, twist_deg: f64) -> Result<f64, String> {
-        let solved = self.state(delta_mm)?;
+        if delta_mm <= 0.0 {
+            return Ok(0.0);
+        }
         let twist = twist_deg.to_radians();
-        let setup = solved.twist.get_or_init(|| self.model.twist_setup(&solved.state, self.friction));
-        let t = setup.as_ref().and_then(|s| self.model.theta1_rad_at(s, twist.abs())).map_or(0.0, |t| t.to_degrees());
+        let read = self.tabulated.as_ref().and_then(|t| t.theta1_rad(delta_mm, twist.abs(), self.friction));
+        let t = match read {
+            Some(t) => t.to_degrees(),
+            None => {
+                let solved = self.state(delta_mm)?;
+                let setup = solved.twist.get_or_init(|| self.model().twist_setup(&solved.state, self.friction));
+                setup.as_ref().and_then(|s| self.model().theta1_rad_at(s, twist.abs())).map_or(0.0, f64::to_degrees)
+            }
+        };
         Ok(t * self.twist_ratio(delta_mm, twist_deg) * twist.signum())
     }
 }
@@ -412,13 +460,7 @@ mod tests {
         let indenter = sim::physics::Body::new(1.1, 0.39, 5.0);
         let path = frictional_truth(layer, indenter, 0.33, 0.39, 0.4).expect("the layer simulates");
         let forward = fem::forward::Forward::cached(5.0, 1.1, 0.39, 5.0).expect("the layer model");
-        let frictionless = FeLaw {
-            model: forward.model(0.33, 0.39),
-            friction: 0.4,
-            table: None,
-            indenter_r_mm: 5.0,
-            solved: Mutex::new(HashMap::new()),
-        };
+        let frictionless = FeLaw::new(forward, 0.33, 0.39, 0.4, None).expect("the tabulated law");
         for (name, law) in [("frictional path", path.as_ref()), ("frictionless", &frictionless as &dyn ContactLaw)] {
             let a2: Vec<f64> =
                 (10..=600).map(|k| law.normal(0.002 * k as f64).expect("in range").contact_radius_mm.powi(2)).collect();

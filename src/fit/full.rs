@@ -56,12 +56,14 @@ pub struct Prediction {
     pub beta: f64,
 }
 
-/// Forward-predict every sample of `rec` with the given parameters.
+/// Forward-predict every sample of `rec` with the given parameters (with a
+/// declared layer: the tabulated frictionless FE law plus what friction adds
+/// to the FE model there; docs/fem.md, "The tabulated law").
 pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitError> {
-    predict_with(rec, p, None)
+    predict_with(rec, p, friction_at(rec, p)?.as_ref())
 }
 
-use super::layer_model::{Correction, NormalContact, friction_correction, predict_fe};
+use super::layer_model::{Correction, friction_at, friction_correction, predict_fe};
 
 /// [`predict`], or with a declared layer and `correction`, the fast form of the
 /// FE model: each depth solved frictionless on its own, plus the correction.
@@ -72,10 +74,14 @@ fn predict_with(
 ) -> Result<Vec<Prediction>, FitError> {
     if let Some(layer) = fe_layer(rec) {
         return match correction {
-            None => predict_fe(rec, p, layer, NormalContact::Frictional),
-            Some(c) => predict_fe(rec, p, layer, NormalContact::Frictionless).map(|mut pred| {
+            None => predict(rec, p),
+            Some(c) => predict_fe(rec, p, layer).map(|mut pred| {
+                let r2 = rec.meta.indenter.r_mm;
                 for (q, (dg, dt)) in pred.iter_mut().zip(c.at(p)) {
+                    // The gel's deflection grows by what friction adds, the
+                    // indenter's deformation (beta) shrinks by it.
                     q.gamma1_mm += dg;
+                    q.beta -= dg / r2;
                     q.theta1_deg += dt;
                 }
                 pred
@@ -382,7 +388,7 @@ fn weighted_residuals(
 }
 
 /// Fit passes at most (two without a layer: nominal, then re-weighted noise).
-const MAX_PASSES: usize = 5;
+const MAX_PASSES: usize = 7;
 
 pub fn fit_full(rec: &Recording, opts: &FullOptions, start: ModelParams) -> Result<FullFit, FitError> {
     fit_full_within(rec, opts, start, MAX_PASSES)
@@ -402,7 +408,7 @@ fn fit_full_within(
     // Dead-band rows carry no noise: count only noisy readings as observations.
     let n_obs = n_normal_live + rec.phase(Phase::Torsion).filter(|s| s.gamma1_mm != 0.0).count() + n_torsion;
     let cov = covariance(rec, &passes, n_obs, &mut warnings)?;
-    let pred = predict(rec, &params)?;
+    let pred = predict_with(rec, &params, passes.correction.as_ref())?;
     let r = residuals(rec, &pred);
     warnings.extend(systematic_warning(&r));
     warnings.extend(super::large_strain::warning(rec, &params));
@@ -557,6 +563,10 @@ fn unsettled_warning(params: &ModelParams, moved: [f64; 2], se: [f64; 2], passes
 /// half-space model is smooth and keeps the tolerances alone).
 pub const FIT_WITHIN_SE: f64 = 0.05;
 
+/// How near, in standard errors of E1 and nu1, the passes must settle to
+/// where the friction correction's derivatives were taken for them to stand.
+const SLOPES_NEAR_SE: f64 = 0.25;
+
 /// Pass 1 with nominal noise, pass 2 re-weighted by the noise floor the data
 /// show; with the FE layer model, more passes while the friction correction
 /// still moves the estimate.
@@ -567,10 +577,17 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams, max_passe
     let mut sigma = Sigmas::new(&sd, rec.samples.len(), sg, st);
     let mut params = start;
     let mut res = None;
-    let mut correction = None;
+    // On a layer the first pass runs on the tabulated fast form alone: the
+    // friction correction's frictional paths are followed from where it
+    // ends, not from a start that may lie far from the optimum.
+    let mut correction = fe_layer(rec).map(|_| Correction::none(rec, &params));
     let mut unsettled = None;
     for pass in 0..max_passes {
-        correction = friction_correction(rec, &params, correction.as_ref())?;
+        // Taken again where the last pass ended (after the first pass it
+        // was taken there already, with its derivatives).
+        if pass >= 2 {
+            correction = friction_correction(rec, &params, correction.as_ref())?;
+        }
         let x0 = to_internal(&params);
         let f = |x: &[f64], r: &mut Vec<f64>| {
             weighted_residuals(rec, &from_internal(x, &start), correction.as_ref(), &sigma, r)
@@ -586,14 +603,47 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams, max_passe
         params = from_internal(&out.x, &start);
         res = Some(out);
         let moved = [params.e1_mpa / before.e1_mpa - 1.0, params.nu1 - before.nu1];
-        let settled = moved[0].abs() < 1e-4 && moved[1].abs() < 1e-4;
-        if pass >= 1 && (correction.is_none() || settled) {
+        // Settled once a pass moves the estimate by less than 1e-4, or by
+        // less than the searches' own stopping distance in standard errors:
+        // the correction's frictional paths step as nodes stick and slip,
+        // and the passes then move about their fixed point by hundredths of
+        // a standard error.
+        let spread = match correction.as_ref().is_some_and(Correction::follows_friction) {
+            true => pass_spread(rec, &params, correction.as_ref(), &sigma),
+            false => None,
+        };
+        let within = |d: [f64; 2], tol: f64| {
+            spread.is_some_and(|se| d[0].abs() * params.e1_mpa < tol * se[0] && d[1].abs() < tol * se[1])
+        };
+        let settled = (moved[0].abs() < 1e-4 && moved[1].abs() < 1e-4) || (pass >= 1 && within(moved, FIT_WITHIN_SE));
+        // A pass that settled far from where the correction's derivatives
+        // were taken stands on derivatives of another place: they are taken
+        // again here and the passes go on (the frictional paths step as
+        // nodes stick and slip, and finite differences over them are only
+        // good near where they were taken).
+        let far = correction
+            .as_ref()
+            .is_some_and(|c| c.follows_friction() && !within(c.slopes_apart(&params), SLOPES_NEAR_SE));
+        if settled && far && pass + 1 < max_passes {
+            correction = friction_correction(rec, &params, None)?;
+            unsettled = Some(moved);
+            continue;
+        }
+        if pass >= 1 && (correction.as_ref().is_none_or(|c| !c.follows_friction()) || settled) {
             unsettled = None;
             break;
         }
         unsettled = Some(moved);
         if pass == 0 {
-            let pred = predict(rec, &params)?;
+            // The noise floors of the residuals where the first pass ended:
+            // of the FE model itself there, which on a layer is the fast
+            // form plus its friction correction taken there.
+            // What friction adds there, without its derivatives yet: they
+            // are taken where the next pass ends, closer to the optimum.
+            if fe_layer(rec).is_some() {
+                correction = friction_at(rec, &params)?;
+            }
+            let pred = predict_with(rec, &params, correction.as_ref())?;
             let r = residuals(rec, &pred);
             // Channels weighted by recorded standard errors keep them.
             if opts.gamma1_sigma_mm.is_none() && sd.gamma1_mm.is_none() {
@@ -709,18 +759,27 @@ type AtOptimum = (DMatrix<f64>, Vec<f64>, Option<Correction>);
 /// The weighted residuals at the optimum and their central-difference
 /// Jacobian in the physical parameters (E1, nu1, z0[, friction]).
 fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<AtOptimum, FitError> {
-    let (params, sig) = (&passes.params, &passes.sigma);
+    // The last pass's correction: the passes stopped close to where it was
+    // taken, where its linear form is what friction adds to the model there.
+    let correction = passes.correction.clone();
+    let (jac, r0) = jacobian_at(rec, &passes.params, correction.as_ref(), &passes.sigma)?;
+    Ok((jac, r0, correction))
+}
+
+/// The weighted residuals at `params` and their central-difference Jacobian
+/// in the physical parameters (E1, nu1, z0[, friction]) on the model the
+/// passes iterate on (with `correction`).
+fn jacobian_at(
+    rec: &Recording,
+    params: &ModelParams,
+    correction: Option<&Correction>,
+    sig: &Sigmas,
+) -> Result<(DMatrix<f64>, Vec<f64>), FitError> {
     let mut phys = vec![params.e1_mpa, params.nu1, params.contact_offset_mm];
     phys.extend(params.contact_friction);
     let np = phys.len();
-    // Taken again at the optimum; its derivatives are the last pass's when
-    // the optimum is near where they were taken (`friction_correction`).
-    let correction = match &passes.correction {
-        Some(last) => friction_correction(rec, params, Some(last))?,
-        None => None,
-    };
     let mut r0 = Vec::new();
-    weighted_residuals(rec, params, correction.as_ref(), sig, &mut r0);
+    weighted_residuals(rec, params, correction, sig, &mut r0);
     let m = r0.len();
     let mut jac = DMatrix::zeros(m, np);
     let steps = [1e-5 * params.e1_mpa, 1e-5, 1e-6, 1e-4 * params.contact_friction.unwrap_or(1.0)];
@@ -730,8 +789,8 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<AtOptimum, FitE
         hi[j] += steps[j];
         lo[j] -= steps[j];
         let (mut rp, mut rm) = (Vec::new(), Vec::new());
-        let up = weighted_residuals(rec, &from_physical(&hi, params), correction.as_ref(), sig, &mut rp);
-        let down = weighted_residuals(rec, &from_physical(&lo, params), correction.as_ref(), sig, &mut rm);
+        let up = weighted_residuals(rec, &from_physical(&hi, params), correction, sig, &mut rp);
+        let down = weighted_residuals(rec, &from_physical(&lo, params), correction, sig, &mut rm);
         (up, rp, down, rm)
     };
     // Each parameter's probes are independent: the FE layer model's on the
@@ -754,7 +813,25 @@ fn physical_jacobian(rec: &Recording, passes: &Passes) -> Result<AtOptimum, FitE
             };
         }
     }
-    Ok((jac, r0, correction))
+    Ok((jac, r0))
+}
+
+/// The standard errors of E1 and nu1 at `params` from the noise the
+/// passes weigh by (scaled by the residuals as the covariance is), to judge
+/// a pass's move by; `None` where they cannot be had.
+fn pass_spread(
+    rec: &Recording,
+    params: &ModelParams,
+    correction: Option<&Correction>,
+    sig: &Sigmas,
+) -> Option<[f64; 2]> {
+    let (jac, r0) = jacobian_at(rec, params, correction, sig).ok()?;
+    let dof = r0.len().saturating_sub(jac.ncols()).max(1) as f64;
+    let chi2_dof = r0.iter().map(|v| v * v).sum::<f64>() / dof;
+    let s2 = if sig.recorded { chi2_dof.max(1.0) } else { chi2_dof };
+    let cov = (jac.transpose() * &jac).try_inverse()? * s2;
+    let se = [cov[(0, 0)].sqrt(), cov[(1, 1)].sqrt()];
+    se.iter().all(|v| v.is_finite() && *v > 0.0).then_some(se)
 }
 
 /// Box's second-order bias of the layer fit's optimum (docs/physics.md, "The

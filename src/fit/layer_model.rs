@@ -1,10 +1,12 @@
-//! The declared layer's forward model in the fit (docs/physics.md,
-//! "Finite-element reference" and "Large strain"): the project's FE reference
-//! of a hemisphere on a bonded gel, with Coulomb friction in both sweeps, its
-//! fast frictionless form plus a deferred friction correction, and at large
-//! strain the tabulated ratios of the neo-Hookean reference (its press, its stuck
-//! twist and its slip) on the
-//! frictionless press (friction then acts in the twist only).
+//! The declared layer's forward model in the fit (docs/fem.md, "The
+//! tabulated law"; docs/physics.md, "Finite-element reference" and "Large
+//! strain"): the project's FE reference of a hemisphere on a gel layer, with
+//! Coulomb friction in both sweeps — its frictionless press and twist read
+//! off the rig's tabulated law, plus what friction in the press adds, taken
+//! on the FE model as a deferred correction — and at large strain the
+//! tabulated ratios of the neo-Hookean reference (its press, its stuck twist
+//! and its slip) on the frictionless press (friction then acts in the twist
+//! only).
 
 use std::collections::HashMap;
 use std::collections::hash_map::Entry;
@@ -16,18 +18,51 @@ use sim::recording::{Phase, Recording};
 use super::FitError;
 use super::full::{ModelParams, Prediction, fe_layer};
 
-/// Per-sample (gamma1 mm, theta1 deg) to add to the FE model's frictionless
-/// normal state to stand for the frictional one (a deferred correction: see
+/// Per-sample (gamma1 mm, theta1 deg) to add to the tabulated frictionless
+/// law for what friction in the press adds (a deferred correction: see
 /// [`friction_correction`]), linear in the parameters about where it was taken.
+#[derive(Debug, Clone)]
 pub(super) struct Correction {
     /// E1, nu1, z0 and friction where it was taken.
     at: Vec<f64>,
     base: Vec<(f64, f64)>,
-    /// Its derivative in each of those parameters, per sample.
+    /// Its derivative in each of those parameters, per sample (none: taken
+    /// at one point, or nothing to follow).
     slope: Vec<Vec<(f64, f64)>>,
+    /// Where those derivatives were taken (they are kept while the passes
+    /// stay near there).
+    slopes_from: Vec<f64>,
+    /// Whether it carries the press's friction (not at large strain, whose
+    /// press is frictionless).
+    press: bool,
 }
 
 impl Correction {
+    /// No correction, at `p`: the fast form alone (the fit's first pass on a
+    /// layer, before any frictional path is followed).
+    pub(super) fn none(rec: &Recording, p: &ModelParams) -> Self {
+        let at = physical(p);
+        Correction {
+            slopes_from: at.clone(),
+            at,
+            base: vec![(0.0, 0.0); rec.samples.len()],
+            slope: Vec::new(),
+            press: false,
+        }
+    }
+
+    /// Whether it carries the press's friction (and so is taken again
+    /// between passes): not at large strain, whose press is frictionless.
+    pub(super) fn follows_friction(&self) -> bool {
+        self.press
+    }
+
+    /// How far `p` lies from where the derivatives were taken: E1
+    /// (relative) and nu1.
+    pub(super) fn slopes_apart(&self, p: &ModelParams) -> [f64; 2] {
+        [p.e1_mpa / self.slopes_from[0] - 1.0, p.nu1 - self.slopes_from[1]]
+    }
+
     /// The correction at `p`, per sample.
     pub(super) fn at(&self, p: &ModelParams) -> impl Iterator<Item = (f64, f64)> + '_ {
         let mut moved: Vec<f64> = physical(p).iter().zip(&self.at).map(|(v, a)| v - a).collect();
@@ -61,28 +96,71 @@ fn physical(p: &ModelParams) -> Vec<f64> {
     v
 }
 
-/// The normal contact in the FE model: followed with Coulomb friction along the
-/// approach (the model itself), or frictionless with each depth solved on its
-/// own (its fast form, several times cheaper; see [`friction_correction`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) enum NormalContact {
-    Frictional,
-    Frictionless,
-}
-
-/// The layered contact from the project's own FE reference (docs/physics.md,
-/// "Finite-element reference"): a hemisphere held at its flat face on a bonded gel,
-/// with Coulomb friction between them in both sweeps (one coefficient).
-pub(super) fn predict_fe(
+/// The frictionless layer model read off the rig's tabulated law at every
+/// sample (docs/fem.md, "The tabulated law"); `None` when a sample lies
+/// outside the table (deeper than it reaches, or twisted further against the
+/// friction), for the caller to solve the FE model instead.
+fn predict_tabulated(
     rec: &Recording,
     p: &ModelParams,
     layer: Layer,
-    normal: NormalContact,
-) -> Result<Vec<Prediction>, FitError> {
+    fw: &fem::forward::Forward,
+) -> Result<Option<Vec<Prediction>>, FitError> {
+    let Some(at) = fw.tabulated()?.at(p.e1_mpa, p.nu1) else {
+        return Ok(None);
+    };
+    let ind = rec.meta.indenter;
+    let mu = p.contact_friction.unwrap_or(f64::INFINITY);
+    let strain = match p.large_strain {
+        true => {
+            Some(fem::hyper::LargeStrainTable::builtin()?.at_groups(&super::large_strain::groups(rec, p, layer, 0.0)))
+        }
+        false => None,
+    };
+    let mut out = Vec::with_capacity(rec.samples.len());
+    for s in &rec.samples {
+        let delta = s.stage_mm - p.contact_offset_mm;
+        let (gamma1_mm, theta1_deg) = if delta <= 0.0 {
+            (0.0, 0.0)
+        } else {
+            let Some(gamma1_mm) = at.gamma1_mm(delta) else {
+                return Ok(None);
+            };
+            let theta1_deg = match s.phase {
+                Phase::Normal => 0.0,
+                Phase::Torsion => match at.theta1_rad(delta, s.rot_deg.to_radians(), mu) {
+                    Some(t) => t.to_degrees(),
+                    None => return Ok(None),
+                },
+            };
+            (gamma1_mm, theta1_deg)
+        };
+        let (g1, t1) = match &strain {
+            Some(t) => {
+                let d = super::large_strain::groups(rec, p, layer, delta).delta_over_r2;
+                (t.gamma1_ratio(d).ratio, t.frictional_twist_ratio(d, s.rot_deg, mu).ratio)
+            }
+            None => (1.0, 1.0),
+        };
+        let gamma1_mm = gamma1_mm * g1;
+        out.push(Prediction { gamma1_mm, theta1_deg: theta1_deg * t1, beta: (delta - gamma1_mm) / ind.r_mm });
+    }
+    Ok(Some(out))
+}
+
+/// The frictionless press of the project's own FE layer model (docs/fem.md):
+/// a hemisphere held at its flat face on a gel layer, its twist limited by
+/// Coulomb friction, read off the rig's tabulated law, and solved on the FE
+/// model where a sample lies outside the table. What friction in the press
+/// adds to it: [`friction_correction`].
+pub(super) fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Result<Vec<Prediction>, FitError> {
     let ind = rec.meta.indenter;
     let fw = crate::layer::forward(&layer, ind.e_mpa, ind.nu, ind.r_mm)?;
     if !(p.e1_mpa.is_finite() && p.e1_mpa > 0.0 && (0.0..=0.5).contains(&p.nu1)) {
         return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", p.e1_mpa, p.nu1)));
+    }
+    if let Some(pred) = predict_tabulated(rec, p, layer, &fw)? {
+        return Ok(pred);
     }
     let model = fw.model_shared(p.e1_mpa, p.nu1);
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
@@ -90,28 +168,27 @@ pub(super) fn predict_fe(
     // At large strain the press is frictionless, as in the neo-Hookean
     // reference whose ratios scale it (a ratio taken between frictionless
     // presses applies to a frictionless press); friction acts in the twist.
-    let normal = if p.large_strain { NormalContact::Frictionless } else { normal };
-    let states: std::sync::Arc<Vec<fem::ContactState>> = match normal {
-        // The gel and the indenter grip each other while the stage presses (the
-        // same interface friction as in torsion), so the normal state depends on
-        // the path: it is followed through the recording's depths in small steps.
-        NormalContact::Frictional => {
-            let deepest = deltas.iter().copied().fold(0.0, f64::max);
-            model.normal_path_memo(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?
-        }
-        NormalContact::Frictionless => {
-            let mut solved: HashMap<u64, fem::ContactState> = HashMap::new();
-            let mut out = Vec::with_capacity(deltas.len());
-            for &delta in &deltas {
-                let st = match solved.entry(delta.to_bits()) {
-                    Entry::Occupied(e) => e.into_mut(),
-                    Entry::Vacant(e) => e.insert(model.normal_memo(delta)?),
-                };
-                out.push(st.clone());
+    // Each sample's gamma1, and the state at each depth the torsion sweep twists.
+    let mut twist_states: HashMap<u64, fem::ContactState> = HashMap::new();
+    let mut solved: HashMap<u64, f64> = HashMap::new();
+    let mut gamma1 = Vec::with_capacity(deltas.len());
+    for (s, &delta) in rec.samples.iter().zip(&deltas) {
+        let g = match solved.entry(delta.to_bits()) {
+            Entry::Occupied(e) => *e.get(),
+            Entry::Vacant(e) => {
+                let st = model.normal_memo(delta)?;
+                let g = *e.insert(st.gamma1_mm);
+                if s.phase == Phase::Torsion {
+                    twist_states.insert(delta.to_bits(), st);
+                }
+                g
             }
-            std::sync::Arc::new(out)
+        };
+        if s.phase == Phase::Torsion && !twist_states.contains_key(&delta.to_bits()) {
+            twist_states.insert(delta.to_bits(), model.normal_memo(delta)?);
         }
-    };
+        gamma1.push(g);
+    }
     // The large-strain ratios at this fit's materials, read at each sample's approach.
     let table = match p.large_strain {
         true => {
@@ -126,18 +203,17 @@ pub(super) fn predict_fe(
     // each twist of a depth is solved once, the depth's twists in one
     // sweep (the model has no memory of the twist's path: every twist is
     // loaded monotonically from zero).
-    let mut twists: HashMap<u64, (usize, Vec<f64>)> = HashMap::new();
-    for (i, (s, &delta)) in rec.samples.iter().zip(&deltas).enumerate() {
+    let mut twists: HashMap<u64, Vec<f64>> = HashMap::new();
+    for (s, &delta) in rec.samples.iter().zip(&deltas) {
         if s.phase == Phase::Torsion {
-            let (_, at) = twists.entry(delta.to_bits()).or_insert((i, Vec::new()));
-            at.push(s.rot_deg.to_radians().abs());
+            twists.entry(delta.to_bits()).or_default().push(s.rot_deg.to_radians().abs());
         }
     }
     let mut twisted: HashMap<(u64, u64), f64> = HashMap::new();
-    for (delta, (first, mut at)) in twists {
+    for (delta, mut at) in twists {
         at.sort_by(f64::total_cmp);
         at.dedup();
-        let theta1 = match model.twist_setup(&states[first], mu) {
+        let theta1 = match twist_states.get(&delta).and_then(|st| model.twist_setup(st, mu)) {
             Some(setup) => model.theta1_rad_sweep(&setup, &at),
             None => vec![None; at.len()],
         };
@@ -145,7 +221,7 @@ pub(super) fn predict_fe(
             twisted.insert((delta, t.to_bits()), th.map_or(0.0, f64::to_degrees));
         }
     }
-    for ((s, st), &delta) in rec.samples.iter().zip(states.iter()).zip(&deltas) {
+    for ((s, g), &delta) in rec.samples.iter().zip(&gamma1).zip(&deltas) {
         let theta1_deg = match s.phase {
             Phase::Normal => 0.0,
             Phase::Torsion => {
@@ -160,47 +236,50 @@ pub(super) fn predict_fe(
             }
             None => (1.0, 1.0),
         };
-        let gamma1_mm = st.gamma1_mm * g1;
+        let gamma1_mm = g * g1;
         out.push(Prediction { gamma1_mm, theta1_deg: theta1_deg * t1, beta: (delta - gamma1_mm) / ind.r_mm });
     }
     Ok(out)
 }
 
-/// The frictional FE model minus its fast frictionless form at `p`, per sample,
-/// with its derivatives in the parameters: the fit iterates on the fast form
-/// plus this difference and refreshes it between passes. The derivatives
-/// matter: friction acts on the data mostly through the difference, so with a
-/// frozen difference the passes stall where the fast form alone is flat (on
-/// our own noisy frictional recordings E1 came out 1-2 % low, the friction
-/// 0.51 for 0.4; docs/physics.md). `None` without an FE layer.
+/// What friction in the press adds at `p` ([`friction_added`]), per sample,
+/// with its derivatives in the parameters: the fit iterates on the tabulated
+/// frictionless law plus this and refreshes it between passes. The
+/// derivatives matter: friction acts on the data mostly through it, so with
+/// a frozen correction the passes stall where the frictionless law alone is
+/// flat (on our own noisy frictional recordings E1 came out 1-2 % low, the
+/// friction 0.51 for 0.4; docs/physics.md). `None` without an FE layer; at
+/// large strain (a frictionless press) a correction of nothing.
 ///
 /// The derivatives change slowly: a correction taken again near `previous`
-/// (E1 within 0.5 %, nu1 within 0.005, friction within 10 %) keeps its derivatives and refreshes only the difference itself (the
-/// passes' cost is then one frictional path each, not five).
+/// (E1 within 0.5 %, nu1 within 0.005, friction within 10 %) keeps its
+/// derivatives and refreshes only the difference itself (the passes' cost is
+/// then one frictional path each, not five).
 pub(super) fn friction_correction(
     rec: &Recording,
     p: &ModelParams,
     previous: Option<&Correction>,
 ) -> Result<Option<Correction>, FitError> {
-    // Without a layer there is nothing to correct; at large strain the press
-    // is frictionless (see `predict_fe`), so the fast form is the model.
-    let Some(layer) = fe_layer(rec).filter(|_| !p.large_strain) else {
+    // Without a layer there is nothing to correct.
+    let Some(layer) = fe_layer(rec) else {
         return Ok(None);
     };
-    let diff = |q: &ModelParams| -> Result<Vec<(f64, f64)>, FitError> {
-        let exact = predict_fe(rec, q, layer, NormalContact::Frictional)?;
-        let fast = predict_fe(rec, q, layer, NormalContact::Frictionless)?;
-        Ok(exact.iter().zip(&fast).map(|(e, f)| (e.gamma1_mm - f.gamma1_mm, e.theta1_deg - f.theta1_deg)).collect())
-    };
     let at = physical(p);
+    // At large strain the press is frictionless (see `predict_fe`): friction
+    // acts in the twist alone, which the tabulated form carries.
+    if p.large_strain {
+        return Ok(Some(Correction::none(rec, p)));
+    }
     let near = |c: &&Correction| {
         c.at.len() == at.len()
+            && c.slope.len() == at.len()
             && (c.at[0] / at[0] - 1.0).abs() < 5e-3
             && (c.at[1] - at[1]).abs() < 5e-3
             && c.at.get(3).zip(at.get(3)).is_none_or(|(a, b)| (a / b - 1.0).abs() < 0.1)
     };
     if let Some(prev) = previous.filter(near) {
-        return Ok(Some(Correction { at, base: diff(p)?, slope: prev.slope.clone() }));
+        let (slope, slopes_from) = (prev.slope.clone(), prev.slopes_from.clone());
+        return Ok(Some(Correction { at, base: friction_added(rec, p, layer)?, slope, slopes_from, press: true }));
     }
     // The difference at `p` and one step in each parameter: independent
     // frictional paths, followed on the cores there are (the same numbers as
@@ -228,13 +307,97 @@ pub(super) fn friction_correction(
             }
         }))
         .collect();
-    let mut diffs = points.par_iter().map(diff).collect::<Result<Vec<_>, FitError>>()?.into_iter();
+    let mut diffs =
+        points.par_iter().map(|q| friction_added(rec, q, layer)).collect::<Result<Vec<_>, FitError>>()?.into_iter();
     let base = diffs.next().ok_or_else(|| FitError::Model("no friction correction was taken".into()))?;
     let slope = diffs
         .zip(&steps)
         .map(|(moved, &step)| moved.iter().zip(&base).map(|(m, b)| ((m.0 - b.0) / step, (m.1 - b.1) / step)).collect())
         .collect();
-    Ok(Some(Correction { at, base, slope }))
+    Ok(Some(Correction { slopes_from: at.clone(), at, base, slope, press: true }))
+}
+
+/// What friction adds to the FE layer model at `q`, per sample: the
+/// frictional press and the twist of its state, less the frictionless ones,
+/// both solved on the same mesh at each sample's approach (their
+/// node-to-node steps cancel; docs/fem.md, "The tabulated law"). The layer
+/// model is the tabulated frictionless law plus this. The gel and the
+/// indenter grip each other while the stage presses, so the frictional
+/// state depends on the path: it is followed from first touch through the
+/// recording's depths in steps of at most a sixtieth of the deepest.
+fn friction_added(rec: &Recording, q: &ModelParams, layer: Layer) -> Result<Vec<(f64, f64)>, FitError> {
+    let ind = rec.meta.indenter;
+    let fw = crate::layer::forward(&layer, ind.e_mpa, ind.nu, ind.r_mm)?;
+    if !(q.e1_mpa.is_finite() && q.e1_mpa > 0.0 && (0.0..=0.5).contains(&q.nu1)) {
+        return Err(FitError::Model(format!("E1 {} MPa, nu1 {} outside the model", q.e1_mpa, q.nu1)));
+    }
+    let model = fw.model_shared(q.e1_mpa, q.nu1);
+    let mu = q.contact_friction.unwrap_or(f64::INFINITY);
+    let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - q.contact_offset_mm).collect();
+    let deepest = deltas.iter().copied().fold(0.0, f64::max);
+    let path = model.normal_path_memo(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?;
+    // The twists of each depth the torsion sweep holds, on both states.
+    let mut twists: HashMap<u64, (usize, Vec<f64>)> = HashMap::new();
+    for (i, (s, &d)) in rec.samples.iter().zip(&deltas).enumerate() {
+        if s.phase == Phase::Torsion {
+            twists.entry(d.to_bits()).or_insert((i, Vec::new())).1.push(s.rot_deg.to_radians().abs());
+        }
+    }
+    let mut plain: HashMap<u64, fem::ContactState> = HashMap::new();
+    for &d in &deltas {
+        if let Entry::Vacant(e) = plain.entry(d.to_bits()) {
+            e.insert(model.normal_memo(d)?);
+        }
+    }
+    let mut twist_added: HashMap<(u64, u64), f64> = HashMap::new();
+    for (d, (first, mut at)) in twists {
+        at.sort_by(f64::total_cmp);
+        at.dedup();
+        let sweep = |st: &fem::ContactState| match model.twist_setup(st, mu) {
+            Some(setup) => model.theta1_rad_sweep(&setup, &at),
+            None => vec![None; at.len()],
+        };
+        for ((t, a), b) in at.iter().zip(sweep(&path[first])).zip(sweep(&plain[&d])) {
+            twist_added.insert((d, t.to_bits()), (a.unwrap_or(0.0) - b.unwrap_or(0.0)).to_degrees());
+        }
+    }
+    Ok(rec
+        .samples
+        .iter()
+        .zip(&deltas)
+        .zip(path.iter())
+        .map(|((s, &d), pressed)| {
+            let gamma1 = pressed.gamma1_mm - plain[&d.to_bits()].gamma1_mm;
+            let theta1 = match s.phase {
+                Phase::Normal => 0.0,
+                Phase::Torsion => {
+                    let twist = s.rot_deg.to_radians();
+                    twist_added.get(&(d.to_bits(), twist.abs().to_bits())).copied().unwrap_or(0.0) * twist.signum()
+                }
+            };
+            (gamma1, theta1)
+        })
+        .collect())
+}
+
+/// The friction correction at `p` without its derivatives (what the layer
+/// model predicts with at one point: the tabulated form plus it), `None`
+/// without a layer.
+pub(super) fn friction_at(rec: &Recording, p: &ModelParams) -> Result<Option<Correction>, FitError> {
+    let Some(layer) = fe_layer(rec) else {
+        return Ok(None);
+    };
+    if p.large_strain {
+        return Ok(Some(Correction::none(rec, p)));
+    }
+    let at = physical(p);
+    Ok(Some(Correction {
+        slopes_from: at.clone(),
+        at,
+        base: friction_added(rec, p, layer)?,
+        slope: Vec::new(),
+        press: true,
+    }))
 }
 
 /// Load steps from first touch to the deepest sample in the frictional normal
