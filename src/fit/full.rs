@@ -65,8 +65,9 @@ pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitE
 
 use super::layer_model::{Correction, friction_at, friction_correction, predict_fe};
 
-/// [`predict`], or with a declared layer and `correction`, the fast form of the
-/// FE model: each depth solved frictionless on its own, plus the correction.
+/// [`predict`], or with a declared layer and `correction`, the tabulated
+/// frictionless law plus the correction as it stands at `p` (linear about
+/// where it was taken).
 fn predict_with(
     rec: &Recording,
     p: &ModelParams,
@@ -635,11 +636,10 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams, max_passe
         }
         unsettled = Some(moved);
         if pass == 0 {
-            // The noise floors of the residuals where the first pass ended:
-            // of the FE model itself there, which on a layer is the fast
-            // form plus its friction correction taken there.
-            // What friction adds there, without its derivatives yet: they
-            // are taken where the next pass ends, closer to the optimum.
+            // The noise floors of the residuals where the first pass ended,
+            // of the whole model there: on a layer the table plus what
+            // friction adds there, taken without its derivatives (they are
+            // taken where the next pass ends, closer to the optimum).
             if fe_layer(rec).is_some() {
                 correction = friction_at(rec, &params)?;
             }

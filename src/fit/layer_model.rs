@@ -109,14 +109,8 @@ fn predict_tabulated(
     let Some(at) = fw.tabulated()?.at(p.e1_mpa, p.nu1) else {
         return Ok(None);
     };
-    let ind = rec.meta.indenter;
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
-    let strain = match p.large_strain {
-        true => {
-            Some(fem::hyper::LargeStrainTable::builtin()?.at_groups(&super::large_strain::groups(rec, p, layer, 0.0)))
-        }
-        false => None,
-    };
+    let strain = strain_at(rec, p, layer)?;
     let mut out = Vec::with_capacity(rec.samples.len());
     for s in &rec.samples {
         let delta = s.stage_mm - p.contact_offset_mm;
@@ -135,15 +129,7 @@ fn predict_tabulated(
             };
             (gamma1_mm, theta1_deg)
         };
-        let (g1, t1) = match &strain {
-            Some(t) => {
-                let d = super::large_strain::groups(rec, p, layer, delta).delta_over_r2;
-                (t.gamma1_ratio(d).ratio, t.frictional_twist_ratio(d, s.rot_deg, mu).ratio)
-            }
-            None => (1.0, 1.0),
-        };
-        let gamma1_mm = gamma1_mm * g1;
-        out.push(Prediction { gamma1_mm, theta1_deg: theta1_deg * t1, beta: (delta - gamma1_mm) / ind.r_mm });
+        out.push(strained(rec, p, layer, strain.as_ref(), s, delta, gamma1_mm, theta1_deg));
     }
     Ok(Some(out))
 }
@@ -190,12 +176,7 @@ pub(super) fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Resu
         gamma1.push(g);
     }
     // The large-strain ratios at this fit's materials, read at each sample's approach.
-    let table = match p.large_strain {
-        true => {
-            Some(fem::hyper::LargeStrainTable::builtin()?.at_groups(&super::large_strain::groups(rec, p, layer, 0.0)))
-        }
-        false => None,
-    };
+    let strain = strain_at(rec, p, layer)?;
     let mut out = Vec::with_capacity(rec.samples.len());
     // The torsion sweep twists the state at one depth many times: what its
     // twists share is prepared once per depth.
@@ -229,17 +210,51 @@ pub(super) fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Resu
                 twisted.get(&(delta.to_bits(), twist.abs().to_bits())).copied().unwrap_or(0.0) * twist.signum()
             }
         };
-        let (g1, t1) = match &table {
-            Some(t) => {
-                let d = super::large_strain::groups(rec, p, layer, delta).delta_over_r2;
-                (t.gamma1_ratio(d).ratio, t.frictional_twist_ratio(d, s.rot_deg, mu).ratio)
-            }
-            None => (1.0, 1.0),
-        };
-        let gamma1_mm = g * g1;
-        out.push(Prediction { gamma1_mm, theta1_deg: theta1_deg * t1, beta: (delta - gamma1_mm) / ind.r_mm });
+        out.push(strained(rec, p, layer, strain.as_ref(), s, delta, *g, theta1_deg));
     }
     Ok(out)
+}
+
+/// The large-strain table's interpolation at `p`'s materials; `None` at
+/// small strain.
+fn strain_at(
+    rec: &Recording,
+    p: &ModelParams,
+    layer: Layer,
+) -> Result<Option<fem::hyper::AtGroups<'static>>, FitError> {
+    Ok(match p.large_strain {
+        true => {
+            Some(fem::hyper::LargeStrainTable::builtin()?.at_groups(&super::large_strain::groups(rec, p, layer, 0.0)))
+        }
+        false => None,
+    })
+}
+
+/// Sample `s`'s prediction at approach `delta_mm` from the linear model's
+/// gamma1 and theta1 there, at large strain (`strain`) scaled by the
+/// neo-Hookean reference's ratios at that approach (the twist's under the
+/// fit's friction).
+#[allow(clippy::too_many_arguments)]
+fn strained(
+    rec: &Recording,
+    p: &ModelParams,
+    layer: Layer,
+    strain: Option<&fem::hyper::AtGroups<'static>>,
+    s: &sim::recording::Sample,
+    delta_mm: f64,
+    gamma1_mm: f64,
+    theta1_deg: f64,
+) -> Prediction {
+    let (g1, t1) = match strain {
+        Some(t) => {
+            let d = super::large_strain::groups(rec, p, layer, delta_mm).delta_over_r2;
+            let mu = p.contact_friction.unwrap_or(f64::INFINITY);
+            (t.gamma1_ratio(d).ratio, t.frictional_twist_ratio(d, s.rot_deg, mu).ratio)
+        }
+        None => (1.0, 1.0),
+    };
+    let gamma1_mm = gamma1_mm * g1;
+    Prediction { gamma1_mm, theta1_deg: theta1_deg * t1, beta: (delta_mm - gamma1_mm) / rec.meta.indenter.r_mm }
 }
 
 /// What friction in the press adds at `p` ([`friction_added`]), per sample,
