@@ -94,17 +94,16 @@ pub struct TabulatedLaw {
     nu: Axis,
     u: Axis,
     w: Axis,
-    /// gamma1 / delta, the force over E2 sqrt(R2) delta^1.5 and the contact
-    /// radius over sqrt(R2 delta), at [kappa][nu][u].
-    gamma: Vec<f64>,
-    force: Vec<f64>,
-    radius: Vec<f64>,
-    /// theta1 per radian of mount twist at [kappa][nu][u][w].
-    twist: Vec<f64>,
+    /// Every material node's curves, in [kappa][nu] order.
+    curves: Curves,
 }
 
-/// What one material node of the table holds.
-struct NodeValues {
+/// The tabulated quantities of one material, or of several one after the
+/// other: gamma1 / delta, the force over E2 sqrt(R2) delta^1.5 and the
+/// contact radius over sqrt(R2 delta) at each approach node, and theta1 per
+/// radian of mount twist at [u][w].
+#[derive(Debug, Clone, PartialEq, Default)]
+struct Curves {
     gamma: Vec<f64>,
     force: Vec<f64>,
     radius: Vec<f64>,
@@ -131,9 +130,9 @@ impl TabulatedLaw {
         let rho: Vec<f64> = w.nodes.iter().map(|&x| RHO0_RAD * x / (1.0 - x)).collect();
         let materials: Vec<(f64, f64)> =
             kappa.nodes.iter().flat_map(|&k| nu.nodes.iter().map(move |&n| (e2 * k.exp(), n))).collect();
-        let node = |&(e1, nu1): &(f64, f64)| -> Result<NodeValues, FemError> {
+        let node = |&(e1, nu1): &(f64, f64)| -> Result<Curves, FemError> {
             let model = forward.model(e1, nu1);
-            let mut v = NodeValues { gamma: vec![], force: vec![], radius: vec![], twist: vec![] };
+            let mut v = Curves::default();
             for &x in &u.nodes {
                 let delta = r2 * x * x;
                 let st = model.normal(delta)?;
@@ -151,24 +150,14 @@ impl TabulatedLaw {
             Ok(v)
         };
         let solved = par_map(&materials, node);
-        let mut t = Self {
-            indenter_e_mpa: e2,
-            indenter_r_mm: r2,
-            kappa,
-            nu,
-            u,
-            w,
-            gamma: vec![],
-            force: vec![],
-            radius: vec![],
-            twist: vec![],
-        };
+        let mut t = Self { indenter_e_mpa: e2, indenter_r_mm: r2, kappa, nu, u, w, curves: Curves::default() };
         for v in solved {
             let v = v?;
-            t.gamma.extend(v.gamma);
-            t.force.extend(v.force);
-            t.radius.extend(v.radius);
-            t.twist.extend(v.twist);
+            let c = &mut t.curves;
+            c.gamma.extend(v.gamma);
+            c.force.extend(v.force);
+            c.radius.extend(v.radius);
+            c.twist.extend(v.twist);
         }
         Ok(t)
     }
@@ -189,21 +178,24 @@ impl TabulatedLaw {
             indenter_r_mm: self.indenter_r_mm,
             u: self.u.clone(),
             w: self.w.clone(),
-            gamma: vec![0.0; nu],
-            force: vec![0.0; nu],
-            radius: vec![0.0; nu],
-            twist: vec![0.0; nu * nw],
+            curves: Curves {
+                gamma: vec![0.0; nu],
+                force: vec![0.0; nu],
+                radius: vec![0.0; nu],
+                twist: vec![0.0; nu * nw],
+            },
         };
         let per_material = nu * nw;
+        let (to, from) = (&mut at.curves, &self.curves);
         for (i, &a) in wk.iter().enumerate() {
             for (j, &b) in wn.iter().enumerate() {
                 let c = a * b;
                 let m = i * wn.len() + j;
                 let add = |to: &mut [f64], from: &[f64]| to.iter_mut().zip(from).for_each(|(t, f)| *t += c * f);
-                add(&mut at.gamma, &self.gamma[m * nu..(m + 1) * nu]);
-                add(&mut at.force, &self.force[m * nu..(m + 1) * nu]);
-                add(&mut at.radius, &self.radius[m * nu..(m + 1) * nu]);
-                add(&mut at.twist, &self.twist[m * per_material..(m + 1) * per_material]);
+                add(&mut to.gamma, &from.gamma[m * nu..(m + 1) * nu]);
+                add(&mut to.force, &from.force[m * nu..(m + 1) * nu]);
+                add(&mut to.radius, &from.radius[m * nu..(m + 1) * nu]);
+                add(&mut to.twist, &from.twist[m * per_material..(m + 1) * per_material]);
             }
         }
         Some(at)
@@ -282,10 +274,7 @@ pub struct LawAt {
     indenter_r_mm: f64,
     u: Axis,
     w: Axis,
-    gamma: Vec<f64>,
-    force: Vec<f64>,
-    radius: Vec<f64>,
-    twist: Vec<f64>,
+    curves: Curves,
 }
 
 impl LawAt {
@@ -309,17 +298,22 @@ impl LawAt {
     /// The gel's deflection on the axis at approach `delta_mm` (> 0), mm;
     /// `None` past the tabulated approaches.
     pub fn gamma1_mm(&self, delta_mm: f64) -> Option<f64> {
-        Some(delta_mm * self.along(&self.gamma, delta_mm)?)
+        Some(delta_mm * self.along(&self.curves.gamma, delta_mm)?)
     }
 
     /// The contact force at approach `delta_mm`, N.
     pub fn force_n(&self, delta_mm: f64) -> Option<f64> {
-        Some(self.indenter_e_mpa * self.indenter_r_mm.sqrt() * delta_mm.powf(1.5) * self.along(&self.force, delta_mm)?)
+        Some(
+            self.indenter_e_mpa
+                * self.indenter_r_mm.sqrt()
+                * delta_mm.powf(1.5)
+                * self.along(&self.curves.force, delta_mm)?,
+        )
     }
 
     /// The contact's radius at approach `delta_mm`, mm.
     pub fn contact_radius_mm(&self, delta_mm: f64) -> Option<f64> {
-        Some((self.indenter_r_mm * delta_mm).sqrt() * self.along(&self.radius, delta_mm)?)
+        Some((self.indenter_r_mm * delta_mm).sqrt() * self.along(&self.curves.radius, delta_mm)?)
     }
 
     /// theta1 for a mount twist `twist_rad` at approach `delta_mm` with the
@@ -333,7 +327,7 @@ impl LawAt {
         let per_twist: f64 = wu
             .iter()
             .enumerate()
-            .map(|(i, a)| a * ww.iter().zip(&self.twist[i * nw..(i + 1) * nw]).map(|(b, v)| b * v).sum::<f64>())
+            .map(|(i, a)| a * ww.iter().zip(&self.curves.twist[i * nw..(i + 1) * nw]).map(|(b, v)| b * v).sum::<f64>())
             .sum();
         Some(twist_rad * per_twist)
     }
