@@ -976,3 +976,61 @@ fn the_layers_field_outside_the_contact_is_the_analytical_layers() {
         assert!(off_hertz > 0.05, "the check must see the layer: Hertz's shape is only {off_hertz} off");
     }
 }
+
+/// On a declared layer the quadratic window's paraboloid is turned into
+/// gamma1 through the layer's own field, and inside a deep contact that
+/// field is not a paraboloid: the translation must be the paraboloid the
+/// window fits at its own markers (1 mm apart, a few dozen), not over a
+/// continuous disc. Noise-free frames of the field the emulated rig draws
+/// (Hertz's plus the layer's departure, the layer known exactly: the FE
+/// layer model's at the gel's own E1 and nu1), on either base, after an
+/// approach that teaches the contact's centre and curvature as a run's does,
+/// must read contacts from 2 mm to past 0.9 R2 within 0.25 µm, with the
+/// centre between markers (measured within 0.01 µm) and off them (0.12 µm).
+/// Read over a disc they read up to 1.75 µm shallow (docs/sensing.md, "The
+/// deepest contacts").
+#[test]
+fn a_layers_own_field_reads_exactly_through_the_window_at_any_depth() {
+    use easycalib::sensing::{FrameEstimator, LayerSurface};
+    use sim::physics::{Body, Layer, LayerBase};
+    use sim::sensor::field::synth_frame_on;
+    let indenter = Body::new(1.1, 0.39, 5.0);
+    for base in [LayerBase::Bonded, LayerBase::Sliding] {
+        let layer = Layer { thickness_mm: 5.0, base, thickness_tol_mm: None };
+        let law = easycalib::fit::fe_law::frictional_truth(layer, indenter, 0.33, 0.39, sim::defaults::GEL_FRICTION)
+            .expect("the layer model");
+        let shape = law.surface().expect("the layer's field");
+        let surface = LayerSurface::of_gel(layer, indenter, 0.33, 0.39).expect("the layer's tables");
+        let grid = MarkerGrid::tac3d();
+        let mut rng = Rng::seed_from(3);
+        for centre in [[0.0, 0.0], [0.31, -0.22]] {
+            let frame = |delta: f64, rng: &mut Rng, k: u64| {
+                let st = law.normal(delta).unwrap();
+                let state = ContactState::new(centre, st.gamma1_mm, st.contact_radius_mm, 0.0)
+                    .with_nu1(0.39)
+                    .with_spheres(5.0, f64::INFINITY);
+                (synth_frame_on(&state, Some(&shape), &grid, &NoiseConfig::NONE, rng, k, 0.0), st)
+            };
+            let mut cfg = SensingConfig::for_contact(5.0, f64::INFINITY);
+            cfg.layer = Some(surface.clone());
+            let mut estimator = FrameEstimator::new(cfg);
+            // The approach, to a contact of about 2.2 mm.
+            for k in 1..=30 {
+                let _ = estimator.measure(&frame(0.8 * k as f64 / 30.0, &mut rng, k).0);
+            }
+            let mut worst: f64 = 0.0;
+            for (k, delta) in [1.0, 1.5, 2.4, 3.0, 3.5, 4.0, 4.46].into_iter().enumerate() {
+                let (f, st) = frame(delta, &mut rng, 100 + k as u64);
+                let m = estimator.measure(&f).expect("a frame in contact");
+                let err_um = (m.gamma1_mm - st.gamma1_mm) * 1e3;
+                println!(
+                    "{base:?}, centre {centre:?}: a {:.3} mm, gamma1 {:.1} um: read {err_um:+.3} um",
+                    st.contact_radius_mm,
+                    st.gamma1_mm * 1e3
+                );
+                worst = worst.max(err_um.abs());
+            }
+            assert!(worst <= 0.25, "{base:?}, centre {centre:?}: a contact read {worst:.3} um off its depth");
+        }
+    }
+}

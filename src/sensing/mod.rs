@@ -487,14 +487,14 @@ fn through_layer(
     peak: f64,
     curvature: f64,
     hertz_radius: f64,
-    window: f64,
+    markers: &MarkersFitted,
 ) -> Option<(f64, f64, f64)> {
     if !(peak > 0.0 && curvature > 0.0 && hertz_radius > 0.0) {
         return None;
     }
     let mut a = hertz_radius;
     for _ in 0..20 {
-        let (p, ratio) = layer.inside_paraboloid(a, window)?;
+        let (p, ratio) = markers.paraboloid_of(layer, a)?;
         let g = peak / p;
         let next = (g * ratio / curvature).sqrt();
         if !(next.is_finite() && next > 0.0 && p > 0.0 && ratio > 0.0) {
@@ -506,6 +506,43 @@ fn through_layer(
         a = next;
     }
     None
+}
+
+/// The markers a quadratic window fitted, about the contact's centre: what
+/// a paraboloid fitted to the layer's field over those same markers reads
+/// (docs/sensing.md, "On a layer").
+struct MarkersFitted {
+    /// (x, y) of each kept marker, relative to the centre the fit found.
+    at: Vec<[f64; 2]>,
+    isotropic: bool,
+}
+
+impl MarkersFitted {
+    fn of(pts: &[[f64; 3]], kept: &[bool], peak: [f64; 2], isotropic: bool) -> Self {
+        let at = pts.iter().zip(kept).filter(|(_, k)| **k).map(|(q, _)| [q[0] - peak[0], q[1] - peak[1]]).collect();
+        Self { at, isotropic }
+    }
+
+    /// Per unit gamma1, the peak and the curvature times a² of the quadratic
+    /// the window's own fit gives on the field of a contact of radius `a_mm`
+    /// (Hertz's plus the layer's departure) at these markers, equally
+    /// weighted: 1 and 1 for Hertz. `None` when the markers carry no peak.
+    fn paraboloid_of(&self, layer: &sim::sensor::shape::SurfaceShape, a_mm: f64) -> Option<(f64, f64)> {
+        if !(a_mm > 0.0 && a_mm.is_finite()) {
+            return None;
+        }
+        let pts: Vec<[f64; 3]> = self
+            .at
+            .iter()
+            .map(|p| {
+                let r = p[0].hypot(p[1]);
+                [p[0], p[1], sim::sensor::field::normal_shape(r / a_mm) + layer.departure(r, a_mm)]
+            })
+            .collect();
+        let q = fit_quadratic(&pts, self.isotropic, f64::INFINITY, f64::INFINITY)?;
+        let (_, p) = q.surface.maximum()?;
+        Some((p, -q.surface.mean_curvature() * a_mm * a_mm))
+    }
 }
 
 /// Quadratic fit, re-centred on its own peak with a window shrunk or grown
@@ -567,7 +604,13 @@ fn quadratic_stage(frame: &SensorFrame, seed: usize, pitch: f64, cfg: &SensingCo
         // layer's own field, its peak and curvature give gamma1 and gamma1 /
         // a² (docs/sensing.md, "On a layer").
         if let Some(layer) = cfg.layer_shape()
-            && let Some((g, a, ratio)) = through_layer(layer, gamma1, -qf.surface.mean_curvature(), radius, used_window)
+            && let Some((g, a, ratio)) = through_layer(
+                layer,
+                gamma1,
+                -qf.surface.mean_curvature(),
+                radius,
+                &MarkersFitted::of(&pts, &qf.kept, peak, cfg.isotropic),
+            )
         {
             gamma1_sd *= g / gamma1;
             (gamma1, radius) = (g, a);
@@ -987,5 +1030,79 @@ impl Tare {
             }
         }
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sim::sensor::shape::SurfaceShape;
+
+    /// A 1 mm grid's markers within `window` of `centre`, relative to it.
+    fn markers(centre: [f64; 2], window: f64) -> Vec<[f64; 3]> {
+        let mut v = Vec::new();
+        for i in -8..=8 {
+            for j in -8..=8 {
+                let (x, y) = (i as f64 - centre[0], j as f64 - centre[1]);
+                if x.hypot(y) <= window {
+                    v.push([x, y, 0.0]);
+                }
+            }
+        }
+        v
+    }
+
+    /// Without a departure the field inside the contact is Hertz's
+    /// paraboloid, 1 - r² / 2a², which any marker set reads exactly: peak 1
+    /// and curvature 1 (per gamma1 and per 1 / a²), centred or not.
+    #[test]
+    fn hertzs_own_field_reads_as_its_paraboloid_at_any_markers() {
+        let flat = SurfaceShape::new(vec![1.0, 2.0], 0.5, vec![vec![0.0; 21]; 2]).unwrap();
+        for (centre, isotropic) in [([0.0, 0.0], true), ([0.3, -0.2], true), ([0.3, -0.2], false)] {
+            let pts = markers(centre, 3.2);
+            let fitted = MarkersFitted::of(&pts, &vec![true; pts.len()], [0.0, 0.0], isotropic);
+            let (peak, curvature) = fitted.paraboloid_of(&flat, 4.0).unwrap();
+            assert!((peak - 1.0).abs() < 1e-12 && (curvature - 1.0).abs() < 1e-12, "{peak} {curvature}");
+        }
+        let pts = markers([0.0, 0.0], 2.0);
+        assert!(MarkersFitted::of(&pts, &vec![true; pts.len()], [0.0, 0.0], true).paraboloid_of(&flat, 0.0).is_none());
+    }
+
+    /// A departure that is itself a paraboloid inside, -e r² / a², steepens
+    /// the read curvature by 2e and leaves the peak; a quartic one, -e r⁴ /
+    /// a⁴, is read as the paraboloid of the markers' own least squares at
+    /// their radii, whatever a continuous disc would weigh them by.
+    #[test]
+    fn a_departure_is_read_as_the_markers_own_least_squares_take_it() {
+        let rows = |f: fn(f64) -> f64| {
+            [1.0f64, 2.0].map(|a| (0..=500).map(|j| f(0.02 * j as f64 / a)).collect::<Vec<_>>()).to_vec()
+        };
+        let e = 0.05;
+        let steep = SurfaceShape::new(vec![1.0, 2.0], 0.02, rows(|rho| -0.05 * rho * rho)).unwrap();
+        let pts = markers([0.0, 0.0], 1.6);
+        let fitted = MarkersFitted::of(&pts, &vec![true; pts.len()], [0.0, 0.0], true);
+        let (peak, curvature) = fitted.paraboloid_of(&steep, 2.0).unwrap();
+        assert!((peak - 1.0).abs() < 1e-4 && (curvature - (1.0 + 2.0 * e)).abs() < 1e-4, "{peak} {curvature}");
+        // The quartic, by hand: least squares of 1 - q r² to -e (r / a)⁴ at
+        // the markers' radii (isotropic, symmetric set: the tilt drops out).
+        let quartic = SurfaceShape::new(vec![1.0, 2.0], 0.02, rows(|rho| -0.05 * rho.powi(4))).unwrap();
+        let a = 2.0;
+        let pts = markers([0.0, 0.0], 1.6);
+        let r2: Vec<f64> = pts.iter().map(|p| p[0] * p[0] + p[1] * p[1]).collect();
+        let f: Vec<f64> = r2.iter().map(|x| 1.0 - x / (2.0 * a * a) - e * x * x / a.powi(4)).collect();
+        let n = r2.len() as f64;
+        let (sx, sxx) = (r2.iter().sum::<f64>(), r2.iter().map(|x| x * x).sum::<f64>());
+        let (sf, sxf) = (f.iter().sum::<f64>(), r2.iter().zip(&f).map(|(x, y)| x * y).sum::<f64>());
+        let det = n * sxx - sx * sx;
+        let want_peak = (sf * sxx - sxf * sx) / det;
+        let want_curvature = -2.0 * (n * sxf - sx * sf) / det * a * a;
+        let fitted = MarkersFitted::of(&pts, &vec![true; pts.len()], [0.0, 0.0], true);
+        let (peak, curvature) = fitted.paraboloid_of(&quartic, a).unwrap();
+        assert!(
+            (peak - want_peak).abs() < 1e-3 * e && (curvature - want_curvature).abs() < 1e-3 * e,
+            "{peak} {curvature}"
+        );
+        // The quartic lifts the peak (a concave part fitted by a line in r²).
+        assert!(want_peak > 1.0 + 0.01 * e, "{want_peak}");
     }
 }

@@ -49,38 +49,6 @@ impl SurfaceShape {
         &self.radii_mm
     }
 
-    /// What a paraboloid fitted to this field inside a disc of radius
-    /// `window_mm` around the centre of a contact of radius `a_mm` reads, per
-    /// unit gamma1: its peak (1 for Hertz) and its curvature times a² (1 for
-    /// Hertz, whose field inside is 1 - r² / 2a²). Least squares over the
-    /// disc's area, as markers spread evenly over it weigh it. `None` for a
-    /// radius or window that is not positive and finite.
-    pub fn inside_paraboloid(&self, a_mm: f64, window_mm: f64) -> Option<(f64, f64)> {
-        if !(a_mm > 0.0 && a_mm.is_finite() && window_mm > 0.0 && window_mm.is_finite()) {
-            return None;
-        }
-        // Fit f = p - q r² with weights r dr (midpoints of 64 rings).
-        const RINGS: usize = 64;
-        let (mut s0, mut s1, mut s2, mut t0, mut t1) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for k in 0..RINGS {
-            let r = window_mm * (k as f64 + 0.5) / RINGS as f64;
-            let f = super::field::normal_shape(r / a_mm) + self.departure(r, a_mm);
-            let (x, w) = (r * r, r);
-            s0 += w;
-            s1 += w * x;
-            s2 += w * x * x;
-            t0 += w * f;
-            t1 += w * f * x;
-        }
-        let det = s0 * s2 - s1 * s1;
-        if det.abs() <= 0.0 || det.is_nan() {
-            return None;
-        }
-        let peak = (t0 * s2 - t1 * s1) / det;
-        let slope = (s0 * t1 - s1 * t0) / det;
-        Some((peak, -2.0 * slope * a_mm * a_mm))
-    }
-
     /// The table (1 - `s`) self + `s` `other`, entry by entry (`s` outside
     /// 0..1 extrapolates); `None` unless both tables are on the same radii.
     pub fn mix(&self, other: &Self, s: f64) -> Option<Self> {
@@ -159,21 +127,6 @@ mod tests {
         assert_eq!(s.departure(100.0, 2.0), s.departure(10.0, 2.0));
         assert_eq!(s.departure(1.0, 0.0), 0.0);
         assert_eq!(s.departure(1.0, f64::NAN), 0.0);
-    }
-
-    #[test]
-    fn hertzs_own_field_reads_as_its_paraboloid() {
-        // No departure: the paraboloid inside is Hertz's, 1 - r² / 2a².
-        let flat = SurfaceShape::new(vec![1.0, 2.0], 0.5, vec![vec![0.0; 21]; 2]).unwrap();
-        let (peak, curvature) = flat.inside_paraboloid(1.5, 1.2).unwrap();
-        assert!((peak - 1.0).abs() < 1e-12 && (curvature - 1.0).abs() < 1e-12, "{peak} {curvature}");
-        // A departure -e r² / a² inside steepens it by 2e (0.8 r/a here is inside).
-        let e = 0.05;
-        let rows = [1.0f64, 2.0].map(|a| (0..=20).map(|j| -e * (0.5 * j as f64 / a).powi(2)).collect::<Vec<_>>());
-        let steep = SurfaceShape::new(vec![1.0, 2.0], 0.5, rows.to_vec()).unwrap();
-        let (peak, curvature) = steep.inside_paraboloid(2.0, 1.6).unwrap();
-        assert!((peak - 1.0).abs() < 1e-3 && (curvature - (1.0 + 2.0 * e)).abs() < 1e-3, "{peak} {curvature}");
-        assert!(flat.inside_paraboloid(0.0, 1.0).is_none());
     }
 
     #[test]
