@@ -10,7 +10,7 @@
 mod emulated;
 
 use easycalib::fit::{FitOptions, calibrate};
-use emulated::{Outcome, run_seed};
+use emulated::{Outcome, assert_fit_at_their_noise, binomial_pmf, run_seed};
 use sim::defaults::{ELASTOMER_E_MPA, ELASTOMER_NU};
 use sim::effects::SimProfile;
 use sim::generator::{GeneratorConfig, generate};
@@ -28,16 +28,16 @@ fn clean_runs_on_the_emulated_rig_fit_near_their_errors_and_mostly_name_nothing(
             o.seed, o.chi2_dof, o.full.0, o.full.1, o.paper.0, o.paper.1
         );
     }
-    // Issue 12's bars: chi2/dof <= 1.3, and a diagnosis that names nothing and
-    // leaves nothing unexplained (ambiguous among degenerate effects names
-    // nothing), in 19 of 20 runs.
+    // Issue 12's bars: a diagnosis that names nothing and leaves nothing
+    // unexplained (ambiguous among degenerate effects names nothing) in 19
+    // of 20 runs, and chi2/dof <= 1.3 in 19 of 20 as an exact model gives it
+    // (`emulated::assert_fit_at_their_noise`).
     let quiet = runs.iter().filter(|o| o.verdict == "clean" || o.verdict == "ambiguous").count();
-    let fitted = runs.iter().filter(|o| o.chi2_dof <= 1.3).count();
     let mut chi2: Vec<f64> = runs.iter().map(|o| o.chi2_dof).collect();
     chi2.sort_by(f64::total_cmp);
-    println!("nothing named, not unexplained: {quiet} of 20; chi2/dof <= 1.3: {fitted} of 20, median {:.2}", chi2[10]);
+    println!("nothing named, not unexplained: {quiet} of 20; chi2/dof median {:.2}", chi2[10]);
     assert!(quiet >= 19, "{quiet} of 20 clean runs name nothing and leave nothing unexplained");
-    assert!(fitted >= 19, "{fitted} of 20 clean runs fit to chi2/dof <= 1.3 (median {:.2})", chi2[10]);
+    assert_fit_at_their_noise("clean", &runs);
     // The full fit recovers the truth in every run.
     for o in &runs {
         assert!(o.full.0.abs() <= 1.0 && o.full.1.abs() <= 2.0, "seed {}: full {:?}", o.seed, o.full);
@@ -94,8 +94,7 @@ const CHI2_20_Q995: f64 = 39.997;
 fn binomial_quantile(n: u64, p: f64, tail: f64) -> usize {
     let mut below = 0.0;
     for k in 0..=n {
-        let choose: f64 = (0..k).map(|i| (n - i) as f64 / (i + 1) as f64).product();
-        let pk = choose * p.powi(k as i32) * (1.0 - p).powi((n - k) as i32);
+        let pk = binomial_pmf(n, k, p);
         if below + pk > tail {
             return k as usize;
         }

@@ -15,7 +15,7 @@
 mod emulated;
 
 use easycalib::run::Script;
-use emulated::{Outcome, run_script};
+use emulated::{Outcome, assert_fit_at_their_noise, run_script};
 use sim::effects::{SimProfile, frame_compliance, rotation_backlash, stage_backlash};
 use sim::recording::{Direction, Phase, Recording};
 
@@ -49,17 +49,17 @@ fn print(case: &str, runs: &[Outcome]) {
 }
 
 /// The default run's gel, clean, on 20 seeds: issue 12's bars for a clean
-/// run (chi²/dof <= 1.3, nothing named and nothing unexplained, each in 19 of
-/// 20), and the full fit within 1 % / 2 % of the truth in every run.
+/// run (nothing named and nothing unexplained in 19 of 20; chi²/dof <= 1.3
+/// in 19 of 20 as an exact model gives it, `emulated::assert_fit_at_their_noise`),
+/// and the full fit within 1 % / 2 % of the truth in every run.
 #[test]
 fn clean_runs_on_the_default_layered_gel_fit_at_their_noise_and_name_nothing() {
     let runs: Vec<Outcome> = (1..=20).map(|seed| run_script(seed, SimProfile::default(), layered_script()).0).collect();
     print("clean", &runs);
     let quiet = runs.iter().filter(|o| ["clean", "ambiguous"].contains(&o.verdict) && o.named.is_empty()).count();
-    let fitted = runs.iter().filter(|o| o.chi2_dof <= 1.3).count();
-    println!("nothing named, not unexplained: {quiet} of 20; chi2/dof <= 1.3: {fitted} of 20");
+    println!("nothing named, not unexplained: {quiet} of 20");
     assert!(quiet >= 19, "{quiet} of 20 clean layered runs name nothing and leave nothing unexplained");
-    assert!(fitted >= 19, "{fitted} of 20 clean layered runs fit to chi2/dof <= 1.3");
+    assert_fit_at_their_noise("clean layered", &runs);
     for o in &runs {
         assert!(o.full.0.abs() <= 1.0 && o.full.1.abs() <= 2.0, "seed {}: fit {:?}", o.seed, o.full);
         if o.named.is_empty() {
@@ -83,8 +83,7 @@ fn clean_runs_on_a_sliding_gel_fit_at_their_noise_and_name_nothing() {
         assert!(o.full.0.abs() <= 1.0 && o.full.1.abs() <= 2.0, "seed {}: fit {:?}", o.seed, o.full);
         assert!(o.named.is_empty() && o.verdict != "unexplained", "seed {}: {}", o.seed, o.summary);
     }
-    let fitted = runs.iter().filter(|o| o.chi2_dof <= 1.3).count();
-    assert!(fitted >= 4, "{fitted} of 5 clean sliding runs fit to chi2/dof <= 1.3");
+    assert_fit_at_their_noise("clean sliding", &runs);
 }
 
 /// gamma1 of each unloading sample less the loading branch's at its stage
@@ -134,19 +133,22 @@ fn a_sweep_that_unloads_back_to_a_small_contact_reads_it_as_the_loading_branch_d
     }
 }
 
-/// `effect`, given to the layered rig at a size that biases the calibration
-/// by 2 % or more (checked), is named and E1/nu1 corrected to within 1 %/2 %.
-/// Ten seeds named ten of ten (docs/diagnosis.md); two of these three must.
+/// `effect`, given to the layered rig at a size that matters (checked: it
+/// biases the plain calibration by 2 % or more and leaves it a misfit of
+/// chi²/dof 3 or more in every run), is named and E1/nu1 corrected to
+/// within 1 %/2 %. Ten seeds named ten of ten at 0.02 mm
+/// (docs/diagnosis.md); two of these three must. (The emulated rig runs on
+/// wall time, so a seed's run is not repeatable to the sample: a stage
+/// backlash of 0.02 mm biased seed
+/// 1's plain fit by 1.60-1.75 % in nu1 and seeds 2-3 by 2.00-3.13 % from run
+/// to run; at 0.03 mm, the size used, by 3.46-4.65 % over twelve runs.)
 fn named_and_corrected(effect: &str, profile: SimProfile) {
     let runs = runs(profile);
     print(effect, &runs);
     for o in &runs {
-        assert!(
-            o.full.0.abs().max(o.full.1.abs()) >= 2.0,
-            "seed {}: {effect} biases the fit only {:?}",
-            o.seed,
-            o.full
-        );
+        let bias = o.full.0.abs().max(o.full.1.abs());
+        assert!(bias >= 2.0, "seed {}: {effect} biases the plain fit by only {bias:.2} %", o.seed);
+        assert!(o.chi2_dof >= 3.0, "seed {}: {effect} leaves the plain fit at chi2/dof {:.2}", o.seed, o.chi2_dof);
     }
     let good =
         runs.iter().filter(|o| o.named == [effect] && o.corrected.0.abs() <= 1.0 && o.corrected.1.abs() <= 2.0).count();
@@ -155,7 +157,7 @@ fn named_and_corrected(effect: &str, profile: SimProfile) {
 
 #[test]
 fn stage_backlash_on_a_layered_rig_is_named_and_corrected() {
-    let p = stage_backlash::Params { b_mm: 0.02, engaged: true };
+    let p = stage_backlash::Params { b_mm: 0.03, engaged: true };
     named_and_corrected("stage_backlash", SimProfile { stage_backlash: Some(p), ..Default::default() });
 }
 

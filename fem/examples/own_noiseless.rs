@@ -42,7 +42,8 @@ fn main() {
         "# source: easycalib large-strain FE reference (neo-Hookean, frictionless pressing, twist with Coulomb mu \
          {MU}); E1 {e1} MPa, nu1 {nu1}, E2 {e2} MPa, nu2 {nu2}, noiseless; gamma1 extrapolated to zero element \
          size from {TABLE_COARSE_MM} and {TABLE_FINE_MM} mm meshes, twists on {TABLE_FINE_MM} mm \
-         (fem/examples/own_noiseless.rs, 30 steps to beta {beta}, twists 0-10 deg)"
+         (fem/examples/own_noiseless.rs, 30 steps to beta {beta}, reached {:.3}, twists 0-10 deg)",
+        fine.beta_reached
     );
     println!("# indenter_E_MPa: {e2}");
     println!("# indenter_nu: {nu2}");

@@ -13,7 +13,7 @@ use crate::contact::{ContactState, FrictionalContact, TwoBodyContact};
 use crate::dense::{self, PrefixCholesky};
 use crate::elastic::{Body, Integration, Material, SurfaceCompliance, combine_block};
 use crate::mesh::{Base, Mesh};
-use crate::tabulated::TabulatedLaw;
+use crate::tabulated::{LawAt, TabulatedLaw};
 use crate::torsion::TorsionBody;
 
 /// Element size at the contact, mm, and the gel's radius in thicknesses. A real
@@ -143,6 +143,9 @@ pub struct Forward {
     ind_torsion: Vec<Vec<f64>>,
     /// The models of the last few parameter sets asked for (see [`Forward::model_shared`]).
     recent: Mutex<VecDeque<([u64; 2], Arc<Model>)>>,
+    /// The tabulated law at the last few parameter sets asked for (see
+    /// [`Forward::tabulated_at`]).
+    recent_laws: Mutex<VecDeque<([u64; 2], Arc<LawAt>)>>,
 }
 
 /// How many parameter sets [`Forward::model_shared`] keeps: a fit's finite
@@ -292,6 +295,7 @@ impl Forward {
             ind_normal,
             ind_torsion,
             recent: Mutex::new(VecDeque::with_capacity(RECENT_MODELS)),
+            recent_laws: Mutex::new(VecDeque::with_capacity(RECENT_MODELS)),
         })
     }
 
@@ -314,6 +318,26 @@ impl Forward {
     /// ([`TabulatedLaw`]), built on first use and kept with the model.
     pub fn tabulated(&self) -> Result<Arc<TabulatedLaw>, FemError> {
         self.tabulated.get_or_init(|| TabulatedLaw::build(self).map(Arc::new)).clone()
+    }
+
+    /// [`TabulatedLaw::at`] on this rig's table, shared with the last few
+    /// callers that asked for the same (E1, nu1) (bit for bit): a fit's
+    /// finite differences in the contact offset and the friction read the
+    /// law at the (E1, nu1) of the point they are taken about, and the
+    /// contraction of the material axes is most of a tabulated evaluation.
+    /// `None` where the table cannot be built or does not reach.
+    pub fn tabulated_at(&self, e1_mpa: f64, nu1: f64) -> Option<Arc<LawAt>> {
+        let key = [e1_mpa.to_bits(), nu1.to_bits()];
+        if let Some(at) = crate::lock_cache(&self.recent_laws).iter().find(|(k, _)| *k == key).map(|(_, a)| a.clone()) {
+            return Some(at);
+        }
+        let at = Arc::new(self.tabulated().ok()?.at(e1_mpa, nu1)?);
+        let mut r = crate::lock_cache(&self.recent_laws);
+        if r.len() == RECENT_MODELS {
+            r.pop_front();
+        }
+        r.push_back((key, at.clone()));
+        Some(at)
     }
 
     /// [`Forward::model`], shared with the last few callers that asked for

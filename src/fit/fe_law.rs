@@ -191,7 +191,7 @@ struct FeLaw {
     e1_mpa: f64,
     nu1: f64,
     /// The tabulated law at this parameter set; `None` off the table's materials.
-    tabulated: Option<fem::tabulated::LawAt>,
+    tabulated: Option<Arc<fem::tabulated::LawAt>>,
     /// The FE model at this parameter set, built when the table first ends.
     model: std::sync::OnceLock<fem::forward::Model>,
     friction: f64,
@@ -225,7 +225,7 @@ impl FeLaw {
         table: Option<fem::hyper::AtGroups<'static>>,
     ) -> Self {
         // A rig whose law cannot be tabulated is solved on the FE model throughout.
-        let tabulated = forward.tabulated().ok().and_then(|t| t.at(e1_mpa, nu1));
+        let tabulated = forward.tabulated_at(e1_mpa, nu1);
         let indenter_r_mm = forward.indenter_radius_mm();
         FeLaw {
             forward,

@@ -63,7 +63,7 @@ pub fn predict(rec: &Recording, p: &ModelParams) -> Result<Vec<Prediction>, FitE
     predict_with(rec, p, friction_at(rec, p)?.as_ref())
 }
 
-use super::layer_model::{Correction, friction_at, friction_correction, predict_fe};
+use super::layer_model::{Correction, friction_at, friction_correction, friction_correction_in_friction, predict_fe};
 
 /// [`predict`], or with a declared layer and `correction`, the tabulated
 /// frictionless law plus the correction as it stands at `p` (linear about
@@ -587,7 +587,14 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams, max_passe
         // Taken again where the last pass ended (after the first pass it
         // was taken there already, with its derivatives).
         if pass >= 2 {
-            correction = friction_correction(rec, &params, correction.as_ref())?;
+            // The first set of derivatives is the friction's alone (the
+            // passes are still a few tenths of a standard error out); the
+            // whole set is taken where the pass on it ends.
+            let first = correction.as_ref().is_some_and(|c| c.follows_friction() && !c.has_slopes());
+            correction = match first {
+                true => friction_correction_in_friction(rec, &params)?,
+                false => friction_correction(rec, &params, correction.as_ref())?,
+            };
         }
         let x0 = to_internal(&params);
         let f = |x: &[f64], r: &mut Vec<f64>| {
@@ -617,6 +624,12 @@ fn fit_passes(rec: &Recording, opts: &FullOptions, start: ModelParams, max_passe
             spread.is_some_and(|se| d[0].abs() * params.e1_mpa < tol * se[0] && d[1].abs() < tol * se[1])
         };
         let settled = (moved[0].abs() < 1e-4 && moved[1].abs() < 1e-4) || (pass >= 1 && within(moved, FIT_WITHIN_SE));
+        // A pass on the friction's derivatives alone ends nothing: the next
+        // takes the whole set where it ended.
+        if correction.as_ref().is_some_and(Correction::is_partial) && pass + 1 < max_passes {
+            unsettled = Some(moved);
+            continue;
+        }
         // A pass that settled far from where the correction's derivatives
         // were taken stands on derivatives of another place: they are taken
         // again here and the passes go on (the frictional paths step as

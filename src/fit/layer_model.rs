@@ -35,6 +35,10 @@ pub(super) struct Correction {
     /// Whether it carries the press's friction (not at large strain, whose
     /// press is frictionless).
     press: bool,
+    /// Whether its derivatives are the friction's alone (the others left at
+    /// zero): a first set, to bring the passes near the optimum for a whole
+    /// set to be taken there ([`friction_correction_in_friction`]).
+    partial: bool,
 }
 
 impl Correction {
@@ -48,7 +52,50 @@ impl Correction {
             base: vec![(0.0, 0.0); rec.samples.len()],
             slope: Vec::new(),
             press: false,
+            partial: false,
         }
+    }
+
+    /// Whether it was taken with derivatives (a value alone has none).
+    pub(super) fn has_slopes(&self) -> bool {
+        !self.slope.is_empty()
+    }
+
+    /// Whether its derivatives are the friction's alone.
+    pub(super) fn is_partial(&self) -> bool {
+        self.partial
+    }
+
+    /// This correction taken again at `at`, where what friction adds is
+    /// `base`: its derivatives follow by a secant (Broyden) update, each
+    /// sample's the least change that makes the linear form read `base` at
+    /// `at` (the move measured in the finite differences' own steps). The
+    /// passes move along the E1-nu1 ridge, where a derivative taken a few
+    /// tenths of a percent away misplaces the optimum by a third of a
+    /// standard error; the secant holds them to what the frictional paths
+    /// do along that very move, and the derivatives stand where the last
+    /// one was taken (docs/fem.md, "The passes").
+    fn moved_to(&self, at: Vec<f64>, base: Vec<(f64, f64)>) -> Correction {
+        let scale = step_sizes(&at);
+        let mut dx: Vec<f64> = at.iter().zip(&self.at).map(|(a, b)| a - b).collect();
+        if let (Some(m), Some(&from), Some(&to)) = (dx.get_mut(3), self.at.get(3), at.get(3)) {
+            *m = friction_move(to, from);
+        }
+        let x: Vec<f64> = dx.iter().zip(&scale).map(|(d, s)| d / s.abs()).collect();
+        let norm2: f64 = x.iter().map(|v| v * v).sum();
+        let mut slope = self.slope.clone();
+        if norm2 > 0.0 && slope.len() == dx.len() {
+            for (i, (now, was)) in base.iter().zip(&self.base).enumerate() {
+                let read = slope.iter().zip(&dx).fold(*was, |(g, t), (d, m)| (g + d[i].0 * m, t + d[i].1 * m));
+                let miss = (now.0 - read.0, now.1 - read.1);
+                for ((d, xj), sj) in slope.iter_mut().zip(&x).zip(&scale) {
+                    let w = xj / norm2 / sj.abs();
+                    d[i].0 += miss.0 * w;
+                    d[i].1 += miss.1 * w;
+                }
+            }
+        }
+        Correction { slopes_from: at.clone(), at, base, slope, press: self.press, partial: false }
     }
 
     /// Whether it carries the press's friction (and so is taken again
@@ -73,6 +120,21 @@ impl Correction {
             self.slope.iter().zip(&moved).fold((g, t), |(g, t), (d, m)| (g + d[i].0 * m, t + d[i].1 * m))
         })
     }
+}
+
+/// The finite differences' step in each of E1, nu1, z0 and the friction
+/// about `at`: well above the frictional path's own discretisation, inside
+/// the range (nu1 steps down near 0.5).
+fn step_sizes(at: &[f64]) -> Vec<f64> {
+    (0..at.len())
+        .map(|j| match j {
+            0 => 1e-3 * at[0],
+            1 if at[1] + 2e-3 > 0.5 => -2e-3,
+            1 => 2e-3,
+            2 => 2e-4,
+            _ => 0.02 * at[3],
+        })
+        .collect()
 }
 
 /// How far the friction `mu` lies from `at` (where a correction was taken)
@@ -107,7 +169,7 @@ fn predict_tabulated(
     fw: &fem::forward::Forward,
 ) -> Result<Option<Vec<Prediction>>, FitError> {
     // A rig whose law cannot be tabulated is solved on the FE model throughout.
-    let Some(at) = fw.tabulated().ok().and_then(|t| t.at(p.e1_mpa, p.nu1)) else {
+    let Some(at) = fw.tabulated_at(p.e1_mpa, p.nu1) else {
         return Ok(None);
     };
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
@@ -268,9 +330,10 @@ fn strained(
 /// large strain (a frictionless press) a correction of nothing.
 ///
 /// The derivatives change slowly: a correction taken again near `previous`
-/// (E1 within 0.5 %, nu1 within 0.005, friction within 10 %) keeps its
-/// derivatives and refreshes only the difference itself (the passes' cost is
-/// then one frictional path each, not five).
+/// (E1 within 0.5 %, nu1 within 0.005, friction within 10 %; not one with the
+/// friction's derivative alone) takes the difference itself again and
+/// follows its derivatives by a secant update ([`Correction::moved_to`]; the
+/// passes' cost is then one frictional path each, not five).
 pub(super) fn friction_correction(
     rec: &Recording,
     p: &ModelParams,
@@ -288,30 +351,60 @@ pub(super) fn friction_correction(
     }
     let near = |c: &&Correction| {
         c.at.len() == at.len()
+            && !c.partial
             && c.slope.len() == at.len()
             && (c.at[0] / at[0] - 1.0).abs() < 5e-3
             && (c.at[1] - at[1]).abs() < 5e-3
             && c.at.get(3).zip(at.get(3)).is_none_or(|(a, b)| (a / b - 1.0).abs() < 0.1)
     };
     if let Some(prev) = previous.filter(near) {
-        let (slope, slopes_from) = (prev.slope.clone(), prev.slopes_from.clone());
-        return Ok(Some(Correction { at, base: friction_added(rec, p, layer)?, slope, slopes_from, press: true }));
+        // Taken at this very point (the passes go on from where the
+        // derivatives were just taken again): it is what it was, bit for bit.
+        if prev.at == at {
+            return Ok(Some(prev.clone()));
+        }
+        return Ok(Some(prev.moved_to(at, friction_added(rec, p, layer)?)));
     }
+    taken_with_slopes(rec, p, layer, at, false)
+}
+
+/// [`friction_correction`] with the friction's derivative alone (two
+/// frictional paths, one round on two cores, where the whole set is five):
+/// the fit's first set, taken where its first pass ended, often a few
+/// tenths of a standard error from the optimum. Friction acts on the data
+/// mostly through what it adds, so with this the next pass comes near the
+/// optimum, and the whole set is taken there (docs/fem.md, "The passes").
+pub(super) fn friction_correction_in_friction(
+    rec: &Recording,
+    p: &ModelParams,
+) -> Result<Option<Correction>, FitError> {
+    let Some(layer) = fe_layer(rec) else {
+        return Ok(None);
+    };
+    if p.large_strain {
+        return Ok(Some(Correction::none(rec, p)));
+    }
+    let at = physical(p);
+    taken_with_slopes(rec, p, layer, at, true)
+}
+
+/// The correction at `p` (whose physical parameters are `at`) with its
+/// derivatives in every parameter, or in the friction alone (`partial`; the
+/// others then zero).
+fn taken_with_slopes(
+    rec: &Recording,
+    p: &ModelParams,
+    layer: Layer,
+    at: Vec<f64>,
+    partial: bool,
+) -> Result<Option<Correction>, FitError> {
     // The difference at `p` and one step in each parameter: independent
     // frictional paths, followed on the cores there are (the same numbers as
     // one after the other).
-    let steps: Vec<f64> = (0..at.len())
-        .map(|j| match j {
-            // Steps well above the path's own discretisation, inside the range.
-            0 => 1e-3 * at[0],
-            1 if at[1] + 2e-3 > 0.5 => -2e-3,
-            1 => 2e-3,
-            2 => 2e-4,
-            _ => 0.02 * at[3],
-        })
-        .collect();
+    let stepped = |j: usize| !partial || j == 3;
+    let steps = step_sizes(&at);
     let points: Vec<ModelParams> = std::iter::once(*p)
-        .chain(steps.iter().enumerate().map(|(j, &step)| {
+        .chain(steps.iter().enumerate().filter(|(j, _)| stepped(*j)).map(|(j, &step)| {
             let mut v = at.clone();
             v[j] += step;
             ModelParams {
@@ -326,11 +419,18 @@ pub(super) fn friction_correction(
     let mut diffs =
         points.par_iter().map(|q| friction_added(rec, q, layer)).collect::<Result<Vec<_>, FitError>>()?.into_iter();
     let base = diffs.next().ok_or_else(|| FitError::Model("no friction correction was taken".into()))?;
-    let slope = diffs
-        .zip(&steps)
-        .map(|(moved, &step)| moved.iter().zip(&base).map(|(m, b)| ((m.0 - b.0) / step, (m.1 - b.1) / step)).collect())
-        .collect();
-    Ok(Some(Correction { slopes_from: at.clone(), at, base, slope, press: true }))
+    let slope = steps
+        .iter()
+        .enumerate()
+        .map(|(j, &step)| match stepped(j) {
+            true => diffs
+                .next()
+                .map(|moved| moved.iter().zip(&base).map(|(m, b)| ((m.0 - b.0) / step, (m.1 - b.1) / step)).collect()),
+            false => Some(vec![(0.0, 0.0); base.len()]),
+        })
+        .collect::<Option<Vec<Vec<(f64, f64)>>>>()
+        .ok_or_else(|| FitError::Model("a derivative of the friction correction was not taken".into()))?;
+    Ok(Some(Correction { slopes_from: at.clone(), at, base, slope, press: true, partial }))
 }
 
 /// What friction adds to the FE layer model at `q`, per sample: the
@@ -413,6 +513,7 @@ pub(super) fn friction_at(rec: &Recording, p: &ModelParams) -> Result<Option<Cor
         base: friction_added(rec, p, layer)?,
         slope: Vec::new(),
         press: true,
+        partial: false,
     }))
 }
 

@@ -21,6 +21,8 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 pub struct Outcome {
     pub seed: u64,
     pub chi2_dof: f64,
+    /// The full fit's degrees of freedom (readings less fitted parameters).
+    pub dof: usize,
     /// The run's diagnosis: `clean`, `effects`, `ambiguous`, `unexplained`.
     pub verdict: &'static str,
     /// Its first line.
@@ -120,6 +122,8 @@ pub fn run_script_at(seed: u64, profile: SimProfile, script: Script, speedup: f6
         let out = Outcome {
             seed,
             chi2_dof: cal.full.chi2_dof.expect("a rig-made recording carries standard errors"),
+            // E1, nu1 and z0, and the friction when it was fitted.
+            dof: cal.full.samples_used.saturating_sub(3 + usize::from(cal.full.contact_friction.is_some())).max(1),
             verdict: d.verdict.as_str(),
             summary: d.summary.lines().next().unwrap_or("").to_string(),
             degenerate: d
@@ -144,4 +148,59 @@ pub fn run_script_at(seed: u64, profile: SimProfile, script: Script, speedup: f6
         };
         (out, rec)
     })
+}
+
+/// Issue 12's bar for clean runs, chi²/dof <= 1.3 in 19 runs of 20, held as
+/// what a model exact to the recorded errors gives: each run's chi² is then
+/// chi-squared with its dof (130-140 for the default script), and a run
+/// passes 1.3 in 1.0-1.3 % of seeds, so two of twenty do in 2-3 % of test
+/// runs: the CI failures of a1b4bef (1.32 and 1.37, median 0.97) and of
+/// df69c1c (docs/run.md). So the count of runs past 1.3 may reach what 20
+/// draws of an exact model reach in all but 0.5 % of test runs (two of
+/// twenty at the default script's dof), and the runs' pooled chi² must be
+/// what an exact model gives, at 0.5 % too: over some 2,600 dof that is
+/// about 1.07, a far finer check of the model than the count (a misfit
+/// worth a tenth of the noise variance fails it). Prints its figures.
+pub fn assert_fit_at_their_noise(case: &str, runs: &[Outcome]) {
+    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    const BAR: f64 = 1.3;
+    let past = runs.iter().filter(|o| o.chi2_dof > BAR).count();
+    // The likeliest run to pass the bar by noise alone sets the rate.
+    let p = runs
+        .iter()
+        .map(|o| ChiSquared::new(o.dof as f64).map_or(1.0, |c| c.sf(BAR * o.dof as f64)))
+        .fold(0.0, f64::max);
+    let allowed = binomial_upper(runs.len() as u64, p, 0.005).max(runs.len() / 20);
+    let dof: usize = runs.iter().map(|o| o.dof).sum();
+    let pooled = runs.iter().map(|o| o.chi2_dof * o.dof as f64).sum::<f64>() / dof as f64;
+    let pooled_bound = ChiSquared::new(dof as f64).map_or(f64::NAN, |c| c.inverse_cdf(0.995)) / dof as f64;
+    println!(
+        "{case}: chi2/dof <= {BAR} in {} of {} runs (past it by noise alone: {:.2} % of runs, at most {allowed} allowed); pooled chi2/dof {pooled:.3} over {dof} dof (an exact model: <= {pooled_bound:.3})",
+        runs.len() - past,
+        runs.len(),
+        100.0 * p
+    );
+    assert!(past <= allowed, "{case}: {past} of {} runs past chi2/dof {BAR}, at most {allowed} expected", runs.len());
+    assert!(
+        pooled <= pooled_bound,
+        "{case}: pooled chi2/dof {pooled:.3} over {dof} dof, an exact model gives <= {pooled_bound:.3}"
+    );
+}
+
+/// The smallest c with P(X > c) <= `tail` for X ~ Binomial(n, p).
+pub fn binomial_upper(n: u64, p: f64, tail: f64) -> usize {
+    let mut at_most = 0.0;
+    for k in 0..=n {
+        at_most += binomial_pmf(n, k, p);
+        if 1.0 - at_most <= tail {
+            return k as usize;
+        }
+    }
+    n as usize
+}
+
+/// P(X = k) for X ~ Binomial(n, p).
+pub fn binomial_pmf(n: u64, k: u64, p: f64) -> f64 {
+    let choose: f64 = (0..k).map(|i| (n - i) as f64 / (i + 1) as f64).product();
+    choose * p.powi(k as i32) * (1.0 - p).powi((n - k) as i32)
 }
