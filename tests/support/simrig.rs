@@ -79,6 +79,10 @@ pub struct SimRigConfig {
     /// measures frames more slowly than they come finds a full link queue
     /// (0: each reading is made when asked for).
     pub queued_frames: usize,
+    /// The frame's drift towards the gel, mm per second of rig time: the
+    /// approach is the stage's travel past the surface plus this times the
+    /// rig's time (docs/physics.md 2.9; 0: a still frame).
+    pub frame_drift_mm_per_s: f64,
     pub faults: SimFaults,
 }
 
@@ -101,6 +105,7 @@ impl Default for SimRigConfig {
             seed: 1,
             zero_out_of_contact: false,
             queued_frames: 0,
+            frame_drift_mm_per_s: 0.0,
             faults: SimFaults::default(),
         }
     }
@@ -145,7 +150,8 @@ pub struct SimState {
 impl SimState {
     /// True gamma1, gamma2 (mm) and contact radius at the current stage position.
     fn truth(&self) -> (f64, f64, f64) {
-        let delta = (self.stage_mm - self.cfg.surface_mm).min(self.model.max_approach_mm() * 0.999);
+        let drift = self.cfg.frame_drift_mm_per_s * self.t_s;
+        let delta = (self.stage_mm - self.cfg.surface_mm + drift).min(self.model.max_approach_mm() * 0.999);
         match self.model.solve(delta) {
             Ok(s) => (s.gamma1_mm, s.gamma2_mm, s.contact_radius_mm),
             Err(_) => (0.0, 0.0, 0.0),

@@ -488,8 +488,28 @@ where
         let step = self.script.normal.step_mm;
         let mut beta = f64::NAN;
         for _ in 0..tries {
-            // Near the depth limit, as close as it allows.
+            // Near the depth limit, as close as it allows: where the limit
+            // leaves no step at all towards the target (a frame drifting
+            // into the gel makes the measured depth lag the stage's), the
+            // stage holds where it stands, the deepest the limit allows,
+            // rather than commanding a move the guard refuses.
             pos = self.within_depth_limit(pos, "return to depth");
+            if let Err(v @ LimitViolation::Gamma1 { .. }) =
+                self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos)
+            {
+                if beta.is_nan() {
+                    let r = self.settle().await?;
+                    beta = ((self.stage_mm - contact) - r.gamma1_mm) / r2;
+                }
+                self.log(
+                    LogLevel::Warn,
+                    format!(
+                        "return to depth: {v}: held at stage {:.4} mm (beta {beta:.4}, target {target})",
+                        self.stage_mm
+                    ),
+                );
+                break;
+            }
             self.move_stage(pos, "return to depth").await?;
             let r = self.settle().await?;
             beta = ((pos - contact) - r.gamma1_mm) / r2;
