@@ -38,6 +38,17 @@ async fn run_sim(script: Script, cfg: SimRigConfig, path: &Path) -> (RunOutcome,
     (out, drain(&mut rx), rig)
 }
 
+/// The run's log lines that contain `needle`, in order.
+fn logs_with<'a>(events: &'a [RunEvent], needle: &str) -> Vec<&'a str> {
+    events
+        .iter()
+        .filter_map(|e| match e {
+            RunEvent::Log { message, .. } if message.contains(needle) => Some(message.as_str()),
+            _ => None,
+        })
+        .collect()
+}
+
 fn samples_in(events: &[RunEvent]) -> usize {
     events.iter().filter(|e| matches!(e, RunEvent::Sample(_))).count()
 }
@@ -582,13 +593,7 @@ async fn an_experiment_beyond_the_gamma1_limit_stops_safely_and_keeps_the_record
     let path = dir.path().join("near.csv");
     let (out, events, rig) = run_sim(script.clone(), SimRigConfig::default(), &path).await;
     assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
-    let shortened: Vec<&str> = events
-        .iter()
-        .filter_map(|e| match e {
-            RunEvent::Log { message, .. } if message.contains("shortened to") => Some(message.as_str()),
-            _ => None,
-        })
-        .collect();
+    let shortened = logs_with(&events, "shortened to");
     println!("{shortened:#?}");
     assert!(!shortened.is_empty(), "a step near the limit was shortened");
     assert!(rig.state().max_true_gamma1 <= script.limits.max_gamma1_mm);
@@ -634,13 +639,7 @@ async fn a_drifting_frame_at_the_depth_limit_holds_the_torsion_depth_there() {
     let path = dir.path().join("drift.csv");
     let (out, events, rig) = run_sim(script, cfg, &path).await;
     assert_eq!(out.status, RunStatus::Completed, "{:?}", out.status);
-    let returns: Vec<&str> = events
-        .iter()
-        .filter_map(|e| match e {
-            RunEvent::Log { message, .. } if message.contains("return to depth") => Some(message.as_str()),
-            _ => None,
-        })
-        .collect();
+    let returns = logs_with(&events, "return to depth");
     println!("{returns:#?}\ntrue gamma1 at most {:.4} mm", rig.state().max_true_gamma1);
     let held = returns.iter().find_map(|m| m.split("held at stage ").nth(1)?.split(' ').next()?.parse::<f64>().ok());
     let held = held.unwrap_or_else(|| panic!("the limit held the return to depth: {returns:?}"));
