@@ -608,7 +608,15 @@ fn slow_and_speed_run(truth: &str, profile: SimProfile) {
     assert_eq!(slow.len(), 4);
     let top = torsion_stage + moved;
     assert!((slow[0].stage_mm + moved - 0.5 * top).abs() < 0.002, "{} of {top}", slow[0].stage_mm + moved);
-    assert!((slow[3].stage_mm - torsion_stage).abs() < 1e-3);
+    // Back at the torsion depth; on the drifting frame the gel passed the
+    // depth limit there since (the drift pressed on through the torsion
+    // sweep), so the return stops short of it, where the limit allows.
+    if truth == "thermal_drift" {
+        let short = torsion_stage - slow[3].stage_mm;
+        assert!((-1e-3..0.3).contains(&short), "{short} mm short of the torsion depth {torsion_stage}");
+    } else {
+        assert!((slow[3].stage_mm - torsion_stage).abs() < 1e-3);
+    }
     let waits: Vec<f64> = slow.iter().filter_map(|s| s.timing.move_s.map(|(_, end)| s.t_s - end)).collect();
     println!("{truth}: slow repeat, waited after each move {waits:?} s");
     for s in &slow {

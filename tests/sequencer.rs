@@ -622,8 +622,10 @@ async fn an_experiment_beyond_the_gamma1_limit_stops_safely_and_keeps_the_record
 /// used to command the move the guard refuses and abort: seen on the
 /// emulated rig in CI, a_slow_repeat_and_an_approach_at_another_speed_run_
 /// through_the_real_drivers.) The guard bounds the moves it is asked for;
-/// the drift goes on pressing at the hold, which it does not bound (the
-/// true gamma1 is printed).
+/// the drift goes on pressing at the hold, and there the depth watch backs
+/// the stage off whenever a reading passes the limit (without it the true
+/// gamma1 went to 4.69 mm on the 4.6 mm limit): the true gamma1 stays
+/// within the watch's noise margin and the gel's lag of the limit.
 #[tokio::test]
 async fn a_drifting_frame_at_the_depth_limit_holds_the_torsion_depth_there() {
     use sim::experiment::ExperimentSpec;
@@ -634,7 +636,8 @@ async fn a_drifting_frame_at_the_depth_limit_holds_the_torsion_depth_there() {
         Script { experiment: vec![ExperimentSpec::Dwell { hold_s: 2.0, every_s: 1.0 }], ..Script::default() };
     // The loading branch's top reads 4.4 mm of gamma1; 4 um/s of drift adds
     // about 0.3 mm of approach by the return.
-    script.limits.max_gamma1_mm = 4.6;
+    let script_limit = 4.6;
+    script.limits.max_gamma1_mm = script_limit;
     let cfg = SimRigConfig { frame_drift_mm_per_s: 4e-3, ..SimRigConfig::default() };
     let path = dir.path().join("drift.csv");
     let (out, events, rig) = run_sim(script, cfg, &path).await;
@@ -648,7 +651,22 @@ async fn a_drifting_frame_at_the_depth_limit_holds_the_torsion_depth_there() {
     assert!(twists.len() >= 10, "the torsion sweep ran at the held depth: {} samples", twists.len());
     // Every stage target the run commanded lies at or short of the hold.
     let st = rig.state();
-    assert!(st.stage_targets.iter().all(|t| *t <= held + 1e-9), "a move past the hold: {:?}", st.stage_targets);
+    // No stage target past the hold after it.
+    let at = st.stage_targets.iter().rposition(|t| (t - held).abs() < 1e-4).unwrap_or(0);
+    assert!(st.stage_targets[at..].iter().all(|t| *t <= held + 1e-9), "a move past the hold: {:?}", st.stage_targets);
+    let backoffs = logs_with(&events, "depth limit: gamma1");
+    println!("{backoffs:#?}");
+    assert!(!backoffs.is_empty(), "the drift took the gel past the limit at the hold: the watch backed off");
+    // Four reading noises (2 um here) and what the gel's lag lets the drift add.
+    assert!(
+        st.max_true_gamma1 <= script_limit + 0.02,
+        "the true gamma1 reached {:.4} mm on the {script_limit} mm limit",
+        st.max_true_gamma1
+    );
+    // The twists the watch moved are recorded where the stage went.
+    let depths: Vec<f64> = twists.iter().map(|s| s.stage_mm).collect();
+    assert!(depths.windows(2).all(|w| w[1] <= w[0] + 1e-12), "the torsion depth only backs off: {depths:?}");
+    assert!(depths.first() > depths.last(), "a twist recorded at the backed-off depth: {depths:?}");
 }
 
 mod mocks {
@@ -1109,4 +1127,27 @@ async fn the_run_can_be_spawned_on_a_task() {
         Sequencer::new(Script::default(), rig.stage(), rig.mount(), rig.gauge(), dir.path().join("s.csv")).unwrap();
     let out = tokio::spawn(async move { seq.run().await }).await.unwrap();
     assert!(out.completed());
+}
+
+/// A frame drifting into the gel at 0.2 mm/s (fifty times the rig tests'
+/// drift): the approach grows by 7 um a frame wherever the stage stands.
+/// The watch backs the stage off each time the readings pass the limit,
+/// the guard's bound follows the readings, and the run stops on the limit
+/// with the stage out of the gel. The true gamma1 stays within the watch's
+/// allowance of the 4.6 mm limit (4.64 mm; without the watch 4.79 mm).
+#[tokio::test]
+async fn a_frame_drifting_fast_into_the_gel_is_backed_off_and_stops_the_run_out_of_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut script = Script::default();
+    script.limits.max_gamma1_mm = 4.6;
+    let cfg = SimRigConfig { frame_drift_mm_per_s: 0.2, ..SimRigConfig::default() };
+    let path = dir.path().join("drift.csv");
+    let (out, events, rig) = run_sim(script, cfg, &path).await;
+    let RunStatus::Aborted(info) = &out.status else { panic!("{:?}", out.status) };
+    assert_eq!(info.culprit, Culprit::Safety, "{info}");
+    let backoffs = logs_with(&events, "depth limit: gamma1");
+    assert!(backoffs.len() >= 2, "{backoffs:#?}");
+    let st = rig.state();
+    assert!(st.max_true_gamma1 <= 4.65, "the true gamma1 reached {:.4} mm on the 4.6 mm limit", st.max_true_gamma1);
+    assert_eq!(st.stage_mm, 0.0, "the abort backed the stage off to its retract position");
 }

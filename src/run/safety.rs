@@ -28,11 +28,35 @@ pub struct SoftLimits {
 
 #[derive(Debug, Clone, PartialEq)]
 pub enum LimitViolation {
-    StageTravel { target_mm: f64, min_mm: f64, max_mm: f64 },
-    Gamma1 { target_mm: f64, bound_mm: f64, max_mm: f64 },
-    MountTravel { target_deg: f64, min_deg: f64, max_deg: f64 },
-    Twist { target_deg: f64, twist_deg: f64, max_deg: f64 },
-    NotFinite { what: &'static str },
+    StageTravel {
+        target_mm: f64,
+        min_mm: f64,
+        max_mm: f64,
+    },
+    Gamma1 {
+        target_mm: f64,
+        bound_mm: f64,
+        max_mm: f64,
+    },
+    /// A reading, with the stage standing, past the limit.
+    Gamma1Read {
+        stage_mm: f64,
+        gamma1_mm: f64,
+        max_mm: f64,
+    },
+    MountTravel {
+        target_deg: f64,
+        min_deg: f64,
+        max_deg: f64,
+    },
+    Twist {
+        target_deg: f64,
+        twist_deg: f64,
+        max_deg: f64,
+    },
+    NotFinite {
+        what: &'static str,
+    },
 }
 
 impl fmt::Display for LimitViolation {
@@ -44,6 +68,10 @@ impl fmt::Display for LimitViolation {
             LimitViolation::Gamma1 { target_mm, bound_mm, max_mm } => write!(
                 f,
                 "stage target {target_mm:.4} mm could deform the elastomer by up to {bound_mm:.4} mm, more than max gamma1 {max_mm:.4} mm"
+            ),
+            LimitViolation::Gamma1Read { stage_mm, gamma1_mm, max_mm } => write!(
+                f,
+                "gamma1 read {gamma1_mm:.4} mm at stage {stage_mm:.4} mm, more than max gamma1 {max_mm:.4} mm"
             ),
             LimitViolation::MountTravel { target_deg, min_deg, max_deg } => write!(
                 f,
@@ -157,6 +185,12 @@ impl SafetyGuard {
         if !self.stage_in_travel(target_mm) {
             return Err(LimitViolation::StageTravel { target_mm, min_mm: l.stage_min_mm, max_mm: l.stage_max_mm });
         }
+        // A move out never deforms the gel more than standing does: it is
+        // always allowed (the depth watch's back-off, when the gel already
+        // passed the limit with the stage standing, needs one).
+        if current_mm.is_finite() && gamma1_bound_mm.is_finite() && target_mm <= current_mm {
+            return Ok(());
+        }
         let bound = self.gamma1_bound(current_mm, gamma1_bound_mm, target_mm);
         if bound.is_nan() || bound > l.max_gamma1_mm {
             return Err(LimitViolation::Gamma1 { target_mm, bound_mm: bound, max_mm: l.max_gamma1_mm });
@@ -215,6 +249,11 @@ mod tests {
         assert!(g.check_stage(13.0, 3.99, 12.0).is_ok());
         assert!(g.check_stage(13.0, f64::NAN, 9.0).is_ok());
         assert!(g.check_stage(13.0, f64::NAN, 12.0).is_err(), "unknown gamma1 deeper than clear is refused");
+        // Past the limit already (the gel moved under a standing stage): out
+        // is allowed, any way in, even by a micrometre, is not.
+        assert!(g.check_stage(13.0, 4.3, 12.9).is_ok());
+        assert!(g.check_stage(13.0, 4.3, 13.0).is_ok());
+        assert!(matches!(g.check_stage(13.0, 4.3, 13.001), Err(LimitViolation::Gamma1 { .. })));
     }
 
     #[test]

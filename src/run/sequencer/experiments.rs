@@ -54,7 +54,7 @@ where
                 let contact = self.contact_mm.unwrap_or(hold);
                 for (pos, dir) in reload_path(hold, contact, fraction, steps, cycles) {
                     self.track.cursor = Cursor::Experiment { left: to_go };
-                    self.move_stage(pos, "reload experiment").await?;
+                    let pos = self.move_stage_limited(pos, "reload experiment").await?;
                     let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
                     self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
                     to_go = to_go.saturating_sub(1);
@@ -79,7 +79,7 @@ where
                 let contact = self.contact_mm.unwrap_or(hold);
                 for (pos, dir) in repeat_path(hold, contact, fraction, steps) {
                     self.track.cursor = Cursor::Experiment { left: to_go };
-                    self.move_stage(pos, "slow repeat experiment").await?;
+                    let pos = self.move_stage_limited(pos, "slow repeat experiment").await?;
                     self.wait_rig(dwell_s).await?;
                     let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
                     self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
@@ -120,7 +120,7 @@ where
                         self.log(LogLevel::Info, format!("approach_speed: stage top speed back to {usual} mm/s"));
                         break;
                     }
-                    self.move_stage(pos, "approach speed experiment").await?;
+                    let pos = self.move_stage_limited(pos, "approach speed experiment").await?;
                     let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
                     self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
                     to_go = to_go.saturating_sub(1);
@@ -466,7 +466,7 @@ where
     async fn slow_load(&mut self, path: &[(f64, Direction)], label: Experiment, to_go: &mut usize) -> Step<()> {
         for &(pos, dir) in path {
             self.track.cursor = Cursor::Experiment { left: *to_go };
-            self.move_stage(pos, "approach speed experiment").await?;
+            let pos = self.move_stage_limited(pos, "approach speed experiment").await?;
             let r = self.settle_frames(EXPERIMENT_FRAMES).await?;
             self.record(Phase::Normal, pos, r, None, Some(dir), Some(label))?;
             *to_go = to_go.saturating_sub(1);

@@ -19,6 +19,7 @@ mod settle;
 mod steps;
 #[cfg(test)]
 mod tests;
+mod watch;
 
 pub use outcome::{AbortInfo, AdaptiveStep, Backoff, Culprit, PhaseTime, RunOutcome, RunStatus};
 
@@ -119,6 +120,18 @@ pub struct Sequencer<S, R, G> {
     /// Inward travel of the last stage move: a reading right after a move may
     /// still lag behind the elastomer by up to this much.
     last_inward_mm: f64,
+    /// The commanded position of the current stop (NaN before the first move).
+    stop_mm: f64,
+    /// Where the depth watch backed the current stop off to (`watch.rs`).
+    backed_off: Option<watch::BackedOff>,
+    /// Back-offs since the last reading within the depth limit.
+    backoffs_in_a_row: u32,
+    /// Back-offs of the whole run.
+    depth_backoffs: u32,
+    /// The current stop's latest gamma1 readings (the watch's mean).
+    watch_recent: Vec<f64>,
+    /// A reading passed the guard's bound, and the log said so.
+    bound_passed_said: bool,
     noise: ReadingNoise,
     clock: RigClock,
     /// The recording's file, created at connect (a path that cannot be
@@ -360,6 +373,12 @@ where
             gamma1_mm: f64::NAN,
             gamma1_bound_mm: f64::NAN,
             last_inward_mm: 0.0,
+            stop_mm: f64::NAN,
+            backed_off: None,
+            backoffs_in_a_row: 0,
+            depth_backoffs: 0,
+            watch_recent: Vec::with_capacity(watch::WATCH_READINGS),
+            bound_passed_said: false,
             noise: ReadingNoise::default(),
             clock: RigClock::default(),
             recording_file: None,

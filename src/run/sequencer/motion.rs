@@ -10,13 +10,23 @@ where
     R: RotationMount + Identify,
     G: Gauge,
 {
-    /// The only way the stage moves during a run: checkpoint, guard, move, wait.
+    /// The only way the stage moves during a run to a new stop: checkpoint,
+    /// guard, move, wait.
     pub(super) async fn move_stage(&mut self, target: f64, context: &str) -> Step<f64> {
+        self.backed_off = None;
+        self.stop_mm = target;
+        self.move_stage_within(target, context).await
+    }
+
+    /// A guarded stage move that keeps the stop (the depth watch's back-off:
+    /// the stop's samples are recorded where it went, `watch.rs`).
+    pub(super) async fn move_stage_within(&mut self, target: f64, context: &str) -> Step<f64> {
         self.checkpoint().await?;
         let from = self.stage_mm;
         if let Err(v) = self.guard.check_stage(from, self.gamma1_bound_mm, target) {
             return Err(self.safety(context, v));
         }
+        self.watch_recent.clear();
         // From here on the stage may be anywhere up to the target.
         self.gamma1_bound_mm = self.guard.gamma1_bound(from, self.gamma1_bound_mm, target);
         self.last_inward_mm = if from.is_finite() { (target - from).max(0.0) } else { 0.0 };

@@ -18,6 +18,8 @@ where
         dir: Option<Direction>,
         experiment: Option<Experiment>,
     ) -> Step<()> {
+        // A stop the depth watch backed off is recorded where it went.
+        let stage_abs = self.at_stop(stage_abs);
         let contact = self.contact_mm.unwrap_or(0.0);
         let t0 = self.clock.t0.unwrap_or(r.t_s);
         let t_s = (r.t_s - t0).max(self.samples.last().map(|s| s.t_s).unwrap_or(0.0));

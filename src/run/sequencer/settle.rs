@@ -34,6 +34,12 @@ where
                 Ok(r) => {
                     self.consecutive_timeouts = 0;
                     self.note_reading(&r);
+                    if let Some(seen) = self.past_depth_limit(&r) {
+                        // Backed off: the next reading is the new stop's.
+                        self.back_off(seen).await?;
+                        continue;
+                    }
+                    self.backoffs_in_a_row = 0;
                     return Ok(r);
                 }
                 Err(GaugeError::Timeout { .. }) => {
@@ -74,7 +80,15 @@ where
         self.track.costs.note_read(self.clock.t_last);
         self.clock.pending.read(self.clock.t_last);
         self.gamma1_mm = r.gamma1_mm;
-        self.gamma1_bound_mm = self.gamma1_bound_mm.min(r.gamma1_mm + self.last_inward_mm + self.reading_margin());
+        let margin = self.reading_margin();
+        let from_reading = r.gamma1_mm + self.last_inward_mm + margin;
+        if r.gamma1_mm > self.gamma1_bound_mm + margin {
+            // The gel deformed past what the guard held possible here.
+            self.note_bound_passed(r, margin);
+            self.gamma1_bound_mm = from_reading;
+        } else {
+            self.gamma1_bound_mm = self.gamma1_bound_mm.min(from_reading);
+        }
     }
 
     /// Read until the reading is stable, never a fixed wait. The readings
@@ -101,9 +115,16 @@ where
         let floor_t = self.noise.theta1_deg.max(live_t);
         let mut buf: Vec<GaugeReading> = Vec::new();
         let mut t_start = None;
+        let mut backoffs = self.depth_backoffs;
         loop {
             self.checkpoint().await?;
             let r = self.read().await?;
+            if self.depth_backoffs != backoffs {
+                // The depth watch moved the stage: settle afresh where it went.
+                backoffs = self.depth_backoffs;
+                buf.clear();
+                t_start = None;
+            }
             let t_first = *t_start.get_or_insert(r.t_s);
             buf.push(r);
             if buf.len() >= 3 * n {

@@ -279,6 +279,7 @@ where
                         continue;
                     }
                 }
+                pos = self.at_stop(pos);
                 let last = r.gamma1_mm >= a.refine_to_gamma1_mm || path.len() + 1 >= a.refine_steps.max(4) * 2;
                 if let Some(p) = self.pending.as_mut() {
                     p.held.push(Held { stage_mm: pos, reading: r, rep: Some(rep), timing: self.clock.pending.take() });
@@ -288,7 +289,9 @@ where
                 }
                 r
             } else {
-                self.sample(Phase::Normal, pos, frames, Some(rep), Some(Direction::Load)).await?
+                let r = self.sample(Phase::Normal, pos, frames, Some(rep), Some(Direction::Load)).await?;
+                pos = self.at_stop(pos);
+                r
             };
             let contact = self.contact_mm.unwrap_or(contact0);
             let beta = ((pos - contact) - r.gamma1_mm) / r2;
@@ -355,6 +358,25 @@ where
         allowed
     }
 
+    /// A stop of a path back through depths the sweeps reached (an
+    /// experiment's reload, slow repeat or approach at another speed) at
+    /// `target_mm`: shortened to the depth limit ([`Self::within_depth_limit`]),
+    /// and where the limit leaves no step in (a frame drifting into the gel
+    /// since the sweep went there), held where the stage stands, logged as a
+    /// warning. Returns the stop's commanded position.
+    pub(super) async fn move_stage_limited(&mut self, target_mm: f64, context: &str) -> Step<f64> {
+        let pos = self.within_depth_limit(target_mm, context);
+        if pos > self.stage_mm
+            && let Err(v @ LimitViolation::Gamma1 { .. }) =
+                self.guard.check_stage(self.stage_mm, self.gamma1_bound_mm, pos)
+        {
+            self.log(LogLevel::Warn, format!("{context}: {v}: held at stage {:.4} mm", self.stage_mm));
+            return Ok(self.at_stop(self.stop_mm));
+        }
+        self.move_stage(pos, context).await?;
+        Ok(pos)
+    }
+
     /// The unloading branch: from the top of `path` back out, by
     /// `normal.unload_step_mm` to the last stop in contact (0: through the
     /// loading positions, to the sweep's start).
@@ -370,7 +392,12 @@ where
         } else {
             path.iter().rev().skip(1).map(|p| p.0).collect()
         };
+        let backoffs = self.depth_backoffs;
         for (i, pos) in back.iter().enumerate() {
+            // The depth watch backed a stop off past this one: the branch goes on from there.
+            if self.depth_backoffs != backoffs && *pos >= self.stage_mm {
+                continue;
+            }
             self.track.cursor = Cursor::Unload { rep, left: back.len() - i };
             self.move_stage(*pos, "normal unload").await?;
             self.sample(Phase::Normal, *pos, n.frames, Some(rep), Some(Direction::Unload)).await?;
@@ -512,6 +539,7 @@ where
             }
             self.move_stage(pos, "return to depth").await?;
             let r = self.settle().await?;
+            pos = self.at_stop(pos);
             beta = ((pos - contact) - r.gamma1_mm) / r2;
             // Good to a quarter of a percent of the target, or as good as the step allows.
             if (beta - target).abs() <= DEPTH_TOLERANCE * target {
