@@ -435,12 +435,12 @@ fn taken_with_slopes(
 
 /// What friction adds to the FE layer model at `q`, per sample: the
 /// frictional press and the twist of its state, less the frictionless ones,
-/// both solved on the same mesh at each sample's approach (their
-/// node-to-node steps cancel; docs/fem.md, "The tabulated law"). The layer
-/// model is the tabulated frictionless law plus this. The gel and the
-/// indenter grip each other while the stage presses, so the frictional
-/// state depends on the path: it is followed from first touch through the
-/// recording's depths in steps of at most a sixtieth of the deepest.
+/// both solved on the same mesh at the same approaches (their node-to-node
+/// steps cancel; docs/fem.md, "The tabulated law"). The layer model is the
+/// tabulated frictionless law plus this. The gel and the indenter grip each
+/// other while the stage presses, so the frictional state depends on the
+/// path: it is followed from first touch in even steps of the approach and
+/// read at each sample between them (docs/fem.md, "The passes").
 fn friction_added(rec: &Recording, q: &ModelParams, layer: Layer) -> Result<Vec<(f64, f64)>, FitError> {
     let ind = rec.meta.indenter;
     let fw = crate::layer::forward(&layer, ind.e_mpa, ind.nu, ind.r_mm)?;
@@ -451,39 +451,76 @@ fn friction_added(rec: &Recording, q: &ModelParams, layer: Layer) -> Result<Vec<
     let mu = q.contact_friction.unwrap_or(f64::INFINITY);
     let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - q.contact_offset_mm).collect();
     let deepest = deltas.iter().copied().fold(0.0, f64::max);
-    let path = model.normal_path_memo(&deltas, mu, (deepest / NORMAL_LOAD_STEPS).max(1e-6))?;
-    // The twists of each depth the torsion sweep holds, on both states.
-    let mut twists: HashMap<u64, (usize, Vec<f64>)> = HashMap::new();
-    for (i, (s, &d)) in rec.samples.iter().zip(&deltas).enumerate() {
-        if s.phase == Phase::Torsion {
-            twists.entry(d.to_bits()).or_insert((i, Vec::new())).1.push(s.rot_deg.to_radians().abs());
+    // The twists of each depth the torsion sweep holds.
+    let mut twists: HashMap<u64, Vec<f64>> = HashMap::new();
+    for (s, &d) in rec.samples.iter().zip(&deltas) {
+        if s.phase == Phase::Torsion && d > 0.0 {
+            twists.entry(d.to_bits()).or_default().push(s.rot_deg.to_radians().abs());
         }
     }
-    let mut plain: HashMap<u64, fem::ContactState> = HashMap::new();
-    for &d in &deltas {
-        if let Entry::Vacant(e) = plain.entry(d.to_bits()) {
-            e.insert(model.normal_memo(d)?);
-        }
+    // The path stops at even steps of the approach, a sixtieth of the
+    // deepest stage reading apart, as far as the deepest sample (and the
+    // step beyond it): what friction adds is smooth in the approach and is
+    // read at each sample between the stops. The stops do not move with the
+    // contact offset z0 (it moves where the samples lie among them): a path
+    // stopped at the samples' own depths changed its stick and slip at the
+    // contact's edge with every tenth of a micrometre of z0, its correction
+    // stepping by 0.1 µm of gamma1 and 0.6 mdeg of theta1, so that its
+    // derivative in z0 was noise and the fit's passes wandered by up to a
+    // standard error on the simulated rig's recording (docs/fem.md, "The
+    // passes").
+    let stage_deepest = rec.samples.iter().map(|s| s.stage_mm).fold(0.0, f64::max);
+    let step = stage_deepest.max(1e-3) / NORMAL_LOAD_STEPS;
+    let count = (deepest / step).ceil().max(0.0) as usize;
+    if count > 4 * NORMAL_LOAD_STEPS as usize {
+        return Err(FitError::Model(format!(
+            "a contact offset of {:.4} mm lies far outside the recording's stage readings",
+            q.contact_offset_mm
+        )));
     }
+    let stops: Vec<f64> = (1..=count).map(|k| k as f64 * step).collect();
+    let path = model.normal_path_memo(&stops, mu, step)?;
+    let plain: Vec<fem::ContactState> = stops.iter().map(|&d| model.normal_memo(d)).collect::<Result<_, _>>()?;
+    // What friction adds to gamma1 at each stop, none at first touch.
+    let nodes: Vec<(f64, f64)> = std::iter::once((0.0, 0.0))
+        .chain(stops.iter().zip(path.iter().zip(&plain)).map(|(&d, (f, p))| (d, f.gamma1_mm - p.gamma1_mm)))
+        .collect();
+    // ... and to each twist of a held depth, at the stops either side of it
+    // (none at first touch), linear between them.
+    let mut at_stop: HashMap<(usize, u64), f64> = HashMap::new();
     let mut twist_added: HashMap<(u64, u64), f64> = HashMap::new();
-    for (d, (first, mut at)) in twists {
+    for (d, mut at) in twists {
         at.sort_by(f64::total_cmp);
         at.dedup();
-        let sweep = |st: &fem::ContactState| match model.twist_setup(st, mu) {
-            Some(setup) => model.theta1_rad_sweep(&setup, &at),
-            None => vec![None; at.len()],
-        };
-        for ((t, a), b) in at.iter().zip(sweep(&path[first])).zip(sweep(&plain[&d])) {
-            twist_added.insert((d, t.to_bits()), (a.unwrap_or(0.0) - b.unwrap_or(0.0)).to_degrees());
+        let depth = f64::from_bits(d);
+        let above = ((depth / step).ceil() as usize).clamp(1, stops.len().max(1));
+        let w = ((depth - (above - 1) as f64 * step) / step).clamp(0.0, 1.0);
+        for k in [above - 1, above] {
+            if k == 0 || at.iter().all(|t| at_stop.contains_key(&(k, t.to_bits()))) {
+                continue;
+            }
+            let (Some(pressed), Some(free)) = (path.get(k - 1), plain.get(k - 1)) else {
+                return Err(FitError::Model("a held depth of the torsion sweep lies beyond the path".into()));
+            };
+            let sweep = |st: &fem::ContactState| match model.twist_setup(st, mu) {
+                Some(setup) => model.theta1_rad_sweep(&setup, &at),
+                None => vec![None; at.len()],
+            };
+            for ((t, a), b) in at.iter().zip(sweep(pressed)).zip(sweep(free)) {
+                at_stop.insert((k, t.to_bits()), (a.unwrap_or(0.0) - b.unwrap_or(0.0)).to_degrees());
+            }
+        }
+        for t in &at {
+            let read = |k: usize| if k == 0 { 0.0 } else { at_stop.get(&(k, t.to_bits())).copied().unwrap_or(0.0) };
+            twist_added.insert((d, t.to_bits()), (1.0 - w) * read(above - 1) + w * read(above));
         }
     }
     Ok(rec
         .samples
         .iter()
         .zip(&deltas)
-        .zip(path.iter())
-        .map(|((s, &d), pressed)| {
-            let gamma1 = pressed.gamma1_mm - plain[&d.to_bits()].gamma1_mm;
+        .map(|(s, &d)| {
+            let gamma1 = if d > 0.0 { cubic_through(&nodes, d) } else { 0.0 };
             let theta1 = match s.phase {
                 Phase::Normal => 0.0,
                 Phase::Torsion => {
@@ -494,6 +531,29 @@ fn friction_added(rec: &Recording, q: &ModelParams, layer: Layer) -> Result<Vec<
             (gamma1, theta1)
         })
         .collect())
+}
+
+/// The cubic through the four nodes around `x` (sorted by their first
+/// entry; fewer where there are fewer), at `x`: a node's own value there.
+fn cubic_through(nodes: &[(f64, f64)], x: f64) -> f64 {
+    let n = nodes.len();
+    if n == 0 {
+        return 0.0;
+    }
+    let above = nodes.partition_point(|p| p.0 < x);
+    if let Some(p) = nodes.get(above).filter(|p| p.0 == x) {
+        return p.1;
+    }
+    let lo = above.saturating_sub(2).min(n.saturating_sub(4));
+    let near = &nodes[lo..(lo + 4).min(n)];
+    near.iter()
+        .enumerate()
+        .map(|(i, &(xi, yi))| {
+            let w: f64 =
+                near.iter().enumerate().filter(|&(j, _)| j != i).map(|(_, &(xj, _))| (x - xj) / (xi - xj)).product();
+            w * yi
+        })
+        .sum()
 }
 
 /// The friction correction at `p` without its derivatives (what the layer
@@ -517,14 +577,59 @@ pub(super) fn friction_at(rec: &Recording, p: &ModelParams) -> Result<Option<Cor
     }))
 }
 
-/// Load steps from first touch to the deepest sample in the frictional normal
-/// path (from 30 to 120 steps gamma1 moves by at most 0.4 µm on the dev set's
-/// recordings, a fifth of their noise; docs/physics.md).
+/// Load steps from first touch to the deepest stage reading in the
+/// frictional normal path (from 30 to 120 steps gamma1 moves by at most 0.4
+/// µm on the dev set's recordings, a fifth of their noise; docs/physics.md).
 const NORMAL_LOAD_STEPS: f64 = 60.0;
 
 #[cfg(test)]
 mod tests {
-    use super::friction_move;
+    use super::*;
+
+    fn dev(name: &str) -> Recording {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear").join(name);
+        Recording::read_path(&path).unwrap()
+    }
+
+    /// What friction adds moves smoothly with the contact offset z0: over
+    /// steps of 0.1 µm its change at the deepest press and at a 3° twist
+    /// keeps its slope, so that the fit's finite difference in z0 (0.2 µm)
+    /// is a derivative. A path stopped at the samples' own depths (which
+    /// move with z0) stepped at every tenth of a micrometre, by about 0.1
+    /// µm of gamma1 and 0.6 mdeg of theta1 on the simulated rig's gel, where
+    /// the slope is 0.005 µm and 0.002 mdeg per step.
+    #[test]
+    fn what_friction_adds_is_smooth_in_the_contact_offset() {
+        let rec = dev("tableI_3_E2-3.0_nu2-0.40.csv");
+        let layer = fe_layer(&rec).unwrap();
+        let deep = (0..rec.samples.len())
+            .filter(|&i| rec.samples[i].phase == Phase::Normal)
+            .max_by(|&a, &b| rec.samples[a].stage_mm.total_cmp(&rec.samples[b].stage_mm))
+            .unwrap();
+        let twist = rec.samples.iter().position(|s| s.phase == Phase::Torsion && s.rot_deg.abs() > 2.5).unwrap();
+        let added: Vec<(f64, f64)> = (-5..=5)
+            .map(|k| {
+                let q = ModelParams {
+                    e1_mpa: 1.0,
+                    nu1: 0.48,
+                    contact_offset_mm: 1e-4 * k as f64,
+                    contact_friction: Some(0.4),
+                    large_strain: false,
+                };
+                let c = friction_added(&rec, &q, layer).unwrap();
+                (c[deep].0 * 1e3, c[twist].1 * 1e3)
+            })
+            .collect();
+        let steps = |f: fn(&(f64, f64)) -> f64| -> Vec<f64> { added.windows(2).map(|w| f(&w[1]) - f(&w[0])).collect() };
+        for (what, d, floor) in [("gamma1 µm", steps(|v| v.0), 2e-3), ("theta1 mdeg", steps(|v| v.1), 0.02)] {
+            let mut sorted = d.clone();
+            sorted.sort_by(f64::total_cmp);
+            let median = sorted[sorted.len() / 2];
+            let worst = d.iter().map(|v| (v - median).abs()).fold(0.0, f64::max);
+            println!("{what}: steps {d:.5?}");
+            assert!(worst <= 0.2 * median.abs() + floor, "{what}: a step {worst} off the median step {median}");
+        }
+    }
 
     /// Below where it was taken the correction moves with the friction
     /// itself, above with its logarithm; the two meet with the same value and
