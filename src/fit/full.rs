@@ -956,11 +956,6 @@ fn r_squared_of(rec: &Recording, pred: &[Prediction]) -> R2 {
 mod tests {
     use super::*;
 
-    fn dev(name: &str) -> Recording {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear").join(name);
-        Recording::read_path(&path).unwrap()
-    }
-
     /// The friction correction's passes on tableI_3 (E1 1, nu1 0.48) from a
     /// typical start: the second still moves nu1 by about 0.01 (over a
     /// standard error), the fourth by a few millionths. Cut at two passes the
@@ -968,7 +963,7 @@ mod tests {
     /// settles, says nothing of them, and is converged.
     #[test]
     fn passes_cut_short_while_moving_say_so_and_do_not_count_as_converged() {
-        let rec = dev("tableI_3_E2-3.0_nu2-0.40.csv");
+        let rec = crate::fit::dev_recording("tableI_3_E2-3.0_nu2-0.40.csv");
         let start =
             ModelParams { e1_mpa: 0.8, nu1: 0.35, contact_offset_mm: 0.0, contact_friction: None, large_strain: false };
         let opts = FullOptions::default();

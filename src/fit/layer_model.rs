@@ -586,21 +586,16 @@ const NORMAL_LOAD_STEPS: f64 = 60.0;
 mod tests {
     use super::*;
 
-    fn dev(name: &str) -> Recording {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear").join(name);
-        Recording::read_path(&path).unwrap()
-    }
-
     /// What friction adds moves smoothly with the contact offset z0: over
     /// steps of 0.1 µm its change at the deepest press and at a 3° twist
     /// keeps its slope, so that the fit's finite difference in z0 (0.2 µm)
     /// is a derivative. A path stopped at the samples' own depths (which
     /// move with z0) stepped at every tenth of a micrometre, by about 0.1
     /// µm of gamma1 and 0.6 mdeg of theta1 on the simulated rig's gel, where
-    /// the slope is 0.005 µm and 0.002 mdeg per step.
+    /// the slope is 0.0005 µm and 0.002 mdeg a step.
     #[test]
     fn what_friction_adds_is_smooth_in_the_contact_offset() {
-        let rec = dev("tableI_3_E2-3.0_nu2-0.40.csv");
+        let rec = crate::fit::dev_recording("tableI_3_E2-3.0_nu2-0.40.csv");
         let layer = fe_layer(&rec).unwrap();
         let deep = (0..rec.samples.len())
             .filter(|&i| rec.samples[i].phase == Phase::Normal)

@@ -296,6 +296,14 @@ fn paper_warnings(p: &PaperFit) -> Vec<Warning> {
     w
 }
 
+/// A linear recording of the dev set (`tests/data/fem-dev/linear`), for the
+/// fit's unit tests.
+#[cfg(test)]
+pub(crate) fn dev_recording(name: &str) -> sim::recording::Recording {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear").join(name);
+    sim::recording::Recording::read_path(&path).expect("a dev-set recording")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
