@@ -54,8 +54,14 @@ fn run(e_ratio: f64, nu1: f64, nu2: f64) -> Vec<String> {
         let Ok(li) = linear.normal(delta) else { break };
         let nl_stuck = large.theta1_rad(&nl, &[STUCK_RAD], f64::INFINITY).ok().map(|t| t[0] / STUCK_RAD);
         let nl_slip = large.theta1_rad(&nl, &twists, 1.0).ok();
-        let li_stuck = linear.theta1_rad(&li, STUCK_RAD, f64::INFINITY).map(|t| t / STUCK_RAD);
-        let li_setup = linear.twist_setup(&li, 1.0);
+        // The linear twist over the nodes' edge: the fit's large-strain model
+        // scales that twist by these ratios (fem::forward::TwistDisc).
+        let edge = fem::forward::TwistDisc::NodeEdge;
+        let li_stuck = linear
+            .twist_setup_over(&li, f64::INFINITY, edge)
+            .and_then(|s| linear.theta1_rad_at(&s, STUCK_RAD))
+            .map(|t| t / STUCK_RAD);
+        let li_setup = linear.twist_setup_over(&li, 1.0, edge);
         let (Some(ns), Some(nf), Some(ls), Some(setup)) = (nl_stuck, nl_slip, li_stuck, li_setup) else { continue };
         for (&x, (&tw, &n)) in TWIST_OVER_MU_DEG.iter().zip(twists.iter().zip(&nf)) {
             let Some(l) = linear.theta1_rad_at(&setup, tw) else { continue };

@@ -71,8 +71,8 @@ pub fn hemisphere_segments(fine_mm: f64) -> usize {
 impl GelTables {
     /// The tables on the first `nodes` surface nodes; the nine Poisson's ratios
     /// are factored and solved on threads of their own.
-    fn build(base: Base, h: f64, nodes: usize, integration: Integration) -> Result<Self, FemError> {
-        let mesh = gel_mesh(h)?.on_base(base);
+    fn build(base: Base, h: f64, fine_mm: f64, nodes: usize, integration: Integration) -> Result<Self, FemError> {
+        let mesh = gel_mesh_at(h, fine_mm)?.on_base(base);
         let nodes = nodes.min(mesh.surface.len());
         let r = mesh.surface_radii()[..nodes].to_vec();
         let nu = nu_nodes();
@@ -99,9 +99,11 @@ impl GelTables {
 
     /// Shared per thickness and node count: the tables take seconds and every
     /// fit of a gel reuses them.
-    fn cached(base: Base, h: f64, nodes: usize, integration: Integration) -> Result<Arc<Self>, FemError> {
-        static CACHE: BuildOnce<(Base, u64, usize, Integration), GelTables> = BuildOnce::new();
-        CACHE.get((base, h.to_bits(), nodes, integration), || Self::build(base, h, nodes, integration))
+    fn cached(base: Base, h: f64, fine_mm: f64, nodes: usize, integration: Integration) -> Result<Arc<Self>, FemError> {
+        static CACHE: BuildOnce<(Base, [u64; 2], usize, Integration), GelTables> = BuildOnce::new();
+        CACHE.get((base, [h.to_bits(), fine_mm.to_bits()], nodes, integration), || {
+            Self::build(base, h, fine_mm, nodes, integration)
+        })
     }
 }
 
@@ -133,6 +135,15 @@ impl<K: std::hash::Hash + Eq, T> BuildOnce<K, T> {
 
 /// The indenter (a hemisphere held at its flat face) against a bonded gel of one thickness.
 pub struct Forward {
+    /// What it was built from: the gel's base and thickness, the indenter's
+    /// modulus, Poisson's ratio and radius, the element size at the contact
+    /// and the element's integration (its tabulated law builds the same rig
+    /// on a finer mesh too).
+    base: Base,
+    thickness_mm: f64,
+    indenter_nu: f64,
+    fine_mm: f64,
+    integration: Integration,
     gel: Arc<GelTables>,
     n: usize,
     radius_mm: f64,
@@ -145,8 +156,11 @@ pub struct Forward {
     recent: Mutex<VecDeque<([u64; 2], Arc<Model>)>>,
     /// The tabulated law at the last few parameter sets asked for (see
     /// [`Forward::tabulated_at`]).
-    recent_laws: Mutex<VecDeque<([u64; 2], Arc<LawAt>)>>,
+    recent_laws: Mutex<VecDeque<(LawKey, Arc<LawAt>)>>,
 }
+
+/// A contracted law's key: (E1, nu1) bit for bit, and the twist's disc.
+type LawKey = ([u64; 2], TwistDisc);
 
 /// How many parameter sets [`Forward::model_shared`] keeps: a fit's finite
 /// differences in the contact offset and the friction come back to the
@@ -162,21 +176,36 @@ struct FrictionalParts {
     radius_mm: f64,
 }
 
+/// The disc theta1 is taken over (docs/physics.md, "Finite-element
+/// reference", theta1 as the sensor takes it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum TwistDisc {
+    /// Out to the contact's radius ([`TwoBodyContact::contact_radius_mm`]):
+    /// the sensor's r <= a. The default.
+    #[default]
+    Contact,
+    /// Out to the interpolated edge of the nodes in contact
+    /// ([`TwoBodyContact::contact_edge_mm`]), a third of a node spacing
+    /// further: the linear side of the large-strain twist ratios was taken
+    /// over it, and a ratio scales the twist it was taken against.
+    NodeEdge,
+}
+
 /// What the twists of one normal state share: its outermost node in contact,
-/// each node's Coulomb limit for the twist, the contact's edge, and the stuck
-/// cores its twists have solved so far.
+/// each node's Coulomb limit for the twist, the radius of the disc theta1 is
+/// taken over, and the stuck cores its twists have solved so far.
 #[derive(Debug)]
 pub struct TwistSetup {
     last: usize,
     cap: Vec<f64>,
-    edge_mm: f64,
+    disc_mm: f64,
     cores: Mutex<Cores>,
 }
 
 impl Clone for TwistSetup {
     fn clone(&self) -> Self {
         let cores = crate::lock_cache(&self.cores).clone();
-        Self { last: self.last, cap: self.cap.clone(), edge_mm: self.edge_mm, cores: Mutex::new(cores) }
+        Self { last: self.last, cap: self.cap.clone(), disc_mm: self.disc_mm, cores: Mutex::new(cores) }
     }
 }
 
@@ -239,8 +268,25 @@ impl Forward {
         static CACHE: BuildOnce<(Base, [u64; 4]), Forward> = BuildOnce::new();
         let key = (base, [thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm].map(f64::to_bits));
         CACHE.get(key, || {
-            Self::build(base, thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm, Integration::Selective)
+            Self::build(base, thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm, FINE_MM, Integration::Selective)
         })
+    }
+
+    /// This rig on a mesh of `fine_mm` elements at the contact, shared per
+    /// process like [`Self::cached_on`] (the tabulated law's second mesh).
+    pub fn cached_on_mesh(&self, fine_mm: f64) -> Result<Arc<Self>, FemError> {
+        static CACHE: BuildOnce<(Base, [u64; 5], Integration), Forward> = BuildOnce::new();
+        let (base, integration) = (self.base, self.integration);
+        let dims = [self.thickness_mm, self.indenter_e_mpa, self.indenter_nu, self.radius_mm, fine_mm];
+        CACHE.get((base, dims.map(f64::to_bits), integration), || {
+            let [h, e2, nu2, r2, fine] = dims;
+            Self::build(base, h, e2, nu2, r2, fine, integration)
+        })
+    }
+
+    /// The element size at the contact, mm.
+    pub fn element_mm(&self) -> f64 {
+        self.fine_mm
     }
 
     pub fn new(thickness_mm: f64, indenter_e_mpa: f64, indenter_nu: f64, indenter_r_mm: f64) -> Result<Self, FemError> {
@@ -257,7 +303,7 @@ impl Forward {
         indenter_r_mm: f64,
         integration: Integration,
     ) -> Result<Self, FemError> {
-        Self::build(Base::Bonded, thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm, integration)
+        Self::build(Base::Bonded, thickness_mm, indenter_e_mpa, indenter_nu, indenter_r_mm, FINE_MM, integration)
     }
 
     fn build(
@@ -266,16 +312,20 @@ impl Forward {
         indenter_e_mpa: f64,
         indenter_nu: f64,
         indenter_r_mm: f64,
+        fine_mm: f64,
         integration: Integration,
     ) -> Result<Self, FemError> {
         if !(thickness_mm > 0.0 && thickness_mm.is_finite() && indenter_r_mm > 0.0 && indenter_r_mm < 100.0) {
             return Err(FemError::Invalid(format!("layer {thickness_mm} mm, indenter radius {indenter_r_mm} mm")));
         }
         // Only the gel's nodes under the indenter can touch it: tabulate those.
-        let rs: Vec<f64> =
-            gel_mesh(thickness_mm)?.surface_radii().into_iter().filter(|&r| r < 0.97 * indenter_r_mm).collect();
-        let gel = GelTables::cached(base, thickness_mm, rs.len(), integration)?;
-        let hemi = Mesh::hemisphere(indenter_r_mm, &rs, 30)?;
+        let rs: Vec<f64> = gel_mesh_at(thickness_mm, fine_mm)?
+            .surface_radii()
+            .into_iter()
+            .filter(|&r| r < 0.97 * indenter_r_mm)
+            .collect();
+        let gel = GelTables::cached(base, thickness_mm, fine_mm, rs.len(), integration)?;
+        let hemi = Mesh::hemisphere(indenter_r_mm, &rs, hemisphere_segments(fine_mm))?;
         let g2 = indenter_e_mpa / (2.0 * (1.0 + indenter_nu));
         let ind_torsion = TorsionBody::new(&hemi)?
             .surface_compliance(&hemi.surface)
@@ -287,6 +337,11 @@ impl Forward {
                 .surface_compliance_rz(usize::MAX),
         );
         Ok(Self {
+            base,
+            thickness_mm,
+            indenter_nu,
+            fine_mm,
+            integration,
             gel,
             n: rs.len(),
             radius_mm: indenter_r_mm,
@@ -327,11 +382,16 @@ impl Forward {
     /// contraction of the material axes is most of a tabulated evaluation.
     /// `None` where the table cannot be built or does not reach.
     pub fn tabulated_at(&self, e1_mpa: f64, nu1: f64) -> Option<Arc<LawAt>> {
-        let key = [e1_mpa.to_bits(), nu1.to_bits()];
+        self.tabulated_over(e1_mpa, nu1, TwistDisc::Contact)
+    }
+
+    /// [`Forward::tabulated_at`] with theta1 taken over `disc`.
+    pub fn tabulated_over(&self, e1_mpa: f64, nu1: f64, disc: TwistDisc) -> Option<Arc<LawAt>> {
+        let key = ([e1_mpa.to_bits(), nu1.to_bits()], disc);
         if let Some(at) = crate::lock_cache(&self.recent_laws).iter().find(|(k, _)| *k == key).map(|(_, a)| a.clone()) {
             return Some(at);
         }
-        let at = Arc::new(self.tabulated().ok()?.at(e1_mpa, nu1)?);
+        let at = Arc::new(self.tabulated().ok()?.at_over(e1_mpa, nu1, disc)?);
         let mut r = crate::lock_cache(&self.recent_laws);
         if r.len() == RECENT_MODELS {
             r.pop_front();
@@ -479,8 +539,14 @@ impl Model {
     }
 
     /// What every twist of normal state `st` with friction `mu` shares (see
-    /// [`Model::theta1_rad_at`]); `None` when nothing is in contact off the axis.
+    /// [`Model::theta1_rad_at`]), theta1 taken over the contact
+    /// ([`TwistDisc::Contact`]); `None` when nothing is in contact off the axis.
     pub fn twist_setup(&self, st: &ContactState, mu: f64) -> Option<TwistSetup> {
+        self.twist_setup_over(st, mu, TwistDisc::Contact)
+    }
+
+    /// [`Model::twist_setup`] with theta1 taken over `disc`.
+    pub fn twist_setup_over(&self, st: &ContactState, mu: f64, disc: TwistDisc) -> Option<TwistSetup> {
         let r = self.contact.radii();
         let last = (0..r.len()).rev().find(|&i| st.nodal_force[i] > 0.0)?;
         if last == 0 {
@@ -498,7 +564,11 @@ impl Model {
                 ((mu * st.nodal_force[i]).powi(2) - radial * radial).max(0.0).sqrt()
             })
             .collect();
-        Some(TwistSetup { last, cap, edge_mm: self.contact.contact_edge_mm(st), cores: Mutex::default() })
+        let disc_mm = match disc {
+            TwistDisc::Contact => self.contact.contact_radius_mm(st),
+            TwistDisc::NodeEdge => self.contact.contact_edge_mm(st),
+        };
+        Some(TwistSetup { last, cap, disc_mm, cores: Mutex::default() })
     }
 
     /// [`Model::theta1_rad`] for a mount twist `twist_rad` on a state prepared
@@ -629,7 +699,7 @@ impl Model {
             let f = ti * self.inv_g1;
             u[1..].iter_mut().zip(&self.torsion_unit.torsion[i + 1][1..=outer]).for_each(|(ui, g)| *ui += g * f);
         }
-        contact_twist(&r[..=outer], &u, setup.edge_mm)
+        contact_twist(&r[..=outer], &u, setup.disc_mm)
     }
 }
 
@@ -712,7 +782,7 @@ mod tests {
                 u[k + 1] += g * ti * m.inv_g1;
             }
         }
-        contact_twist(&r[..=outer], &u, setup.edge_mm)
+        contact_twist(&r[..=outer], &u, setup.disc_mm)
     }
 
     /// The stuck cores a twist set-up keeps (each core's answer per radian

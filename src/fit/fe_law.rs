@@ -179,6 +179,17 @@ impl LayeredBase {
     }
 }
 
+/// The disc the linear layer model's theta1 is taken over: the contact's
+/// (the sensor's r <= a), and at large strain the nodes' edge, over which
+/// the linear side of the neo-Hookean reference's twist ratios was taken
+/// (docs/physics.md, "theta1 over the contact").
+pub(crate) fn twist_disc(large_strain: bool) -> fem::forward::TwistDisc {
+    match large_strain {
+        true => fem::forward::TwistDisc::NodeEdge,
+        false => fem::forward::TwistDisc::Contact,
+    }
+}
+
 /// One parameter set of the FE layer model as a contact law: the
 /// frictionless press and the twist limited by the fit's friction, read off
 /// the rig's tabulated law (docs/fem.md, "The tabulated law") and solved on
@@ -225,7 +236,7 @@ impl FeLaw {
         table: Option<fem::hyper::AtGroups<'static>>,
     ) -> Self {
         // A rig whose law cannot be tabulated is solved on the FE model throughout.
-        let tabulated = forward.tabulated_at(e1_mpa, nu1);
+        let tabulated = forward.tabulated_over(e1_mpa, nu1, twist_disc(table.is_some()));
         let indenter_r_mm = forward.indenter_radius_mm();
         FeLaw {
             forward,
@@ -280,7 +291,11 @@ impl FeLaw {
             .and_then(|t| Some((t.gamma1_mm(delta_mm)?, t.force_n(delta_mm)?, t.contact_radius_mm(delta_mm)?)));
         match read {
             Some(v) => Ok(v),
-            None => self.state(delta_mm).map(|s| (s.state.gamma1_mm, s.state.force_n, s.radius_mm)),
+            // On the FE model's own mesh, plus what the limit adds there.
+            None => self.state(delta_mm).map(|s| {
+                let mesh = self.tabulated.as_ref().and_then(|t| t.mesh_gamma1_mm(delta_mm)).unwrap_or(0.0);
+                (s.state.gamma1_mm + mesh, s.state.force_n, s.radius_mm)
+            }),
         }
     }
 }
@@ -302,7 +317,9 @@ impl ContactLaw for FeLaw {
             Some(t) => t.to_degrees(),
             None => {
                 let solved = self.state(delta_mm)?;
-                let setup = solved.twist.get_or_init(|| self.model().twist_setup(&solved.state, self.friction));
+                let disc = twist_disc(self.table.is_some());
+                let setup =
+                    solved.twist.get_or_init(|| self.model().twist_setup_over(&solved.state, self.friction, disc));
                 setup.as_ref().and_then(|s| self.model().theta1_rad_at(s, twist.abs())).map_or(0.0, f64::to_degrees)
             }
         };
@@ -364,7 +381,8 @@ pub fn frictional_truth(
     let deltas: Vec<f64> = (1..=TRUTH_PATH_STEPS).map(|i| deepest * i as f64 / TRUTH_PATH_STEPS as f64).collect();
     let states = model.normal_path(&deltas, mu, deepest / TRUTH_PATH_STEPS as f64)?;
     let gel = (layer, indenter, e1_mpa, nu1);
-    Ok(Arc::new(PathLaw { deltas, states, model, mu, gel, surface: std::sync::OnceLock::new() }))
+    let mesh = forward.tabulated_at(e1_mpa, nu1);
+    Ok(Arc::new(PathLaw { deltas, states, model, mu, gel, mesh, surface: std::sync::OnceLock::new() }))
 }
 
 /// A frictional path's states as a contact law (see [`frictional_truth`]).
@@ -373,6 +391,9 @@ struct PathLaw {
     states: Vec<fem::ContactState>,
     model: fem::forward::Model,
     mu: f64,
+    /// The rig's tabulated law at the gel, for what taking the path's mesh
+    /// to zero element size adds to gamma1 (as the fit's law has it).
+    mesh: Option<Arc<fem::tabulated::LawAt>>,
     /// The gel's surface (built when the simulated sensor first asks).
     gel: (Layer, sim::physics::Body, f64, f64),
     surface: std::sync::OnceLock<Option<Arc<sim::sensor::shape::SurfaceShape>>>,
@@ -385,6 +406,12 @@ impl std::fmt::Debug for PathLaw {
 }
 
 impl PathLaw {
+    /// What taking the path's mesh to zero element size adds to gamma1 at
+    /// `delta_mm` (docs/physics.md, "Mesh convergence").
+    fn mesh_gamma1_mm(&self, delta_mm: f64) -> f64 {
+        self.mesh.as_ref().and_then(|at| at.mesh_gamma1_mm(delta_mm)).unwrap_or(0.0)
+    }
+
     /// The two path states around `delta_mm` and the weight of the upper one
     /// (the lower is the unloaded contact below the first step).
     fn around(&self, delta_mm: f64) -> Result<(Option<&fem::ContactState>, &fem::ContactState, f64), String> {
@@ -405,7 +432,7 @@ impl ContactLaw for PathLaw {
     fn normal(&self, delta_mm: f64) -> Result<LawState, String> {
         let (lo, hi, w) = self.around(delta_mm)?;
         let mix = |f: fn(&fem::ContactState) -> f64| lo.map_or(0.0, f) * (1.0 - w) + f(hi) * w;
-        let gamma1_mm = mix(|s| s.gamma1_mm);
+        let gamma1_mm = mix(|s| s.gamma1_mm) + self.mesh_gamma1_mm(delta_mm);
         // The edge between the two states, continuous in the approach; its
         // square is what grows in proportion to the approach (Hertz: a² = R
         // delta), from nothing below the first state.

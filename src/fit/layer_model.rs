@@ -169,7 +169,7 @@ fn predict_tabulated(
     fw: &fem::forward::Forward,
 ) -> Result<Option<Vec<Prediction>>, FitError> {
     // A rig whose law cannot be tabulated is solved on the FE model throughout.
-    let Some(at) = fw.tabulated_at(p.e1_mpa, p.nu1) else {
+    let Some(at) = fw.tabulated_over(p.e1_mpa, p.nu1, super::fe_law::twist_disc(p.large_strain)) else {
         return Ok(None);
     };
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
@@ -212,6 +212,10 @@ pub(super) fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Resu
         return Ok(pred);
     }
     let model = fw.model_shared(p.e1_mpa, p.nu1);
+    // What taking the mesh to zero element size adds, as the table has it
+    // (docs/physics.md, "Mesh convergence"); none off its materials.
+    let limit = fw.tabulated_at(p.e1_mpa, p.nu1);
+    let mesh_term = |delta: f64| limit.as_ref().and_then(|t| t.mesh_gamma1_mm(delta)).unwrap_or(0.0);
     let mu = p.contact_friction.unwrap_or(f64::INFINITY);
     let deltas: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm - p.contact_offset_mm).collect();
     // At large strain the press is frictionless, as in the neo-Hookean
@@ -226,7 +230,7 @@ pub(super) fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Resu
             Entry::Occupied(e) => *e.get(),
             Entry::Vacant(e) => {
                 let st = model.normal_memo(delta)?;
-                let g = *e.insert(st.gamma1_mm);
+                let g = *e.insert(st.gamma1_mm + if delta > 0.0 { mesh_term(delta) } else { 0.0 });
                 if s.phase == Phase::Torsion {
                     twist_states.insert(delta.to_bits(), st);
                 }
@@ -257,7 +261,8 @@ pub(super) fn predict_fe(rec: &Recording, p: &ModelParams, layer: Layer) -> Resu
     for (delta, mut at) in twists {
         at.sort_by(f64::total_cmp);
         at.dedup();
-        let theta1 = match twist_states.get(&delta).and_then(|st| model.twist_setup(st, mu)) {
+        let disc = super::fe_law::twist_disc(p.large_strain);
+        let theta1 = match twist_states.get(&delta).and_then(|st| model.twist_setup_over(st, mu, disc)) {
             Some(setup) => model.theta1_rad_sweep(&setup, &at),
             None => vec![None; at.len()],
         };

@@ -245,9 +245,10 @@ const DECISIVE_MISFIT: f64 = 10.0;
 /// errors more than [`POOR_CHI2_DOF`] times over: the friction between the
 /// bodies gives that model more than one basin in (E1, friction, contact),
 /// and the paper's start can end in the wrong one. On a clean emulated run
-/// (5 mm gel, unloading back to a 1.6 mm contact, seed 4) the start from the
-/// paper's answer ended at E1 +1.6 %, friction 0.46, chi²/dof 2.6, while the
-/// typical starts find E1 +0.15 %, friction 0.41, chi²/dof 1.0.
+/// (5 mm gel, unloading back to a 1.6 mm contact, seed 4, made before the
+/// layer law was taken to zero element size) the start from the paper's
+/// answer ended at E1 +1.6 %, friction 0.46, chi²/dof 2.6, while the typical
+/// starts found E1 +0.15 %, friction 0.41, chi²/dof 1.0 (docs/physics.md).
 fn poor_on_layer(rec: &Recording, f: &FullFit) -> bool {
     full::fe_layer(rec).is_some() && f.chi2_dof.is_some_and(|c| c > POOR_CHI2_DOF)
 }
