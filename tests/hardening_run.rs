@@ -34,6 +34,31 @@ fn lcg(seed: &mut u64) -> f64 {
     (*seed >> 11) as f64 / (1u64 << 53) as f64
 }
 
+/// Wait until the child has installed its handlers for the terminating
+/// signals (Linux's `SigCgt` mask in `/proc/PID/status`). Until then a signal
+/// meets the default action — the few milliseconds between exec and the first
+/// line of `run` — and on a loaded machine those milliseconds can pass any
+/// fixed delay. Gives up (the check that follows fails) after `limit`.
+fn wait_for_handlers(pid: u32, limit: Duration) {
+    let wanted = [libc::SIGINT, libc::SIGTERM, libc::SIGHUP].iter().fold(0u64, |m, s| m | 1 << (s - 1));
+    let start = Instant::now();
+    while start.elapsed() < limit {
+        let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+        let caught = status
+            .lines()
+            .find_map(|l| l.strip_prefix("SigCgt:"))
+            .and_then(|hex| u64::from_str_radix(hex.trim(), 16).ok());
+        // An ended child (a zombie, or /proc not there) has nothing to wait for.
+        let ended = status.lines().any(|l| l.starts_with("State:") && l.contains('Z'));
+        match caught {
+            Some(mask) if mask & wanted == wanted => return,
+            None => return,
+            _ if ended => return,
+            _ => std::thread::sleep(Duration::from_millis(1)),
+        }
+    }
+}
+
 /// One run (`easycalib run` with `extra` arguments) given `signal` (0: a
 /// panic inside it) `after` its start.
 fn one_trial(
@@ -56,6 +81,9 @@ fn one_trial(
         .spawn()
         .unwrap();
     let start = Instant::now();
+    if signal != 0 {
+        wait_for_handlers(child.id(), Duration::from_secs(20));
+    }
     while start.elapsed() < after {
         if child.try_wait().unwrap().is_some() {
             break;
@@ -116,9 +144,11 @@ fn signals_at_random_points_all_end_in_the_safe_path() {
 }
 
 /// A signal while the emulated rig is still being set up (the default gel
-/// layer's model is built first, about a second) is not the default action's
-/// kill: the run aborts as soon as it starts, before anything has moved, with
-/// the same report and exit code.
+/// layer's model is built first, seconds) is not the default action's kill:
+/// the run aborts as soon as it starts, before anything has moved, with the
+/// same report and exit code. The signal comes 60 ms after the handlers are
+/// in place (a fixed delay from the spawn alone once lost that race on a
+/// loaded CI machine).
 #[test]
 fn a_signal_during_the_set_up_aborts_before_anything_moves() {
     let tmp = tempfile::tempdir().unwrap();
