@@ -138,7 +138,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let dev = calibrate(&rec, &FitOptions::default())?;
         let ind = rec.meta.indenter;
         let thickness = rec.meta.layer.ok_or("the dev recording declares its layer")?.thickness_mm;
-        let model = Forward::cached(thickness, ind.e_mpa, ind.nu, ind.r_mm)?.model(e1, nu1);
+        let forward = Forward::cached(thickness, ind.e_mpa, ind.nu, ind.r_mm)?;
+        let model = forward.model(e1, nu1);
+        // What taking the mesh to zero element size adds to gamma1, as the
+        // fit's law (and the simulated rig's truth) has it (docs/physics.md,
+        // "Mesh convergence").
+        let mesh = forward.tabulated_at(e1, nu1);
+        let mesh_mm = |delta: f64| mesh.as_ref().and_then(|at| at.mesh_gamma1_mm(delta)).unwrap_or(0.0);
         let stages: Vec<f64> = rec.samples.iter().map(|s| s.stage_mm).collect();
         let deepest = stages.iter().copied().fold(0.0, f64::max);
         let states = model.normal_path(&stages, FRICTION, deepest / 60.0)?;
@@ -154,7 +160,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     }
                     Phase::Normal => 0.0,
                 };
-                (st.gamma1_mm, t)
+                let live = st.gamma1_mm > 0.0;
+                (if live { st.gamma1_mm + mesh_mm(s.stage_mm) } else { 0.0 }, t)
             })
             .collect();
         println!(

@@ -99,6 +99,9 @@ pub struct TabulatedLaw {
     w: Axis,
     /// Every material node's curves, in [kappa][nu] order.
     curves: Curves,
+    /// Whether gamma1 is taken to zero element size (false: the layer
+    /// model's own mesh, when the finer one could not be solved).
+    mesh_limit: bool,
 }
 
 /// The tabulated quantities of one material, or of several one after the
@@ -164,18 +167,27 @@ impl TabulatedLaw {
         // gamma1 taken to zero element size from this mesh and a finer one
         // (docs/physics.md, "Mesh convergence"): the same rig on
         // MESH_FINE_MM elements pressed to the same approaches.
+        // If the finer mesh cannot be built or does not solve a node, the
+        // table keeps this mesh's gamma1 throughout and says so
+        // ([`TabulatedLaw::mesh_limit`]): a table without the limit is a
+        // worse law, not no law.
         let finer = match forward.element_mm() == FINE_MM {
-            true => {
-                let fine = forward.cached_on_mesh(MESH_FINE_MM)?;
-                let node = |&(e1, nu1): &(f64, f64)| -> Result<Vec<f64>, FemError> {
-                    let model = fine.model(e1, nu1);
-                    u.nodes.iter().map(|&x| Ok(model.normal(r2 * x * x)?.gamma1_mm / (r2 * x * x))).collect()
-                };
-                par_map(&materials, node).into_iter().map(|g| g.map(Some)).collect::<Result<Vec<_>, _>>()?
-            }
-            false => vec![None; materials.len()],
+            true => forward
+                .cached_on_mesh(MESH_FINE_MM)
+                .and_then(|fine| {
+                    let node = |&(e1, nu1): &(f64, f64)| -> Result<Vec<f64>, FemError> {
+                        let model = fine.model(e1, nu1);
+                        u.nodes.iter().map(|&x| Ok(model.normal(r2 * x * x)?.gamma1_mm / (r2 * x * x))).collect()
+                    };
+                    par_map(&materials, node).into_iter().map(|g| g.map(Some)).collect::<Result<Vec<_>, _>>()
+                })
+                .ok(),
+            false => None,
         };
-        let mut t = Self { indenter_e_mpa: e2, indenter_r_mm: r2, kappa, nu, u, w, curves: Curves::default() };
+        let mesh_limit = finer.is_some();
+        let finer = finer.unwrap_or_else(|| vec![None; materials.len()]);
+        let mut t =
+            Self { indenter_e_mpa: e2, indenter_r_mm: r2, kappa, nu, u, w, curves: Curves::default(), mesh_limit };
         for (v, finer) in solved.into_iter().zip(finer) {
             let mut v = v?;
             v.gamma_mesh = vec![0.0; v.gamma.len()];
@@ -195,6 +207,15 @@ impl TabulatedLaw {
             c.twist_edge.extend(v.twist_edge);
         }
         Ok(t)
+    }
+
+    /// Whether the tabulated gamma1 is taken to zero element size
+    /// (docs/physics.md, "Mesh convergence"); false when the finer mesh
+    /// could not be built or solved for this rig, and the table holds the
+    /// layer model's own mesh (gamma1 then reads about 1-2 µm short at a
+    /// dev-set depth).
+    pub fn mesh_limit(&self) -> bool {
+        self.mesh_limit
     }
 
     /// The approaches the table covers, mm.
@@ -424,6 +445,7 @@ mod tests {
         let fw = Forward::cached(5.0, 2.0, 0.4, 5.0).unwrap();
         let fine = fw.cached_on_mesh(MESH_FINE_MM).unwrap();
         let table = fw.tabulated().unwrap();
+        assert!(table.mesh_limit(), "the dev rig's finer mesh solves: its table is at the mesh limit");
         let [lo, hi] = table.approach_range_mm();
         let mut pts = Points(12345);
         let mut worst = [0.0f64; 4];

@@ -313,10 +313,21 @@ fn from_internal(x: &[f64], like: &ModelParams) -> ModelParams {
         e1_mpa: x[0].exp(),
         nu1: 0.5 * logistic(x[1]),
         contact_offset_mm: x[2],
-        contact_friction: x.get(3).map(|v| v.exp()),
+        contact_friction: x.get(3).map(|v| v.min(FRICTION_MAX.ln()).exp()),
         large_strain: like.large_strain,
     }
 }
+
+/// The largest friction coefficient the fit takes. Far below it the contact
+/// already sticks through every twist a sweep makes (at 1195 the twist of
+/// the neo-Hookean tableI_2 no longer depended on it; docs/physics.md), so
+/// above it the residuals do not move and a search into the full-stick basin
+/// stops there. Unbounded, ln(friction) ran to 700 and the friction to
+/// infinity, where the correction's slope times its move is infinity times
+/// zero and every residual NaN (a start at E1 0.5 MPa, nu1 0.39, friction 3
+/// on the emulated unloading run ended so).
+const FRICTION_MAX: f64 = 1e6;
+
 fn from_physical(v: &[f64], like: &ModelParams) -> ModelParams {
     ModelParams {
         e1_mpa: v[0],
