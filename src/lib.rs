@@ -1,4 +1,7 @@
 //! easycalib: the rig controller — fitting, diagnosis, the calibration run, TUI and reports.
+// Library code answers bad input with an error, never a panic: no unwrap or
+// expect outside tests (ARCHITECTURE.md, "Conventions").
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod cli;
 pub mod diagnosis;

@@ -4,6 +4,9 @@
 //! transport (`AsyncRead + AsyncWrite`), so the same code runs over a USB
 //! serial port, a pseudo-terminal to an emulator, or an in-memory pipe in a
 //! unit test.
+// Library code answers bad input with an error, never a panic: no unwrap or
+// expect outside tests (ARCHITECTURE.md, "Conventions").
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod apt;
 pub mod discovery;

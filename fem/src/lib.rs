@@ -9,7 +9,9 @@
 //! Bilinear quadrilaterals with selective reduced integration, a banded Cholesky
 //! factor per body, each body condensed to its contact-surface compliance, and an
 //! active set for the contact.
-
+// Library code answers bad input with an error, never a panic: no unwrap or
+// expect outside tests (ARCHITECTURE.md, "Conventions").
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
 // Matrix code reads as the algebra it implements: index loops on purpose.
 #![allow(clippy::needless_range_loop)]
 

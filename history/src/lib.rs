@@ -6,6 +6,9 @@
 //! migrated on open; writes are transactions and idempotent, so a retried or
 //! queued write lands exactly once. [`change`] says whether a new calibration
 //! moved beyond what the intervals and the rig's repeatability explain.
+// Library code answers bad input with an error, never a panic: no unwrap or
+// expect outside tests (ARCHITECTURE.md, "Conventions").
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod change;
 pub mod export;

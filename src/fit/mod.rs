@@ -107,7 +107,10 @@ pub fn calibrate(rec: &Recording, opts: &FitOptions) -> Result<Calibration, FitE
         warnings.push(Warning::new(
             "layer_mesh_coarse",
             format!(
-                "the layer model's finer mesh could not be solved for this rig (a {} mm gel under a {} mm indenter):                  its gamma1 is that of the {} mm mesh, not taken to zero element size, and reads 1-2 µm short at                  the depth of a full sweep (docs/physics.md, \"Mesh convergence\"); E1 may be biased by a few                  tenths of a percent beyond its interval",
+                "the layer model's finer mesh could not be solved for this rig (a {} mm gel under a {} mm indenter): \
+                 its gamma1 is that of the {} mm mesh, not taken to zero element size, and reads 1-2 µm short at \
+                 the depth of a full sweep (docs/physics.md, \"Mesh convergence\"); E1 may be biased by a few \
+                 tenths of a percent beyond its interval",
                 l.thickness_mm,
                 rec.meta.indenter.r_mm,
                 fem::forward::FINE_MM
@@ -308,11 +311,10 @@ fn paper_warnings(p: &PaperFit) -> Vec<Warning> {
     w
 }
 
-/// A linear recording of the dev set (`tests/data/fem-dev/linear`), for the
-/// fit's unit tests.
 /// Whether the rig's tabulated layer law takes gamma1 to zero element size
-/// (true also where there is no table: the fit's fallback then says so
-/// itself, and a rig without a table has nothing to warn of here).
+/// (true also where no table could be built at all: the fit then solves the
+/// FE model at every sample, on its own mesh without the term, and no
+/// warning says so yet).
 fn layer_table_at_mesh_limit(rec: &Recording, layer: &sim::physics::Layer) -> bool {
     let ind = rec.meta.indenter;
     crate::layer::forward(layer, ind.e_mpa, ind.nu, ind.r_mm)
@@ -321,6 +323,8 @@ fn layer_table_at_mesh_limit(rec: &Recording, layer: &sim::physics::Layer) -> bo
         .is_none_or(|t| t.mesh_limit())
 }
 
+/// A linear recording of the dev set (`tests/data/fem-dev/linear`), for the
+/// fit's unit tests.
 #[cfg(test)]
 pub(crate) fn dev_recording(name: &str) -> sim::recording::Recording {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fem-dev/linear").join(name);
