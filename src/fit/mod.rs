@@ -426,6 +426,18 @@ mod tests {
         assert!(e1.abs() < 2.0 && nu1.abs() < 2.0, "E1 {e1:+.2} %, nu1 {nu1:+.2} %");
     }
 
+    /// The emulated unloading run (E1 0.33, nu1 0.39, friction 0.4) of the
+    /// basin-rescue tests.
+    fn unloading_run() -> Recording {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rig/layer_unload_small_contact.csv");
+        Recording::read_path(&path).unwrap()
+    }
+
+    /// A start on that run that ends in the friction's full-stick basin.
+    const STUCK_START: ModelParams =
+        ModelParams { e1_mpa: 0.5, nu1: 0.2, contact_offset_mm: 0.0, contact_friction: Some(3.0), large_strain: false };
+
     /// A layer fit that ends in the friction's full-stick basin fits the
     /// recording's own standard errors badly, and the typical starts then
     /// find the optimum. On the emulated unloading run (E1 0.33, nu1 0.39,
@@ -436,17 +448,9 @@ mod tests {
     /// friction ran to infinity and every residual to NaN).
     #[test]
     fn a_fit_stuck_in_the_friction_basin_is_rescued_by_the_typical_starts() {
-        let path =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rig/layer_unload_small_contact.csv");
-        let rec = Recording::read_path(&path).unwrap();
+        let rec = unloading_run();
         let opts = FitOptions::default();
-        let stuck = ModelParams {
-            e1_mpa: 0.5,
-            nu1: 0.2,
-            contact_offset_mm: 0.0,
-            contact_friction: Some(3.0),
-            large_strain: false,
-        };
+        let stuck = STUCK_START;
         let alone = fit_full(&rec, &opts.full, stuck).expect("the stuck start gives an answer, not an error");
         println!(
             "alone: E1 {:+.2} %, friction {:?}, chi2/dof {:?}",
@@ -487,20 +491,12 @@ mod tests {
     /// then find the optimum; a good fit of a dev-set recording is left alone.
     #[test]
     fn a_stuck_fit_without_recorded_errors_is_rescued_too() {
-        let path =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rig/layer_unload_small_contact.csv");
-        let mut rec = Recording::read_path(&path).unwrap();
+        let mut rec = unloading_run();
         for s in rec.samples.iter_mut() {
             (s.gamma1_sd_mm, s.theta1_sd_deg) = (None, None);
         }
         let opts = FitOptions::default();
-        let stuck = ModelParams {
-            e1_mpa: 0.5,
-            nu1: 0.2,
-            contact_offset_mm: 0.0,
-            contact_friction: Some(3.0),
-            large_strain: false,
-        };
+        let stuck = STUCK_START;
         let alone = fit_full(&rec, &opts.full, stuck).unwrap();
         println!(
             "alone: E1 {:+.2} %, friction {:?}, rms {:?}, floor {:?}",
